@@ -1,0 +1,322 @@
+"""``mistool.toml``: what the pixels of a sequence mean, its frame rate and its camera.
+
+Layout (every key optional; no file at all means EndoVis'15 defaults)::
+
+    fps = 25.0
+    source = "Video.avi"        # the procedure's own video or RGB frame folder (viewer)
+    labels = "endovis15"        # label preset: endovis15 | endovis17 | ternaus
+    min_area_px = 20            # connected specks smaller than this are ignored
+    shaft_diameter_mm = 8.0     # defaults for instruments without their own table
+    clasper_length_mm = 10.0
+
+    [parts]                     # override the preset's shared part values
+    shaft = 160                 # a value, an inclusive [lo, hi] range, or "#rrggbb"
+    clasper = [60, 80]
+
+    [camera]                    # enables metric 3D
+    fx = 580.0
+    fy = 580.0
+    cx = 359.5
+    cy = 287.5
+
+    [[instrument]]              # one table per instrument with its own label values
+    name = "1"
+    shaft = 160
+    clasper = 70
+    shaft_diameter_mm = 8.0
+    clasper_length_mm = 10.0
+
+Without ``[[instrument]]`` tables every instrument shares the part values (EndoVis'17
+merged masks) and instruments are told apart by connectivity.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from mistool.errors import ConfigError
+from mistool.model import PARTS
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+CONFIG_NAME = "mistool.toml"
+
+#: Label presets: part -> label value (single-channel masks).
+PRESETS: dict[str, dict[str, int]] = {
+    "endovis15": {"shaft": 160, "clasper": 70},
+    "endovis17": {"shaft": 10, "wrist": 20, "clasper": 30},
+    "ternaus": {"shaft": 85, "wrist": 170, "clasper": 255},
+}
+
+#: Value ranges are inclusive ``(lo, hi)`` of label values. Colours ``#rrggbb`` are packed
+#: as ``r << 16 | g << 8 | b`` (see :func:`pack_rgb`), the value colour frames are read as.
+ValueRange = tuple[int, int]
+
+
+def pack_rgb(r: int, g: int, b: int) -> int:
+    """Pack an RGB colour into the single integer label colour frames are read as."""
+    return (int(r) << 16) | (int(g) << 8) | int(b)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole intrinsics (px). Lens distortion is assumed already removed."""
+
+    fx: float
+    """Focal length along x (px), > 0."""
+    fy: float
+    """Focal length along y (px), > 0."""
+    cx: float
+    """Principal point x (px)."""
+    cy: float
+    """Principal point y (px)."""
+
+    @property
+    def K(self) -> Any:  # noqa: N802 - the usual name of the intrinsic matrix
+        """The 3x3 intrinsic matrix, float64."""
+        import numpy as np
+
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class InstrumentSpec:
+    """One instrument with its own label values."""
+
+    name: str
+    """Instrument name, as written in the motion table's ``instrument`` column."""
+    parts: dict[str, ValueRange]
+    """Part name -> inclusive label value range; parts in :data:`~mistool.model.PARTS`."""
+    shaft_diameter_mm: float | None = None
+    """Shaft diameter (mm), needed for metric 3D."""
+    clasper_length_mm: float | None = None
+    """Clasper length, joint to tip (mm)."""
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything mistool needs to know about a sequence."""
+
+    fps: float = 25.0
+    """Frames per second of the sequence."""
+    source: Path | None = None
+    """The procedure's own video (or RGB frame folder), absolute, or None."""
+    labels: str = "endovis15"
+    """Name of the label preset the shared part values came from."""
+    parts: dict[str, ValueRange] = field(
+        default_factory=lambda: {p: (v, v) for p, v in PRESETS["endovis15"].items()})
+    """Shared part values (merged masks): part -> inclusive range."""
+    camera: Camera | None = None
+    """Camera intrinsics, or None (then no metric 3D)."""
+    instruments: tuple[InstrumentSpec, ...] = ()
+    """Instruments with their own label values; empty means merged masks."""
+    min_area_px: int = 20
+    """Connected components smaller than this (px) are ignored as specks."""
+    shaft_diameter_mm: float | None = 8.0
+    """Default shaft diameter (mm) for instruments without their own value."""
+    clasper_length_mm: float | None = 10.0
+    """Default clasper length (mm) for instruments without their own value."""
+    colour_masks: bool = False
+    """True when parts are given as ``#rrggbb`` colours: frames are read as packed RGB."""
+    path: Path | None = None
+    """The file this config was read from, if any."""
+
+    def part_names(self) -> tuple[str, ...]:
+        """The parts this config can produce, proximal to distal."""
+        names = set(self.parts)
+        for inst in self.instruments:
+            names |= set(inst.parts)
+        return tuple(p for p in PARTS if p in names)
+
+    def shaft_diameter_for(self, instrument: str) -> float | None:
+        """Shaft diameter (mm) of an instrument by name, falling back to the default."""
+        for inst in self.instruments:
+            if inst.name == instrument and inst.shaft_diameter_mm is not None:
+                return inst.shaft_diameter_mm
+        return self.shaft_diameter_mm
+
+    def clasper_length_for(self, instrument: str) -> float | None:
+        """Clasper length (mm) of an instrument by name, falling back to the default."""
+        for inst in self.instruments:
+            if inst.name == instrument and inst.clasper_length_mm is not None:
+                return inst.clasper_length_mm
+        return self.clasper_length_mm
+
+    def with_overrides(self, **changes: Any) -> Config:
+        """A copy with the given fields replaced (command-line options override the file);
+        ``None`` values are ignored."""
+        return replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+
+
+_TOP_KEYS = {"fps", "source", "labels", "min_area_px", "shaft_diameter_mm",
+             "clasper_length_mm", "parts", "camera", "instrument"}
+_INSTRUMENT_KEYS = {"name", "shaft_diameter_mm", "clasper_length_mm", *PARTS}
+
+
+def _where(path: Path | None) -> str:
+    return str(path) if path is not None else CONFIG_NAME
+
+
+def _number(value: Any, key: str, where: str, *, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
+    if positive and value <= 0:
+        raise ConfigError(f"{where}: {key} must be > 0, got {value!r}")
+    return float(value)
+
+
+def _value_range(value: Any, key: str, where: str) -> tuple[ValueRange, bool]:
+    """Parse a part's label spec; returns (inclusive range, is_colour)."""
+    if isinstance(value, str):
+        text = value.strip()
+        if len(text) == 7 and text[0] == "#":
+            try:
+                r, g, b = (int(text[i:i + 2], 16) for i in (1, 3, 5))
+            except ValueError:
+                pass
+            else:
+                packed = pack_rgb(r, g, b)
+                return (packed, packed), True
+        raise ConfigError(f"{where}: {key} = {value!r} is not a label value, [lo, hi] range "
+                          "or \"#rrggbb\" colour")
+    if isinstance(value, int) and not isinstance(value, bool):
+        lo = hi = value
+    elif (isinstance(value, list) and len(value) == 2
+          and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
+        lo, hi = value
+    else:
+        raise ConfigError(f"{where}: {key} must be an integer label value, an inclusive "
+                          f"[lo, hi] range or a \"#rrggbb\" colour, got {value!r}")
+    if lo < 0 or hi > 65535:
+        raise ConfigError(f"{where}: {key} = {value!r} is outside the label range 0..65535")
+    if lo > hi:
+        raise ConfigError(f"{where}: {key} = [{lo}, {hi}] is a reversed range; "
+                          f"write [{hi}, {lo}]")
+    return (lo, hi), False
+
+
+def _parts(table: Mapping[str, Any], where: str, prefix: str) -> tuple[dict[str, ValueRange], bool]:
+    parts: dict[str, ValueRange] = {}
+    colour = False
+    for part in PARTS:
+        if part in table:
+            parts[part], is_colour = _value_range(table[part], f"{prefix}{part}", where)
+            colour |= is_colour
+    return parts, colour
+
+
+def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Config:
+    """Build and validate a :class:`Config` from parsed TOML (``path`` names it in errors
+    and anchors a relative ``source``)."""
+    where = _where(path)
+    unknown = sorted(set(data) - _TOP_KEYS)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; "
+                          f"allowed: {', '.join(sorted(_TOP_KEYS))}")
+    kwargs: dict[str, Any] = {"path": path}
+    if "fps" in data:
+        kwargs["fps"] = _number(data["fps"], "fps", where, positive=True)
+    if "min_area_px" in data:
+        v = data["min_area_px"]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ConfigError(f"{where}: min_area_px must be an integer >= 0, got {v!r}")
+        kwargs["min_area_px"] = v
+    for key in ("shaft_diameter_mm", "clasper_length_mm"):
+        if key in data:
+            kwargs[key] = _number(data[key], key, where, positive=True)
+    if "source" in data:
+        if not isinstance(data["source"], str) or not data["source"]:
+            raise ConfigError(f"{where}: source must be a path string, got {data['source']!r}")
+        src = Path(data["source"]).expanduser()
+        if not src.is_absolute() and path is not None:
+            src = path.parent / src
+        kwargs["source"] = src
+    labels = data.get("labels", "endovis15")
+    if labels not in PRESETS:
+        raise ConfigError(f"{where}: labels = {labels!r} is not a preset; "
+                          f"choose one of {', '.join(PRESETS)}")
+    kwargs["labels"] = labels
+    parts = {p: (v, v) for p, v in PRESETS[labels].items()}
+    colour = False
+    if "parts" in data:
+        if not isinstance(data["parts"], dict):
+            raise ConfigError(f"{where}: [parts] must be a table")
+        extra = sorted(set(data["parts"]) - set(PARTS))
+        if extra:
+            raise ConfigError(f"{where}: unknown key(s) in [parts]: {', '.join(extra)}; "
+                              f"allowed: {', '.join(PARTS)}")
+        override, colour = _parts(data["parts"], where, "parts.")
+        parts.update(override)
+    kwargs["parts"] = parts
+    if "camera" in data:
+        cam = data["camera"]
+        if not isinstance(cam, dict):
+            raise ConfigError(f"{where}: [camera] must be a table with fx, fy, cx, cy")
+        extra = sorted(set(cam) - {"fx", "fy", "cx", "cy"})
+        missing = sorted({"fx", "fy", "cx", "cy"} - set(cam))
+        if extra:
+            raise ConfigError(f"{where}: unknown key(s) in [camera]: {', '.join(extra)}; "
+                              "allowed: fx, fy, cx, cy")
+        if missing:
+            raise ConfigError(f"{where}: [camera] is missing {', '.join(missing)}")
+        kwargs["camera"] = Camera(
+            fx=_number(cam["fx"], "camera.fx", where, positive=True),
+            fy=_number(cam["fy"], "camera.fy", where, positive=True),
+            cx=_number(cam["cx"], "camera.cx", where),
+            cy=_number(cam["cy"], "camera.cy", where))
+    instruments: list[InstrumentSpec] = []
+    tables = data.get("instrument", [])
+    if not isinstance(tables, list):
+        raise ConfigError(f"{where}: instrument must be an array of tables ([[instrument]])")
+    for i, table in enumerate(tables):
+        tag = f"instrument[{i}]"
+        if not isinstance(table, dict):
+            raise ConfigError(f"{where}: {tag} must be a table")
+        extra = sorted(set(table) - _INSTRUMENT_KEYS)
+        if extra:
+            raise ConfigError(f"{where}: unknown key(s) in {tag}: {', '.join(extra)}; "
+                              f"allowed: {', '.join(sorted(_INSTRUMENT_KEYS))}")
+        name = table.get("name", str(i + 1))
+        if not isinstance(name, (str, int)) or isinstance(name, bool) or str(name) == "":
+            raise ConfigError(f"{where}: {tag}.name must be a non-empty string, got {name!r}")
+        name = str(name)
+        if any(inst.name == name for inst in instruments):
+            raise ConfigError(f"{where}: {tag}.name {name!r} is used twice")
+        inst_parts, inst_colour = _parts(table, where, f"{tag}.")
+        colour |= inst_colour
+        if not inst_parts:
+            raise ConfigError(f"{where}: {tag} ({name}) gives no part values; "
+                              f"set at least one of {', '.join(PARTS)}")
+        dims = {k: _number(table[k], f"{tag}.{k}", where, positive=True)
+                for k in ("shaft_diameter_mm", "clasper_length_mm") if k in table}
+        instruments.append(InstrumentSpec(name=name, parts=inst_parts, **dims))
+    kwargs["instruments"] = tuple(instruments)
+    kwargs["colour_masks"] = colour
+    return Config(**kwargs)
+
+
+def load_config(path: str | Path) -> Config:
+    """Read ``mistool.toml`` from a file, or from a sequence folder (defaults when the
+    folder has none). Raises :class:`ConfigError` with the file name on any problem."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / CONFIG_NAME
+        if not p.exists():
+            return Config()
+    try:
+        with p.open("rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: invalid TOML: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    return config_from_dict(data, p)
