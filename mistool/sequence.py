@@ -1,0 +1,467 @@
+"""Reading mask sequences, one frame at a time (memory does not grow with their length).
+
+A *sequence* is one of:
+
+- a **folder of label images**: every file with an image extension (``.png``, ``.bmp``,
+  ``.tif``/``.tiff``, ``.pgm``/``.ppm``, ``.jpg``/``.jpeg``, ``.webp``) is a frame; frame
+  order is the *natural* sort of the names (``frame2.png`` before ``frame10.png``). Other
+  files (``mistool.toml``, ``truth.csv``, ``README``), hidden files and sub-folders are
+  ignored. A file with an image extension that does not decode is an error.
+- a **mask video** (``.avi``, ``.mp4``, ``.mov``, ``.mkv``, ``.m4v``, ``.mpg``/``.mpeg``,
+  ``.wmv``), e.g. EndoVis'15 ``Segmentation.avi``, read with OpenCV's FFmpeg backend.
+- an **iterable of numpy arrays** (a segmentation network's own loop, in-process).
+
+``mistool.toml`` beside the frames (in the folder, or beside the video) says what the
+pixel values mean; see :mod:`mistool.config`.
+
+Pixel formats, each turned into one integer *label image* of shape ``(H, W)``:
+
+- 8-bit or 16-bit single-channel images: the pixel values are the labels (uint8/uint16).
+- palette PNGs: the palette **index** is the label (OpenCV expands palettes to colours, so
+  the colours are mapped back to indices with the file's ``PLTE`` chunk; palette entries
+  that share one colour cannot be told apart and read as the lowest such index).
+- 3- or 4-channel images whose colour channels are equal (grey saved as RGB, alpha
+  ignored): the shared channel.
+- colour masks, when the config gives parts as ``"#rrggbb"`` colours
+  (``Config.colour_masks``): each pixel is packed as ``r << 16 | g << 8 | b`` (uint32), the
+  same packing as :func:`mistool.config.pack_rgb`; grey pixels pack as ``r = g = b``.
+  Numpy arrays given by the caller are taken as **RGB**; files are decoded as BGR and
+  packed accordingly.
+
+Mask videos: the lossy codec smears label values around each part's edges (the reason the
+paper masks by *intensity range*). For video input every part given as a single value
+``v`` is widened to ``[v - t, v + t]`` with ``t =`` :data:`VIDEO_TOLERANCE` (15), narrowed
+where needed so that the ranges of different values never overlap; parts given as
+``[lo, hi]`` ranges are used as given. Colour-masked videos are packed exactly (no
+tolerance), so they only work with a lossless codec. Grey videos are converted to one
+channel with OpenCV's BGR-to-grey conversion.
+
+OpenCV's own warnings about corrupt files are silenced (log level ERROR) while mistool
+reads a sequence: mistool reports them itself as one-line :class:`MistoolError`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import struct
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from mistool.config import CONFIG_NAME, Config, ValueRange, load_config
+from mistool.errors import InputPathError, MaskFormatError
+
+IMAGE_EXTENSIONS: frozenset[str] = frozenset(
+    {".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".jpg", ".jpeg", ".webp"})
+VIDEO_EXTENSIONS: frozenset[str] = frozenset(
+    {".avi", ".mp4", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv"})
+#: Half-width (label units) of the range a single label value is widened to in mask videos.
+VIDEO_TOLERANCE: int = 15
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def natural_key(name: str) -> tuple[Any, ...]:
+    """Sort key that orders the numbers inside names numerically (``a2`` < ``a10``)."""
+    chunks = re.split(r"(\d+)", name)
+    return tuple(int(c) if i % 2 else c.lower() for i, c in enumerate(chunks)) + (name,)
+
+
+def _quiet_opencv() -> None:
+    """Silence OpenCV's/FFmpeg's own stderr warnings; mistool reports problems itself."""
+    try:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    except AttributeError:  # pragma: no cover - very old OpenCV
+        pass
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+
+
+# --- pixel formats ---------------------------------------------------------------------
+
+
+def _png_palette(data: bytes) -> np.ndarray | None:
+    """The PLTE of a palette PNG as packed ``r<<16|g<<8|b`` (uint32, one per index), or
+    None when ``data`` is not a palette PNG."""
+    if len(data) < 33 or not data.startswith(_PNG_SIGNATURE) or data[25] != 3:
+        return None
+    pos = 8
+    while pos + 8 <= len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        if kind == b"PLTE":
+            rgb = np.frombuffer(data[pos + 8:pos + 8 + length], dtype=np.uint8)
+            rgb = rgb[: len(rgb) // 3 * 3].reshape(-1, 3).astype(np.uint32)
+            return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
+        if kind in (b"IDAT", b"IEND"):
+            return None
+        pos += 12 + length
+    return None
+
+
+def _pack_bgr(img: np.ndarray) -> np.ndarray:
+    """(H, W, >=3) uint8 BGR -> (H, W) uint32 ``r<<16|g<<8|b``."""
+    b, g, r = (img[..., i].astype(np.uint32) for i in range(3))
+    return (r << 16) | (g << 8) | b
+
+
+def _palette_indices(img: np.ndarray, palette: np.ndarray, where: str) -> np.ndarray:
+    """Map a palette PNG decoded to BGR back to its palette indices, (H, W) uint8."""
+    packed = _pack_bgr(img)
+    keys, first = np.unique(palette, return_index=True)  # lowest index per colour
+    pos = np.searchsorted(keys, packed).clip(0, len(keys) - 1)
+    if not np.array_equal(keys[pos], packed):
+        raise MaskFormatError(f"{where}: palette PNG has colours outside its palette")
+    return first[pos].astype(np.uint8)
+
+
+def to_labels(img: np.ndarray, where: str, *, colour: bool, order: str = "bgr",
+              palette: np.ndarray | None = None) -> np.ndarray:
+    """Turn a decoded image or a caller's array into an ``(H, W)`` integer label image.
+
+    Args:
+        img: ``(H, W)``, ``(H, W, 1)``, ``(H, W, 3)`` or ``(H, W, 4)`` array.
+        where: file or frame name used in error messages.
+        colour: pack colours as ``r<<16|g<<8|b`` (uint32) instead of requiring grey.
+        order: channel order of ``img``: ``"bgr"`` (OpenCV-decoded) or ``"rgb"`` (caller).
+        palette: packed PLTE colours when ``img`` was a palette PNG (then, unless
+            ``colour``, the label is the palette index).
+
+    Returns:
+        uint8/uint16 labels, or uint32 packed colours when ``colour``.
+    """
+    arr = np.asarray(img)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.ndim == 2:
+        arr = _integer_labels(arr, where)
+        if colour:
+            if arr.dtype != np.uint8:
+                raise MaskFormatError(f"{where}: colour masks (\"#rrggbb\" in mistool.toml) "
+                                      f"need 8-bit images, got {arr.dtype}")
+            v = arr.astype(np.uint32)
+            return (v << 16) | (v << 8) | v
+        return arr
+    if arr.ndim != 3 or arr.shape[2] not in (3, 4) or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise MaskFormatError(f"{where}: expected a label image of shape (H, W) or "
+                              f"(H, W, 3), got shape {arr.shape}")
+    arr = arr[..., :3]
+    if order == "rgb":
+        arr = arr[..., ::-1]
+    if colour:
+        if arr.dtype != np.uint8:
+            raise MaskFormatError(f"{where}: colour masks need 8-bit images, got {arr.dtype}")
+        return _pack_bgr(arr)
+    if palette is not None:
+        return _palette_indices(arr, palette, where)
+    c0 = arr[..., 0]
+    if not (np.array_equal(c0, arr[..., 1]) and np.array_equal(c0, arr[..., 2])):
+        raise MaskFormatError(
+            f"{where}: colour pixels (channels differ) but mistool.toml gives grey label "
+            "values; give the parts as \"#rrggbb\" colours in [parts] or [[instrument]]")
+    return _integer_labels(np.ascontiguousarray(c0), where)
+
+
+def _integer_labels(arr: np.ndarray, where: str) -> np.ndarray:
+    """Single-channel array -> uint8/uint16 labels (caller arrays may be int64, bool...)."""
+    if arr.dtype in (np.uint8, np.uint16):
+        return arr
+    if arr.dtype == np.bool_:
+        return arr.astype(np.uint8)
+    if arr.dtype.kind == "f":
+        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
+            raise MaskFormatError(f"{where}: expected integer label values, got "
+                                  f"non-integer {arr.dtype} pixels")
+    elif arr.dtype.kind not in "iu":
+        raise MaskFormatError(f"{where}: expected an integer label image, got dtype "
+                              f"{arr.dtype}")
+    if arr.size == 0:
+        raise MaskFormatError(f"{where}: empty image, shape {arr.shape}")
+    lo, hi = arr.min(), arr.max()
+    if lo < 0 or hi > 65535:
+        raise MaskFormatError(f"{where}: label values must be in 0..65535, found "
+                              f"{lo}..{hi}")
+    return arr.astype(np.uint8 if hi <= 255 else np.uint16)
+
+
+def read_label_image(path: Path, *, colour: bool = False) -> np.ndarray:
+    """Decode one label image file into an ``(H, W)`` label image (see module docs).
+
+    Raises:
+        MaskFormatError: the file does not decode, or its pixels are not labels.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputPathError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) \
+        if data else None
+    if img is None:
+        raise MaskFormatError(f"{path}: cannot decode as an image (corrupt, truncated or "
+                              "not an image file)")
+    palette = _png_palette(data) if img.ndim == 3 else None
+    return to_labels(img, str(path), colour=colour, palette=palette)
+
+
+# --- sequences -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame of a sequence, not decoded yet (``load`` is thread-safe)."""
+
+    index: int
+    """0-based position in the sequence."""
+    name: str
+    """File name (folders), ``"<video>#<index>"`` (videos) or ``"frame <index>"`` (arrays)."""
+    load: Callable[[], np.ndarray]
+    """Decode the frame: returns the ``(H, W)`` integer label image."""
+
+
+class MaskSequence:
+    """A streaming sequence of label images.
+
+    Iterating yields ``(index, name, labels)`` one frame at a time, decoding on the way;
+    :meth:`frames` yields undecoded :class:`Frame` handles so a caller can decode in
+    worker threads (then it must call :meth:`check_shape` in frame order).
+    """
+
+    def __init__(self, kind: str, name: str, config: Config,
+                 frames: Callable[[], Iterator[Frame]], num_frames: int | None,
+                 path: Path | None = None) -> None:
+        self.kind = kind
+        """``"folder"``, ``"video"`` or ``"arrays"``."""
+        self.name = name
+        """A short name for the sequence (folder or video stem; ``"arrays"``)."""
+        self.config = config
+        """The effective config (for videos, single label values widened; module docs)."""
+        self.num_frames = num_frames
+        """Number of frames, or None when unknown (iterables; videos are approximate)."""
+        self.path = path
+        """The folder or video file, or None for arrays."""
+        self.shape: tuple[int, int] | None = None
+        """``(H, W)`` of the frames, once the first frame was checked."""
+        self._frames = frames
+
+    def frames(self) -> Iterator[Frame]:
+        """Undecoded frames in order."""
+        return self._frames()
+
+    def check_shape(self, frame: Frame | str, shape: tuple[int, ...]) -> None:
+        """Record the first frame's ``(H, W)``; raise if a later frame's size differs.
+
+        Args:
+            frame: the frame (or its name, for the message).
+            shape: the frame's label image shape, ``(H, W)`` first.
+        """
+        shape = (int(shape[0]), int(shape[1]))
+        if self.shape is None:
+            self.shape = shape
+        elif shape != self.shape:
+            name = frame.name if isinstance(frame, Frame) else frame
+            raise MaskFormatError(
+                f"{name}: frame size changed mid-sequence: {shape[1]}x{shape[0]} px, "
+                f"earlier frames are {self.shape[1]}x{self.shape[0]} px")
+
+    def __iter__(self) -> Iterator[tuple[int, str, np.ndarray]]:
+        for frame in self.frames():
+            labels = frame.load()
+            self.check_shape(frame, labels.shape)
+            yield frame.index, frame.name, labels
+
+    def __repr__(self) -> str:
+        return f"MaskSequence({self.kind} {self.name!r}, {self.num_frames} frames)"
+
+
+def list_frames(folder: Path) -> list[Path]:
+    """The label image files of a folder in natural order (other files ignored)."""
+    try:
+        entries = list(os.scandir(folder))
+    except OSError as exc:
+        raise InputPathError(f"{folder}: cannot list folder: {exc.strerror or exc}") from None
+    files = [Path(e.path) for e in entries
+             if not e.name.startswith(".") and Path(e.name).suffix.lower() in IMAGE_EXTENSIONS
+             and e.is_file()]
+    return sorted(files, key=lambda p: natural_key(p.name))
+
+
+def resolve(path: str | Path) -> tuple[Path, Config]:
+    """A sequence path (folder or mask video) and its ``mistool.toml`` (or defaults).
+
+    The config is read from the folder itself, or from the folder holding the video.
+
+    Raises:
+        InputPathError: the path does not exist or is neither a folder nor a mask video.
+        ConfigError: ``mistool.toml`` is invalid.
+    """
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise InputPathError(f"{p}: no such file or folder; expected a folder of label "
+                             "images or a mask video")
+    if p.is_dir():
+        return p, load_config(p)
+    if p.suffix.lower() in VIDEO_EXTENSIONS:
+        return p, load_config(p.parent)
+    if p.name == CONFIG_NAME:
+        return p.parent, load_config(p)
+    raise InputPathError(f"{p}: not a folder of label images or a mask video "
+                         f"({', '.join(sorted(VIDEO_EXTENSIONS))})")
+
+
+def open_sequence(source: str | Path | Iterable[np.ndarray],
+                  config: Config | None = None) -> MaskSequence:
+    """Open a sequence for streaming (nothing is decoded yet, except a video's header).
+
+    Args:
+        source: a folder of label images, a mask video file, or an iterable of ``(H, W)``
+            (or ``(H, W, 3)`` RGB) integer arrays.
+        config: what the pixels mean; None reads ``mistool.toml`` beside the frames
+            (defaults for arrays).
+
+    Raises:
+        InputPathError: missing path, or a folder without label images.
+        MaskFormatError: a video that cannot be opened or read.
+        ConfigError: an invalid ``mistool.toml``.
+    """
+    _quiet_opencv()
+    if isinstance(source, (str, os.PathLike)):
+        path, found = resolve(source)
+        config = config if config is not None else found
+        if path.is_dir():
+            return _open_folder(path, config)
+        return _open_video(path, config)
+    if isinstance(source, np.ndarray) and source.ndim == 2:
+        raise MaskFormatError("source: got one (H, W) array; pass a list of frames, "
+                              "e.g. [labels]")
+    return _open_arrays(source, config if config is not None else Config())
+
+
+def _open_folder(folder: Path, config: Config) -> MaskSequence:
+    files = list_frames(folder)
+    if not files:
+        videos = sorted(p.name for p in folder.iterdir()
+                        if p.suffix.lower() in VIDEO_EXTENSIONS)
+        hint = (f"; to read a mask video pass the file itself, e.g. {folder / videos[0]}"
+                if videos else "")
+        raise InputPathError(f"{folder}: no label images "
+                             f"({', '.join(sorted(IMAGE_EXTENSIONS))}) in this folder{hint}")
+    colour = config.colour_masks
+
+    def frames() -> Iterator[Frame]:
+        for i, f in enumerate(files):
+            yield Frame(i, f.name, _loader(f, colour))
+
+    return MaskSequence("folder", folder.resolve().name or str(folder), config, frames,
+                        len(files), folder)
+
+
+def _loader(path: Path, colour: bool) -> Callable[[], np.ndarray]:
+    return lambda: read_label_image(path, colour=colour)
+
+
+def widen_for_video(config: Config, tolerance: int = VIDEO_TOLERANCE) -> Config:
+    """The config with every single label value ``v`` widened to ``[v-t, v+t]`` (ranges
+    kept), ``t`` narrowed so that ranges of different values never overlap."""
+    if config.colour_masks or tolerance <= 0:
+        return config
+    others = sorted(set(_all_ranges(config)))
+
+    def widen(r: ValueRange) -> ValueRange:
+        lo, hi = r
+        if lo != hi:
+            return r
+        t = tolerance
+        for olo, ohi in others:
+            if (olo, ohi) == r:
+                continue
+            if ohi < lo:
+                t = min(t, (lo - ohi - 1) // 2)
+            elif olo > hi:
+                t = min(t, (olo - hi - 1) // 2)
+        t = max(t, 0)
+        return max(lo - t, 1 if lo > 0 else 0), hi + t
+
+    parts = {p: widen(r) for p, r in config.parts.items()}
+    instruments = tuple(replace(inst, parts={p: widen(r) for p, r in inst.parts.items()})
+                        for inst in config.instruments)
+    return replace(config, parts=parts, instruments=instruments)
+
+
+def _all_ranges(config: Config) -> list[ValueRange]:
+    ranges = list(config.parts.values())
+    for inst in config.instruments:
+        ranges += list(inst.parts.values())
+    return ranges
+
+
+def _open_video(path: Path, config: Config) -> MaskSequence:
+    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    ok = cap.isOpened()
+    count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
+    ok = ok and cap.read()[0]
+    cap.release()
+    if not ok:
+        raise MaskFormatError(f"{path}: cannot read as a video (corrupt, unsupported codec "
+                              "or not a video file)")
+    colour = config.colour_masks
+    stem = path.stem
+
+    def frames() -> Iterator[Frame]:
+        vc = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+        try:
+            index = 0
+            while True:
+                ok, img = vc.read()
+                if not ok:
+                    break
+                where = f"{path}#{index}"
+                if colour:
+                    labels = _pack_bgr(img) if img.ndim == 3 else to_labels(
+                        img, where, colour=True)
+                elif img.ndim == 3:
+                    labels = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+                else:
+                    labels = to_labels(img, where, colour=False)
+                yield Frame(index, f"{path.name}#{index}", _constant(labels))
+                index += 1
+            if index == 0:
+                raise MaskFormatError(f"{path}: the video has no readable frame")
+        finally:
+            vc.release()
+
+    return MaskSequence("video", stem, widen_for_video(config), frames,
+                        count if count > 0 else None, path)
+
+
+def _constant(labels: np.ndarray) -> Callable[[], np.ndarray]:
+    return lambda: labels
+
+
+def _open_arrays(source: Iterable[np.ndarray], config: Config) -> MaskSequence:
+    try:
+        iterator_source = iter(source)
+    except TypeError:
+        raise MaskFormatError(f"source: expected a path or an iterable of label arrays, "
+                              f"got {type(source).__name__}") from None
+    try:
+        count: int | None = len(source)  # type: ignore[arg-type]
+    except TypeError:
+        count = None
+    colour = config.colour_masks
+    used = False
+
+    def frames() -> Iterator[Frame]:
+        nonlocal used
+        it = iterator_source if not used else iter(source)
+        used = True
+        for i, arr in enumerate(it):
+            yield Frame(i, f"frame {i}", _array_loader(arr, f"frame {i}", colour))
+
+    return MaskSequence("arrays", "arrays", config, frames, count)
+
+
+def _array_loader(arr: Any, where: str, colour: bool) -> Callable[[], np.ndarray]:
+    return lambda: to_labels(np.asarray(arr), where, colour=colour, order="rgb")

@@ -1,0 +1,207 @@
+"""Reading mask sequences: folders (pixel formats, natural order), videos, arrays, errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mistool.config import Config, config_from_dict
+from mistool.errors import InputPathError, MaskFormatError
+from mistool.sequence import (
+    natural_key,
+    open_sequence,
+    read_label_image,
+    resolve,
+    to_labels,
+    widen_for_video,
+)
+
+
+def _labels(h: int = 24, w: int = 32, value: int = 160, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = np.zeros((h, w), np.uint8)
+    y, x = rng.integers(0, h - 6), rng.integers(0, w - 6)
+    img[y:y + 6, x:x + 6] = value
+    img[0, 0] = 70
+    return img
+
+
+def _write(path: Path, img: np.ndarray) -> Path:
+    assert cv2.imwrite(str(path), img)
+    return path
+
+
+def test_natural_sort_orders_numbers_numerically(tmp_path: Path) -> None:
+    names = ["frame10.png", "frame2.png", "frame1.png", "frame100.png", "Frame3.png"]
+    for i, name in enumerate(names):
+        _write(tmp_path / name, _labels(value=100 + i))
+    order = [name for _, name, _ in open_sequence(tmp_path, Config())]
+    assert order == ["frame1.png", "frame2.png", "Frame3.png", "frame10.png", "frame100.png"]
+    assert sorted(["a10b2", "a2b10", "a2b9"], key=natural_key) == ["a2b9", "a2b10", "a10b2"]
+
+
+def test_folder_ignores_non_image_files_and_reads_lazily(tmp_path: Path) -> None:
+    for i in range(3):
+        _write(tmp_path / f"{i:03d}.png", _labels(seed=i))
+    (tmp_path / "mistool.toml").write_text("fps = 10.0\n")
+    (tmp_path / "truth.csv").write_text("frame,instrument,part\n")
+    (tmp_path / "README").write_text("hello")
+    (tmp_path / "sub").mkdir()
+    _write(tmp_path / "sub" / "999.png", _labels())
+    (tmp_path / "003.png").write_bytes(b"not a png at all")  # bad, but last
+    seq = open_sequence(tmp_path)
+    assert seq.num_frames == 4 and seq.config.fps == 10.0
+    it = iter(seq)
+    idx, name, labels = next(it)  # the first frame decodes though the last one is bad
+    assert (idx, name) == (0, "000.png")
+    np.testing.assert_array_equal(labels, _labels(seed=0))
+    next(it), next(it)
+    with pytest.raises(MaskFormatError, match="003.png: cannot decode"):
+        next(it)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_grey_png_8_and_16_bit(tmp_path: Path, dtype: type) -> None:
+    img = _labels().astype(dtype)
+    if dtype is np.uint16:
+        img[img == 160] = 40000
+    out = read_label_image(_write(tmp_path / "a.png", img))
+    assert out.dtype == dtype
+    np.testing.assert_array_equal(out, img)
+
+
+def test_grey_saved_as_rgb_reads_one_channel(tmp_path: Path) -> None:
+    img = _labels()
+    out = read_label_image(_write(tmp_path / "a.png", cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)))
+    assert out.shape == img.shape
+    np.testing.assert_array_equal(out, img)
+
+
+def test_colour_pixels_without_colour_config_is_an_error(tmp_path: Path) -> None:
+    img = np.zeros((8, 8, 3), np.uint8)
+    img[2:4, 2:4] = (0, 0, 255)
+    path = _write(tmp_path / "c.png", img)
+    with pytest.raises(MaskFormatError, match=r"c\.png: colour pixels"):
+        read_label_image(path)
+
+
+def test_colour_masks_pack_rgb(tmp_path: Path) -> None:
+    cfg = config_from_dict({"parts": {"shaft": "#ff8000", "clasper": "#0000ff"}})
+    assert cfg.colour_masks
+    bgr = np.zeros((8, 8, 3), np.uint8)
+    bgr[1, 1] = (0, 128, 255)  # BGR of #ff8000
+    out = read_label_image(_write(tmp_path / "c.png", bgr), colour=True)
+    assert out.dtype == np.uint32
+    assert out[1, 1] == cfg.parts["shaft"][0] == 0xFF8000 and out[0, 0] == 0
+    rgb = bgr[..., ::-1]  # caller arrays are RGB
+    assert to_labels(rgb, "x", colour=True, order="rgb")[1, 1] == 0xFF8000
+
+
+def test_palette_png_reads_indices(tmp_path: Path) -> None:
+    pil = pytest.importorskip("PIL.Image")
+    idx = np.zeros((10, 12), np.uint8)
+    idx[2:5, 3:9] = 1
+    idx[6:8, 1:4] = 2
+    img = pil.fromarray(idx, mode="P")
+    palette = [0, 0, 0, 200, 10, 10, 10, 200, 10] + [0] * (256 * 3 - 9)
+    img.putpalette(palette)
+    path = tmp_path / "p.png"
+    img.save(path)
+    decoded = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert decoded.ndim == 3  # OpenCV expands palettes: why mistool maps them back
+    out = read_label_image(path)
+    assert out.dtype == np.uint8
+    np.testing.assert_array_equal(out, idx)
+
+
+def test_arrays_source_and_dtypes() -> None:
+    frames = [_labels(seed=i).astype(np.int64) for i in range(3)]
+    seq = open_sequence(frames)
+    got = list(seq)
+    assert [g[0] for g in got] == [0, 1, 2] and seq.shape == (24, 32)
+    assert got[1][2].dtype == np.uint8
+    np.testing.assert_array_equal(got[2][2], frames[2])
+    gen = open_sequence(f for f in frames)  # generators work too (one pass)
+    assert gen.num_frames is None and len(list(gen)) == 3
+
+
+@pytest.mark.parametrize("bad, message", [
+    (np.full((4, 4), -1), "0..65535"),
+    (np.full((4, 4), 0.5), "non-integer"),
+    (np.zeros((4, 4, 2), np.uint8), "shape"),
+])
+def test_bad_arrays(bad: np.ndarray, message: str) -> None:
+    with pytest.raises(MaskFormatError, match=message):
+        list(open_sequence([bad]))
+
+
+def test_frame_size_change_names_the_frame(tmp_path: Path) -> None:
+    _write(tmp_path / "0.png", _labels())
+    _write(tmp_path / "1.png", _labels(h=30))
+    with pytest.raises(MaskFormatError, match=r"1\.png: frame size changed.*32x30.*32x24"):
+        list(open_sequence(tmp_path))
+
+
+def test_path_errors(tmp_path: Path) -> None:
+    with pytest.raises(InputPathError, match="no such file or folder"):
+        resolve(tmp_path / "missing")
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(InputPathError, match="no label images"):
+        open_sequence(tmp_path)
+    (tmp_path / "Segmentation.avi").write_bytes(b"junk")
+    with pytest.raises(InputPathError, match="pass the file itself"):
+        open_sequence(tmp_path)
+    with pytest.raises(MaskFormatError, match="Segmentation.avi: cannot read as a video"):
+        open_sequence(tmp_path / "Segmentation.avi")
+
+
+def test_truncated_png_is_an_error(tmp_path: Path) -> None:
+    img = np.zeros((64, 64), np.uint8)
+    img[::2] = 160
+    data = cv2.imencode(".png", img)[1].tobytes()
+    (tmp_path / "t.png").write_bytes(data[: len(data) // 2])
+    with pytest.raises(MaskFormatError, match=r"t\.png: cannot decode"):
+        read_label_image(tmp_path / "t.png")
+
+
+def test_mask_video_widens_single_values(tmp_path: Path) -> None:
+    path = tmp_path / "Segmentation.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25, (64, 48), False)
+    assert writer.isOpened()
+    frames = []
+    for i in range(4):
+        img = np.zeros((48, 64), np.uint8)
+        img[10:30, 5 + i:40 + i] = 160
+        img[30:40, 30:45] = 70
+        frames.append(img)
+        writer.write(img)
+    writer.release()
+    (tmp_path / "mistool.toml").write_text("[parts]\nclasper = [50, 90]\n")
+    seq = open_sequence(path)
+    assert seq.kind == "video" and seq.num_frames == 4
+    assert seq.config.parts["shaft"] == (145, 175)  # 160 +- 15
+    assert seq.config.parts["clasper"] == (50, 90)  # ranges are kept
+    got = list(seq)
+    assert len(got) == 4 and got[0][2].shape == (48, 64) and got[0][2].dtype == np.uint8
+    inside = (got[2][2] >= 145) & (got[2][2] <= 175)
+    assert np.mean(inside == (frames[2] == 160)) > 0.98  # the lossy codec smears edges
+
+
+def test_widening_never_overlaps() -> None:
+    cfg = config_from_dict({"labels": "endovis17"})  # 10, 20, 30
+    wide = widen_for_video(cfg)
+    assert wide.parts == {"shaft": (6, 14), "wrist": (16, 24), "clasper": (26, 34)}
+    cfg = config_from_dict({"instrument": [{"name": "a", "shaft": 100, "clasper": 110}]})
+    assert widen_for_video(cfg).instruments[0].parts == {"shaft": (96, 104),
+                                                          "clasper": (106, 114)}
+
+
+def test_odd_folder_names(tmp_path: Path) -> None:
+    folder = tmp_path / "séquence 1 (copie)"
+    folder.mkdir()
+    _write(folder / "0.png", _labels())  # cv2.imwrite may not handle unicode: check it
+    seq = open_sequence(folder)
+    assert seq.name == "séquence 1 (copie)" and len(list(seq)) == 1
