@@ -1,0 +1,186 @@
+"""Realistic corruptions of rendered label images, each optional and seeded.
+
+They imitate what a segmentation network's masks look like, and change only the masks,
+never the ground truth (``truth.csv`` always describes the clean, exact projection):
+
+- ``jitter_px``: boundaries wobble by up to this many px (a smooth random displacement
+  field, coherent along an edge, resampled every frame);
+- ``bias_px``: a systematic over- (> 0, dilation) or under-segmentation (< 0, erosion) of
+  every part by this many px;
+- ``holes``: mean number of specular-highlight holes per frame (small ellipses of
+  background on the instrument, 2-7 px);
+- ``speckle``: mean number of label specks per frame (1-3 px blobs of a random part value,
+  anywhere: false positives and wrong labels);
+- ``occluders``: number of tissue blobs (smooth shapes 25-70 px across, drifting slowly)
+  hiding whatever is under them;
+- ``hide_clasper``: fraction of frames in which the clasper (and wrist) of a tool is hidden
+  (in runs of about a second, per instrument);
+- lossy video encoding is done by the writer (``video`` codec) on the corrupted frames.
+
+The random stream of each corruption depends only on ``(seed, corruption, frame)``, so
+turning one corruption on or off does not change the others.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Corruptions:
+    """Which corruptions to apply, and how strongly (all off by default)."""
+
+    jitter_px: float = 0.0
+    """Boundary jitter amplitude (px)."""
+    bias_px: int = 0
+    """Dilation (> 0) or erosion (< 0) of every part (px)."""
+    holes: float = 0.0
+    """Mean number of specular holes per frame."""
+    speckle: float = 0.0
+    """Mean number of label specks per frame."""
+    occluders: int = 0
+    """Number of tissue blobs drifting over the scene."""
+    hide_clasper: float = 0.0
+    """Fraction of frames in which each tool's clasper is hidden, in [0, 1]."""
+
+    def any(self) -> bool:
+        """True if any corruption is on."""
+        return any(getattr(self, f.name) for f in fields(self))
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not math.isfinite(v) or (f.name != "bias_px" and v < 0):
+                raise ValueError(f"{f.name} must be a finite number >= 0, got {v!r}")
+        if self.hide_clasper > 1:
+            raise ValueError(f"hide_clasper is a fraction in [0, 1], got {self.hide_clasper}")
+
+
+_JITTER, _BIAS, _HOLES, _SPECKLE, _OCCLUDE, _HIDE = range(1, 7)
+
+
+def _rng(seed: int, which: int, frame: int = -1) -> np.random.Generator:
+    return np.random.default_rng([seed, 1000 + which, frame + 1])
+
+
+class Corruptor:
+    """Applies :class:`Corruptions` frame by frame (state: occluder paths, hidden runs)."""
+
+    def __init__(self, corruptions: Corruptions, shape: tuple[int, int], frames: int,
+                 instruments: int, fps: float, seed: int) -> None:
+        self.c = corruptions
+        self.shape = shape
+        self.seed = seed
+        h, w = shape
+        # occluders: centres drifting on smooth paths, each a union of 3 ellipses
+        rng = _rng(seed, _OCCLUDE)
+        self._blobs = []
+        for _ in range(corruptions.occluders):
+            centre = rng.uniform([0.15 * w, 0.15 * h], [0.85 * w, 0.85 * h])
+            vel = rng.normal(0, 12.0, 2)  # px/s
+            freq = rng.uniform(0.05, 0.2, 2)
+            phase = rng.uniform(0, 2 * math.pi, 2)
+            lobes = [(rng.uniform(-15, 15, 2), rng.uniform(12, 35, 2), rng.uniform(0, 180))
+                     for _ in range(3)]
+            self._blobs.append((centre, vel, freq, phase, lobes))
+        self.fps = fps
+        # hidden clasper: per instrument, runs of ~1 s covering the requested fraction
+        self._hidden = np.zeros((instruments, frames), dtype=bool)
+        if corruptions.hide_clasper > 0 and frames:
+            rng = _rng(seed, _HIDE)
+            run = max(1, int(round(fps)))
+            for i in range(instruments):
+                target = int(round(corruptions.hide_clasper * frames))
+                for s in rng.permutation(max(1, frames - run + 1)):
+                    if self._hidden[i].sum() >= target:
+                        break
+                    self._hidden[i, s:s + run] = True
+                idx = np.flatnonzero(self._hidden[i])
+                self._hidden[i, idx[target:]] = False  # trim the overshoot
+
+    def hidden_clasper(self, instrument: int, frame: int) -> bool:
+        """Whether instrument ``instrument``'s clasper is hidden in ``frame``."""
+        return bool(self._hidden[instrument, frame])
+
+    def apply(self, labels: np.ndarray, instance: np.ndarray, part: np.ndarray,
+              frame: int, values: list[int]) -> np.ndarray:
+        """Corrupt one frame.
+
+        Args:
+            labels: (H, W) uint8/uint16 clean label image (not modified).
+            instance: (H, W) uint8, 0 background, i + 1 for instrument i.
+            part: (H, W) uint8 3D part codes (1 shaft, 2 wrist, 3 clasper).
+            frame: frame index (seeds the random streams).
+            values: the part label values used in this sequence (for speckle).
+
+        Returns:
+            The corrupted label image, same shape and dtype.
+        """
+        c = self.c
+        out = labels.copy()
+        h, w = self.shape
+        if c.hide_clasper > 0:
+            for i in range(self._hidden.shape[0]):
+                if self._hidden[i, frame]:
+                    out[(instance == i + 1) & (part >= 2)] = 0
+        if c.bias_px:
+            out = _bias(out, c.bias_px)
+        if c.jitter_px > 0:
+            rng = _rng(self.seed, _JITTER, frame)
+            gh, gw = 6, 8
+            dx = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
+            dy = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
+            dx = cv2.resize(dx, (w, h), interpolation=cv2.INTER_CUBIC)
+            dy = cv2.resize(dy, (w, h), interpolation=cv2.INTER_CUBIC)
+            gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+            out = cv2.remap(out, gx + dx, gy + dy, interpolation=cv2.INTER_NEAREST,
+                            borderMode=cv2.BORDER_REPLICATE)
+        if c.holes > 0:
+            rng = _rng(self.seed, _HOLES, frame)
+            ys, xs = np.nonzero(out)
+            n = rng.poisson(c.holes)
+            if len(xs) and n:
+                pick = rng.integers(0, len(xs), n)
+                for x, y in zip(xs[pick], ys[pick], strict=True):
+                    axes = (int(rng.integers(2, 8)), int(rng.integers(1, 4)))
+                    cv2.ellipse(out, (int(x), int(y)), axes, float(rng.uniform(0, 180)),
+                                0, 360, 0, -1)
+        if c.occluders > 0:
+            t = frame / self.fps
+            mask = np.zeros((h, w), dtype=np.uint8)
+            for centre, vel, freq, phase, lobes in self._blobs:
+                p = centre + vel * t + 40.0 * np.sin(2 * math.pi * freq * t + phase)
+                for off, axes, ang in lobes:
+                    q = p + off
+                    cv2.ellipse(mask, (int(round(q[0])), int(round(q[1]))),
+                                (int(axes[0]), int(axes[1])), float(ang), 0, 360, 1, -1)
+            out[mask > 0] = 0
+        if c.speckle > 0:
+            rng = _rng(self.seed, _SPECKLE, frame)
+            n = rng.poisson(c.speckle)
+            for _ in range(n):
+                x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+                r = int(rng.integers(0, 2))
+                v = int(values[int(rng.integers(0, len(values)))])
+                cv2.circle(out, (x, y), r, v, -1)
+        return out
+
+
+def _bias(labels: np.ndarray, px: int) -> np.ndarray:
+    """Dilate (px > 0) or erode (px < 0) every part value's region by ``|px|`` pixels."""
+    k = 2 * abs(px) + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    out = labels.copy()
+    if px < 0:  # shrink the instruments' outline; inner part boundaries stay
+        fg = (labels != 0).astype(np.uint8)
+        shrunk = cv2.erode(fg, kernel, borderType=cv2.BORDER_REPLICATE) > 0
+        out[(fg > 0) & ~shrunk] = 0
+        return out
+    for v in (v for v in np.unique(labels) if v != 0):
+        grown = cv2.dilate((labels == v).astype(np.uint8), kernel) > 0
+        out[grown & (out == 0)] = v
+    return out
