@@ -1,0 +1,328 @@
+"""Scoring motion tables against ground truth (``mistool eval``).
+
+How rows are matched: a prediction's instruments are matched one-to-one to the truth's
+instruments of the sequence by the Hungarian algorithm on the mean distance between their
+parts' box centres over the (frame, part) pairs both have; instrument names may therefore
+differ (merged masks: the tracker names instances itself). A pair with no common
+(frame, part) is never matched. Rows are then joined on (frame, matched instrument, part).
+
+What is scored, per method and part (mistool's own extension of the paper's tables):
+
+- **coverage**: truth rows (the part visible: clean area >= ``min_area_px``) that have a
+  predicted row, over all such truth rows; the metric coverage counts predicted rows with a
+  finite ``end_*_mm``. Truth rows below ``min_area_px`` are left out of every score.
+- **Table 1** (the paper's Table 1 layout): mean ± sd of the absolute error of the box
+  centre x, y (px) and of the box angle theta (degrees, modulo 180: a box's direction has
+  no sign, so the error is ``min(d, 180 - d)``).
+- **Table 2** (the paper's Table 2 layout, here per part): mean ± sd of the absolute error
+  of the part's distal end x, y, z (``end_*_mm``), the median of the 3D end-point distance,
+  and the axis angle error (degrees, between directed unit axes) as median and p90.
+
+``sd`` is the sample standard deviation (ddof = 1; 0 for a single value). Rows a
+prediction has but the truth does not are counted as ``extra`` (false positives).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mistool.errors import TableError
+from mistool.model import PARTS, TrackTable, require_columns
+
+_BOX = ("cx_px", "cy_px", "angle_deg")
+_END = ("end_x_mm", "end_y_mm", "end_z_mm")
+_AXIS = ("axis_x", "axis_y", "axis_z")
+
+
+def linear_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
+    """Minimum-cost one-to-one assignment (Hungarian algorithm, O(n^2 m)).
+
+    Args:
+        cost: (n, m) finite costs.
+
+    Returns:
+        ``min(n, m)`` pairs ``(row, col)``.
+    """
+    c = np.asarray(cost, dtype=np.float64)
+    transposed = c.shape[0] > c.shape[1]
+    if transposed:
+        c = c.T
+    n, m = c.shape
+    if n == 0:
+        return []
+    u = np.zeros(n + 1)
+    v = np.zeros(m + 1)
+    p = np.zeros(m + 1, dtype=np.int64)  # p[j]: row matched to column j (1-based, 0 none)
+    way = np.zeros(m + 1, dtype=np.int64)
+    for i in range(1, n + 1):
+        p[0] = i
+        j0 = 0
+        minv = np.full(m + 1, np.inf)
+        used = np.zeros(m + 1, dtype=bool)
+        while True:
+            used[j0] = True
+            i0 = p[j0]
+            cur = c[i0 - 1] - u[i0] - v[1:]
+            free = ~used[1:]
+            better = free & (cur < minv[1:])
+            minv[1:][better] = cur[better]
+            way[1:][better] = j0
+            cand = np.where(free, minv[1:], np.inf)
+            j1 = int(np.argmin(cand)) + 1
+            delta = cand[j1 - 1]
+            u[p[used]] += delta
+            v[used] -= delta
+            minv[1:][free] -= delta
+            j0 = j1
+            if p[j0] == 0:
+                break
+        while True:
+            j1 = way[j0]
+            p[j0] = p[j1]
+            j0 = j1
+            if j0 == 0:
+                break
+    pairs = [(int(p[j]) - 1, j - 1) for j in range(1, m + 1) if p[j] != 0]
+    if transposed:
+        pairs = [(b, a) for a, b in pairs]
+    return sorted(pairs)
+
+
+def match_instruments(pred: TrackTable, truth: TrackTable) -> dict[str, str]:
+    """Map predicted instrument names to truth names (see the module docstring)."""
+    p_names = sorted({str(x) for x in pred["instrument"]})
+    t_names = sorted({str(x) for x in truth["instrument"]})
+    if not p_names or not t_names:
+        return {}
+    t_index = {(int(f), str(i), str(p)): k for k, (f, i, p) in
+               enumerate(zip(truth["frame"], truth["instrument"], truth["part"], strict=True))}
+    sums = np.zeros((len(p_names), len(t_names)))
+    counts = np.zeros((len(p_names), len(t_names)))
+    pi = {n: k for k, n in enumerate(p_names)}
+    tx, ty = truth["cx_px"], truth["cy_px"]
+    for r, (f, inst, part) in enumerate(zip(pred["frame"], pred["instrument"], pred["part"],
+                                            strict=True)):
+        px, py = pred["cx_px"][r], pred["cy_px"][r]
+        if not (math.isfinite(px) and math.isfinite(py)):
+            continue
+        for tj, tname in enumerate(t_names):
+            k = t_index.get((int(f), tname, str(part)))
+            if k is not None:
+                sums[pi[str(inst)], tj] += math.hypot(px - tx[k], py - ty[k])
+                counts[pi[str(inst)], tj] += 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(counts > 0, sums / np.maximum(counts, 1), np.inf)
+    big = (np.nanmax(mean[np.isfinite(mean)]) + 1.0) * 1e3 if np.isfinite(mean).any() else 1.0
+    cost = np.where(np.isfinite(mean), mean, big)
+    return {p_names[a]: t_names[b] for a, b in linear_assignment(cost)
+            if np.isfinite(mean[a, b])}
+
+
+def _stats(values: np.ndarray) -> dict[str, float]:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if len(v) == 0:
+        return {"n": 0, "mean": math.nan, "sd": math.nan, "median": math.nan,
+                "p90": math.nan}
+    return {"n": int(len(v)), "mean": float(v.mean()),
+            "sd": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
+            "median": float(np.median(v)), "p90": float(np.percentile(v, 90))}
+
+
+@dataclass
+class MethodReport:
+    """One prediction's scores."""
+
+    name: str
+    """Method name (the file's stem, or the key given)."""
+    instrument_map: dict[str, str]
+    """Predicted instrument name -> truth instrument name."""
+    parts: dict[str, dict[str, Any]]
+    """Part -> scores: ``n_truth``, ``n_estimated``, ``coverage``, ``n_metric``,
+    ``metric_coverage``, ``extra``, and per error (``x_px``, ``y_px``, ``theta_deg``,
+    ``x_mm``, ``y_mm``, ``z_mm``, ``end_mm``, ``axis_deg``) a dict of
+    ``n, mean, sd, median, p90``."""
+    per_row: TrackTable
+    """Per truth row: frame, instrument (truth), part, estimated (0/1), the errors."""
+
+
+@dataclass
+class EvalReport:
+    """Scores of one or more predictions against one truth."""
+
+    methods: list[MethodReport] = field(default_factory=list)
+    """One report per prediction, in the order given."""
+    min_area_px: int = 20
+    """Truth rows with a smaller clean area were left out."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (NaN -> None)."""
+        def clean(x: Any) -> Any:
+            if isinstance(x, dict):
+                return {k: clean(v) for k, v in x.items()}
+            if isinstance(x, float) and not math.isfinite(x):
+                return None
+            return x
+        return {"min_area_px": self.min_area_px,
+                "methods": [{"name": m.name, "instrument_map": m.instrument_map,
+                             "parts": clean(m.parts)} for m in self.methods]}
+
+    def per_frame(self) -> TrackTable:
+        """Every method's per-row errors stacked, with a leading ``method`` column."""
+        tables = []
+        for m in self.methods:
+            cols = {"method": [m.name] * m.per_row.num_rows}
+            cols.update({c: m.per_row[c] for c in m.per_row.columns})
+            tables.append(TrackTable(cols))
+        return TrackTable.concat(tables)
+
+
+def _angle_diff_mod180(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d = np.abs(np.asarray(a, dtype=np.float64) - b) % 180.0
+    return np.minimum(d, 180.0 - d)
+
+
+def evaluate_one(pred: TrackTable, truth: TrackTable, name: str = "pred",
+                 min_area_px: int = 20) -> MethodReport:
+    """Score one prediction against the truth (see the module docstring)."""
+    for t, what in ((pred, f"prediction {name}"), (truth, "truth")):
+        require_columns(t, ("frame", "instrument", "part", "cx_px", "cy_px", "angle_deg"),
+                        what)
+    if "area_px" in truth and min_area_px > 0:
+        area = truth["area_px"]
+        truth = truth[~(np.isfinite(area) & (area < min_area_px))]
+    mapping = match_instruments(pred, truth)
+    p_index: dict[tuple[int, str, str], int] = {}
+    for r, (f, inst, part) in enumerate(zip(pred["frame"], pred["instrument"], pred["part"],
+                                            strict=True)):
+        tname = mapping.get(str(inst))
+        if tname is not None:
+            p_index.setdefault((int(f), tname, str(part)), r)
+    n = truth.num_rows
+    j = np.array([p_index.get((int(f), str(i), str(p)), -1) for f, i, p in
+                  zip(truth["frame"], truth["instrument"], truth["part"], strict=True)],
+                 dtype=np.int64)
+    has = j >= 0
+
+    def take(col: str) -> np.ndarray:
+        out = np.full(n, np.nan)
+        out[has] = pred[col][j[has]]
+        return out
+
+    err: dict[str, np.ndarray] = {
+        "err_x_px": np.abs(take("cx_px") - truth["cx_px"]),
+        "err_y_px": np.abs(take("cy_px") - truth["cy_px"]),
+        "err_theta_deg": _angle_diff_mod180(take("angle_deg"), truth["angle_deg"]),
+    }
+    pe = np.stack([take(c) for c in _END], axis=1)
+    te = np.stack([truth[c] for c in _END], axis=1)
+    for k, ax in enumerate("xyz"):
+        err[f"err_{ax}_mm"] = np.abs(pe[:, k] - te[:, k])
+    err["err_end_mm"] = np.linalg.norm(pe - te, axis=1)
+    pa = np.stack([take(c) for c in _AXIS], axis=1)
+    ta = np.stack([truth[c] for c in _AXIS], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pa = pa / np.linalg.norm(pa, axis=1, keepdims=True)
+        ta = ta / np.linalg.norm(ta, axis=1, keepdims=True)
+        cosang = np.clip(np.sum(pa * ta, axis=1), -1.0, 1.0)
+    err["err_axis_deg"] = np.degrees(np.arccos(cosang))
+    metric = has & np.all(np.isfinite(pe), axis=1)
+
+    parts: dict[str, dict[str, Any]] = {}
+    matched_pred = np.zeros(pred.num_rows, dtype=bool)
+    matched_pred[j[has]] = True
+    part_names = [p for p in PARTS if p in set(truth["part"]) | set(pred["part"])]
+    for part in part_names:
+        sel = truth["part"] == part
+        nt = int(sel.sum())
+        ne = int((sel & has).sum())
+        nm = int((sel & metric).sum())
+        extra = int(((pred["part"] == part) & ~matched_pred).sum())
+        rep: dict[str, Any] = {
+            "n_truth": nt, "n_estimated": ne, "coverage": ne / nt if nt else math.nan,
+            "n_metric": nm, "metric_coverage": nm / nt if nt else math.nan, "extra": extra}
+        for key in ("x_px", "y_px", "theta_deg", "x_mm", "y_mm", "z_mm", "end_mm",
+                    "axis_deg"):
+            rep[key] = _stats(err[f"err_{key}"][sel])
+        parts[part] = rep
+    per_row = TrackTable({"frame": truth["frame"], "instrument": truth["instrument"],
+                          "part": truth["part"],
+                          "pred_instrument": [str(pred["instrument"][k]) if k >= 0 else ""
+                                              for k in j],
+                          "estimated": has.astype(np.int64), **err})
+    return MethodReport(name, mapping, parts, per_row)
+
+
+def evaluate(preds: Mapping[str, TrackTable], truth: TrackTable,
+             min_area_px: int = 20) -> EvalReport:
+    """Score several predictions against one truth.
+
+    Args:
+        preds: method name -> predicted motion table, in display order.
+        truth: the ground truth (e.g. ``truth.csv`` of ``mistool synth``).
+        min_area_px: truth rows whose clean ``area_px`` is smaller are left out.
+
+    Returns:
+        An :class:`EvalReport`; format it with :func:`format_report`.
+    """
+    if not preds:
+        raise TableError("evaluate: no prediction given")
+    if truth.num_rows == 0:
+        raise TableError("truth table has no rows: nothing to score against")
+    return EvalReport([evaluate_one(t, truth, name, min_area_px) for name, t in preds.items()],
+                      min_area_px)
+
+
+def _pm(s: dict[str, float], digits: int = 2) -> str:
+    if not s["n"]:
+        return "-"
+    return f"{s['mean']:.{digits}f} ± {s['sd']:.{digits}f}"
+
+
+def _pct(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{100 * x:.1f}%"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    widths = [max(len(r[k]) for r in [header, *rows]) for k in range(len(header))]
+    fmt = "  ".join(f"{{:<{w}}}" if k < 2 else f"{{:>{w}}}" for k, w in enumerate(widths))
+    lines = [fmt.format(*header), "  ".join("-" * w for w in widths)]
+    lines += [fmt.format(*r) for r in rows]
+    return lines
+
+
+def format_report(report: EvalReport) -> str:
+    """Both tables as aligned text (the paper's Table 1 and Table 2 layouts)."""
+    parts = [p for p in PARTS if any(p in m.parts for m in report.methods)]
+    rows1, rows2 = [], []
+    for part in parts:
+        for k, m in enumerate(report.methods):
+            s = m.parts.get(part)
+            if s is None:
+                continue
+            label = part if k == 0 else ""
+            rows1.append([label, m.name, _pct(s["coverage"]), str(s["extra"]),
+                          _pm(s["x_px"]), _pm(s["y_px"]), _pm(s["theta_deg"])])
+            ax = s["axis_deg"]
+            rows2.append([label, m.name, _pct(s["metric_coverage"]), _pm(s["x_mm"]),
+                          _pm(s["y_mm"]), _pm(s["z_mm"]),
+                          "-" if not s["end_mm"]["n"] else f"{s['end_mm']['median']:.2f}",
+                          "-" if not ax["n"] else f"{ax['median']:.2f}",
+                          "-" if not ax["n"] else f"{ax['p90']:.2f}"])
+    out = [f"Table 1 - 2D box error per part, mean ± sd of |error| (truth rows with "
+           f"area >= {report.min_area_px} px)"]
+    out += _table(["part", "method", "coverage", "extra", "x (px)", "y (px)", "θ (deg)"],
+                  rows1)
+    out += ["", "Table 2 - 3D error per part (distal end: shaft J, wrist W, clasper tip), "
+            "mean ± sd of |error|"]
+    out += _table(["part", "method", "coverage", "x (mm)", "y (mm)", "z (mm)",
+                   "3D med (mm)", "axis med (deg)", "axis p90 (deg)"], rows2)
+    maps = [f"  {m.name}: " + (", ".join(f"{p}->{t}" for p, t in sorted(
+        m.instrument_map.items())) or "no instrument matched") for m in report.methods]
+    out += ["", "Instruments matched (Hungarian on mean box-centre distance):", *maps]
+    return "\n".join(out) + "\n"
