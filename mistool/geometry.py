@@ -1,0 +1,403 @@
+"""Algorithm 1 of the paper: a rotated bounding box per instrument part.
+
+For each part the paper masks the label image by the part's inclusive value range, takes
+the external contours of the mask, and fits ``cv2.minAreaRect`` to *all* of the part's
+contour points at once ("takes into account all the pixels belonging to either the shaft
+or the metallic clasper"), then reads the corners with ``cv2.boxPoints``. mistool does the
+same, and also ignores connected specks smaller than ``min_area_px`` pixels.
+
+Conventions (see :mod:`mistool.model`): pixel centres are at integer coordinates, so a
+box is fitted to pixel *centres*; a part one pixel wide has width 0 and a single pixel
+gives a 0 x 0 box (its area is 0, which Algorithm 2 handles). The canonical box has
+``length >= width`` and ``angle_deg`` in ``[0, 180)``, the direction of the long side
+from +x towards +y.
+
+OpenCV's ``minAreaRect`` angle convention changed across versions (``[-90, 0)`` before
+4.5.1, ``(0, 90]`` after; OpenCV 5.0 returns ``[-90, 0)`` again, measured). In every
+version the rectangle's first side (``size[0]``, "width") points along ``angle`` and the
+second along ``angle + 90``; :func:`min_area_box` relies only on that and is the one
+place where OpenCV's convention is converted to mistool's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from mistool.model import RotatedBox
+
+#: Angles this close to 180 deg (after reduction) are reported as 0 deg.
+_ANGLE_SNAP_DEG = 1e-6
+
+
+def min_area_box(points: np.ndarray) -> tuple[RotatedBox, np.ndarray]:
+    """Minimum-area rotated rectangle of a point set, in canonical form.
+
+    Args:
+        points: (N, 2) pixel coordinates (x, y), int or float, N >= 1.
+
+    Returns:
+        ``(box, corners)``: the canonical :class:`~mistool.model.RotatedBox` and the
+        rectangle's corners, shape (4, 2), float64, in ``cv2.boxPoints`` order (the
+        order the paper's Algorithm 2 consumes).
+
+    Raises:
+        ValueError: if ``points`` is empty or not (N, 2).
+    """
+    pts = np.asarray(points)
+    if pts.ndim == 3 and pts.shape[1] == 1:  # OpenCV contour layout (N, 1, 2)
+        pts = pts[:, 0, :]
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) == 0:
+        raise ValueError(f"min_area_box: expected (N, 2) points with N >= 1, got {pts.shape}")
+    if pts.dtype != np.int32 and pts.dtype != np.float32:
+        pts = pts.astype(np.float32) if pts.dtype.kind == "f" else pts.astype(np.int32)
+    rect = cv2.minAreaRect(pts)
+    corners = np.asarray(cv2.boxPoints(rect), dtype=np.float64).reshape(4, 2)
+    return _canonical(rect), corners
+
+
+def _canonical(rect: tuple) -> RotatedBox:
+    """Convert an OpenCV ``RotatedRect`` ((cx, cy), (w, h), angle) to a RotatedBox.
+
+    The side of length ``w`` points along ``angle`` and the side of length ``h`` along
+    ``angle + 90`` (all OpenCV versions); the long side's direction, reduced to
+    ``[0, 180)``, is the canonical angle. A zero-length box gets angle 0.
+    """
+    (cx, cy), (w, h), angle = rect
+    w, h, angle = float(w), float(h), float(angle)
+    if w >= h:
+        length, width, direction = w, h, angle
+    else:
+        length, width, direction = h, w, angle + 90.0
+    direction %= 180.0
+    if direction >= 180.0 - _ANGLE_SNAP_DEG or length == 0.0:
+        direction = 0.0
+    return RotatedBox(cx=float(cx), cy=float(cy), length=length, width=width,
+                      angle_deg=direction)
+
+
+def as_cv_labels(labels: np.ndarray) -> np.ndarray:
+    """A label image in a dtype OpenCV's ``inRange`` accepts, without copying when possible.
+
+    Args:
+        labels: (H, W) integer (or bool) label image.
+
+    Returns:
+        (H, W) uint8, uint16 or int32 array with the same values.
+
+    Raises:
+        ValueError: if the array is not 2-D integer or holds values outside int32.
+    """
+    if labels.ndim != 2:
+        raise ValueError(f"expected a 2-D label image, got shape {labels.shape}")
+    kind = labels.dtype.kind
+    if labels.dtype == np.uint8 or labels.dtype == np.uint16 or labels.dtype == np.int32:
+        return labels
+    if labels.dtype == np.bool_:
+        return labels.view(np.uint8)
+    if kind not in "iu":
+        raise ValueError(f"expected an integer label image, got dtype {labels.dtype}")
+    if labels.size and (int(labels.min()) < np.iinfo(np.int32).min
+                        or int(labels.max()) > np.iinfo(np.int32).max):
+        raise ValueError("label values do not fit in int32")
+    return labels.astype(np.int32)
+
+
+def range_mask(labels: np.ndarray, value_range: tuple[int, int]) -> np.ndarray:
+    """The paper's ``mask()``: pixels whose value lies in an inclusive range.
+
+    Args:
+        labels: (H, W) label image (see :func:`as_cv_labels`).
+        value_range: inclusive ``(lo, hi)`` label values.
+
+    Returns:
+        (H, W) uint8 mask, 255 inside the range, 0 elsewhere.
+    """
+    lo, hi = value_range
+    img = as_cv_labels(labels)
+    info = np.iinfo(img.dtype)
+    lo, hi = max(int(lo), info.min), min(int(hi), info.max)
+    if lo > hi:  # the range lies outside what this dtype can hold
+        return np.zeros(img.shape, np.uint8)
+    return cv2.inRange(img, lo, hi)
+
+
+def remove_specks(mask: np.ndarray, min_area_px: int) -> tuple[np.ndarray, int]:
+    """Drop 8-connected components smaller than ``min_area_px`` pixels.
+
+    Args:
+        mask: (h, w) uint8 mask (non-zero = inside).
+        min_area_px: components with fewer pixels are removed; 0 or 1 keeps all.
+
+    Returns:
+        ``(kept, area_px)``: uint8 mask (the input itself when nothing is removed) and
+        its number of non-zero pixels.
+    """
+    kept, area, _ = _clean(mask, min_area_px)
+    return kept, area
+
+
+def _clean(mask: np.ndarray, min_area_px: int
+           ) -> tuple[np.ndarray, int, list[np.ndarray] | None]:
+    """:func:`remove_specks`, also returning the kept components' external contours
+    (None when they are not at hand).
+
+    Components are found from their contours (fast): one whose bounding rectangle holds
+    fewer than ``min_area_px`` pixels is a speck, one whose contour polygon (through
+    pixel centres, which encloses fewer pixels than the component has, by Pick's theorem)
+    has an area of at least ``min_area_px`` is kept. Anything else, or a component with a
+    hole, is decided by exact pixel counts (``connectedComponentsWithStats``, slower).
+    """
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        return mask, 0, []
+    hier = hierarchy[0]
+    top = [i for i in range(len(contours)) if hier[i, 3] < 0]
+    outer = [contours[i] for i in top]
+    if min_area_px <= 1:
+        return mask, int(cv2.countNonZero(mask)), outer
+    if len(top) == 1:
+        area = int(cv2.countNonZero(mask))
+        if area < min_area_px:
+            return np.zeros_like(mask), 0, []
+        return mask, area, outer
+    specks: list[np.ndarray] = []
+    keep: list[np.ndarray] = []
+    exact = False
+    for i in top:
+        c = contours[i]
+        _, _, w, h = cv2.boundingRect(c)
+        if w * h < min_area_px:
+            specks.append(c)
+        elif hier[i, 2] < 0 and cv2.contourArea(c) >= min_area_px:
+            keep.append(c)
+        else:
+            exact = True
+            break
+    if exact:
+        n, cc, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        areas = stats[1:, cv2.CC_STAT_AREA]
+        ok = areas >= min_area_px
+        if ok.all():
+            return mask, int(areas.sum()), outer
+        lut = np.zeros(n, np.uint8)
+        lut[1:][ok] = 255
+        return lut[cc], int(areas[ok].sum()), None
+    if not specks:
+        return mask, int(cv2.countNonZero(mask)), outer
+    kept = mask.copy()
+    # a speck's filled contour covers only that speck: 8-separate components never touch
+    cv2.drawContours(kept, specks, -1, 0, thickness=cv2.FILLED)
+    return kept, int(cv2.countNonZero(kept)), keep
+
+
+def mask_points(mask: np.ndarray) -> np.ndarray:
+    """The paper's ``contour()`` step: all points of the external contours of a mask.
+
+    External contours hold every extreme pixel of every component, so ``minAreaRect`` of
+    their points equals ``minAreaRect`` of all the mask's pixels.
+
+    Args:
+        mask: (h, w) uint8 mask.
+
+    Returns:
+        (N, 2) int32 pixel coordinates in the mask's frame; N = 0 for an empty mask.
+    """
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        return np.empty((0, 2), np.int32)
+    return np.concatenate(contours, axis=0).reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class PartFit:
+    """Algorithm 1's result for one part mask."""
+
+    box: RotatedBox
+    """The part's rotated box, full-image px."""
+    corners: np.ndarray
+    """(4, 2) float64 corners in ``cv2.boxPoints`` order, full-image px."""
+    area_px: int
+    """Number of the part's pixels after speck removal."""
+    mask: np.ndarray
+    """(h, w) uint8 tight crop of the kept pixels (255 inside)."""
+    offset: tuple[int, int]
+    """(x0, y0) full-image px of ``mask``'s top-left pixel."""
+
+
+def fit_part(mask: np.ndarray, min_area_px: int = 0, offset: tuple[int, int] = (0, 0), *,
+             pixel_edges: bool = True) -> PartFit | None:
+    """Algorithm 1 for one part: drop specks, contours, one ``minAreaRect`` over all of
+    the part's contour points, ``boxPoints``.
+
+    Args:
+        mask: (h, w) uint8 mask of the part (non-zero inside), any crop of the image.
+        min_area_px: connected specks smaller than this are ignored.
+        offset: (x0, y0) full-image px of ``mask``'s top-left pixel.
+        pixel_edges: see :func:`mask_box`.
+
+    Returns:
+        The fit, or None when no pixel is left.
+    """
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0 or h == 0:
+        return None
+    crop = mask[y:y + h, x:x + w]
+    kept, area, contours = _clean(crop, min_area_px)
+    if area == 0:
+        return None
+    if kept is not crop:  # specks removed: tighten the crop
+        kx, ky, kw, kh = cv2.boundingRect(kept)
+        kept = kept[ky:ky + kh, kx:kx + kw]
+        x, y = x + kx, y + ky
+        contours = None
+    if contours is None:
+        pts = mask_points(kept)
+    else:
+        pts = np.concatenate(contours, axis=0).reshape(-1, 2)
+    ox, oy = offset[0] + x, offset[1] + y
+    pts = pts + np.asarray((ox, oy), np.int32)
+    fit = min_area_box(pts)
+    box, corners = grow_to_pixel_edges(pts, fit[0]) if pixel_edges else fit
+    return PartFit(box=box, corners=corners, area_px=area, mask=kept, offset=(ox, oy))
+
+
+def _lattice_gaps(normals: np.ndarray, h: np.ndarray, t_lo: np.ndarray, t_hi: np.ndarray
+                  ) -> np.ndarray:
+    """Distance from each box side to the next row of pixel centres beyond it.
+
+    Side ``s`` is the line ``n_s . p = h_s`` (``n_s`` its unit outward normal) between
+    positions ``t_lo_s`` and ``t_hi_s`` along its tangent ``t = (-n_y, n_x)``. Among the
+    pixel centres ``q`` in that band with ``n_s . q > h_s`` (outside the part), returns
+    the smallest ``n_s . q - h_s``: 1 for an axis-aligned side, 0.71 at 45 deg, close to 0
+    for a long side at a generic angle. Vectorised over sides: walk the integer columns
+    (sides closer to horizontal) or rows (closer to vertical) the side spans and take,
+    in each, the first lattice point beyond the side.
+
+    Args:
+        normals: (S, 2) unit outward normals.
+        h, t_lo, t_hi: (S,) side offsets and tangent extents, px.
+
+    Returns:
+        (S,) gaps, px (1.0 where the band holds no lattice point, which cannot happen for
+        a box fitted to pixel centres).
+    """
+    eps = 1e-7
+    nx, ny = normals[:, 0], normals[:, 1]
+    tx, ty = -ny, nx
+    horiz = np.abs(ny) >= np.abs(nx)
+    a = np.where(horiz, nx, ny)  # coefficient of the walked coordinate
+    b = np.where(horiz, ny, nx)  # coefficient of the solved coordinate
+    # walked coordinate's range: the side's end points
+    e0 = np.where(horiz, h * nx + t_lo * tx, h * ny + t_lo * ty)
+    e1 = np.where(horiz, h * nx + t_hi * tx, h * ny + t_hi * ty)
+    start = np.floor(np.minimum(e0, e1)) - 1
+    count = (np.ceil(np.maximum(e0, e1)) + 2 - start).astype(np.int64)
+    side = np.repeat(np.arange(len(h)), count)
+    first = np.cumsum(count) - count
+    p = start[side] + (np.arange(side.size) - first[side])
+    a_s, b_s, h_s = a[side], b[side], h[side]
+    r = (h_s + eps - a_s * p) / b_s
+    q = np.where(b_s > 0, np.floor(r) + 1, np.ceil(r) - 1)
+    qx = np.where(horiz[side], p, q)
+    qy = np.where(horiz[side], q, p)
+    along = tx[side] * qx + ty[side] * qy
+    val = np.where((along >= t_lo[side] - eps) & (along <= t_hi[side] + eps),
+                   nx[side] * qx + ny[side] * qy - h_s, np.inf)
+    gaps = np.full(len(h), np.inf)
+    np.minimum.at(gaps, side, val)
+    gaps[~np.isfinite(gaps)] = 1.0
+    return gaps
+
+
+def grow_to_pixel_edges(points: np.ndarray, box: RotatedBox) -> tuple[RotatedBox, np.ndarray]:
+    """Move each side of a box fitted to pixel centres half-way to the next pixel row.
+
+    A shape drawn on the pixel grid lights the pixels whose centres it covers; the box of
+    those centres (the paper's box) lies inside the shape by up to one pixel row on each
+    side (up to a full pixel for axis-aligned sides, almost nothing for long sides at a
+    generic angle). The unbiased estimate of each side is half-way between the outermost
+    covered centres and the next row of pixel centres beyond them, so each side moves out
+    by half of :func:`_lattice_gaps` (the error left is at most half that gap, <= 0.5 px,
+    per side). A single pixel becomes a 1 x 1 box, a one-pixel-wide line gets width 1.
+    The angle is kept.
+
+    Args:
+        points: (N, 2) integer pixel centres the box was fitted to.
+        box: their minimum-area box (:func:`min_area_box`).
+
+    Returns:
+        ``(box, corners)`` like :func:`min_area_box`, corners in ``cv2.boxPoints`` order.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    t = math.radians(box.angle_deg)
+    c, s = math.cos(t), math.sin(t)
+    u = np.array([c, s])  # along the long side
+    v = np.array([-s, c])  # across it
+    pu = pts @ u
+    pv = pts @ v
+    u_lo, u_hi = float(pu.min()), float(pu.max())
+    v_lo, v_hi = float(pv.min()), float(pv.max())
+    # sides: +v and -v (the long sides, spanning u), +u and -u (the ends, spanning v);
+    # tangent of normal n is (-n_y, n_x): for +v it is -u, for +u it is +v.
+    normals = np.stack([v, -v, u, -u])
+    h = np.array([v_hi, -v_lo, u_hi, -u_lo])
+    t_lo = np.array([-u_hi, u_lo, v_lo, -v_hi])
+    t_hi = np.array([-u_lo, u_hi, v_hi, -v_lo])
+    g = _lattice_gaps(normals, h, t_lo, t_hi) / 2.0
+    v_hi, v_lo, u_hi, u_lo = v_hi + g[0], v_lo - g[1], u_hi + g[2], u_lo - g[3]
+    cu, cv_ = (u_lo + u_hi) / 2.0, (v_lo + v_hi) / 2.0
+    cx = cu * c - cv_ * s
+    cy = cu * s + cv_ * c
+    length, width = u_hi - u_lo, v_hi - v_lo
+    angle = box.angle_deg
+    if width > length:  # cannot happen for a min-area fit, but keep the box canonical
+        length, width, angle = width, length, (angle + 90.0) % 180.0
+    grown = RotatedBox(cx=cx, cy=cy, length=length, width=width, angle_deg=angle)
+    corners = np.asarray(cv2.boxPoints(((cx, cy), (length, width), angle)),
+                         dtype=np.float64).reshape(4, 2)
+    return grown, corners
+
+
+def mask_box(mask: np.ndarray, offset: tuple[int, int] = (0, 0), *, pixel_edges: bool = True
+             ) -> tuple[RotatedBox, np.ndarray] | None:
+    """Rotated box of every pixel of a part mask (no speck removal).
+
+    Args:
+        mask: (h, w) uint8 mask of one part.
+        offset: (x0, y0) full-image position of the mask's top-left pixel.
+        pixel_edges: grow the paper's box (fitted to pixel centres) to the estimated
+            pixel edges (:func:`grow_to_pixel_edges`); False gives the paper's box as is.
+
+    Returns:
+        ``(box, corners)`` in full-image pixels (see :func:`min_area_box`), or None for
+        an empty mask.
+    """
+    fit = fit_part(mask, 0, offset, pixel_edges=pixel_edges)
+    return None if fit is None else (fit.box, fit.corners)
+
+
+def bounding_boxes(labels: np.ndarray, parts: Mapping[str, tuple[int, int]],
+                   min_area_px: int = 0, *, pixel_edges: bool = True
+                   ) -> dict[str, tuple[RotatedBox, np.ndarray]]:
+    """Algorithm 1 on one label image: a box per part present.
+
+    Args:
+        labels: (H, W) integer label image.
+        parts: part name -> inclusive label value range.
+        min_area_px: connected specks smaller than this are ignored.
+        pixel_edges: see :func:`mask_box`.
+
+    Returns:
+        part -> ``(box, corners)`` for every part with pixels left after speck removal.
+    """
+    out: dict[str, tuple[RotatedBox, np.ndarray]] = {}
+    for part, rng in parts.items():
+        fit = fit_part(range_mask(labels, rng), min_area_px, pixel_edges=pixel_edges)
+        if fit is not None:
+            out[part] = (fit.box, fit.corners)
+    return out
