@@ -1,0 +1,96 @@
+"""Confidence without ground truth: re-render the estimated pose and compare with the mask.
+
+Each part is modelled as a (possibly tapered) capped cylinder between two points; a
+cylinder is convex, so its image is the convex hull of the projections of its two rim
+circles. The hull is filled with OpenCV (sub-pixel, 4 fractional bits) in a crop around
+the part and compared with the part's mask: intersection over union, in [0, 1].
+
+The shaft model is exact (a cylinder of the known diameter), so a correct pose scores
+close to 1 (minus boundary corruption). The clasper's jaws are modelled by a cone from
+``0.5 r`` at the joint to ``0.25 r`` at the tip, so even a correct clasper pose scores
+lower (typically 0.5-0.8); compare clasper scores with each other, not with the shaft's.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from mistool.pose.cylinder import project
+
+__all__ = ["hull_of_cylinder", "iou_polygon_mask", "perpendicular_basis"]
+
+_THETA = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+_COS, _SIN = np.cos(_THETA), np.sin(_THETA)
+
+
+def perpendicular_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (3,) completing the unit vector ``a`` to an orthonormal basis."""
+    ref = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(a, ref)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(a, e1)
+
+
+def hull_of_cylinder(p_a: np.ndarray, p_b: np.ndarray, r_a: float, r_b: float,
+                     K: np.ndarray, min_z_mm: float = 1.0) -> np.ndarray | None:
+    """Image outline of a capped (tapered) cylinder.
+
+    Args:
+        p_a, p_b: (3,) end centres (mm, camera frame).
+        r_a, r_b: radii at ``p_a`` and ``p_b`` (mm).
+        K: (3, 3) intrinsics.
+        min_z_mm: rims closer to the camera plane than this give None.
+
+    Returns:
+        (M, 2) float32 convex polygon (px), or None.
+    """
+    d = p_b - p_a
+    nd = np.linalg.norm(d)
+    if not np.isfinite(nd) or nd < 1e-6:
+        return None
+    e1, e2 = perpendicular_basis(d / nd)
+    ring = _COS[:, None] * e1 + _SIN[:, None] * e2
+    pts = np.concatenate([p_a + r_a * ring, p_b + r_b * ring])
+    if pts[:, 2].min() < min_z_mm:
+        return None
+    uv = project(pts, K).astype(np.float32)
+    return cv2.convexHull(uv).reshape(-1, 2)
+
+
+def iou_polygon_mask(poly: np.ndarray | None, mask: np.ndarray, offset: tuple[int, int],
+                     image_shape: tuple[int, int]) -> float:
+    """IoU of a filled polygon with a part's mask, inside the image.
+
+    Args:
+        poly: (M, 2) polygon (px, full image) or None (-> NaN).
+        mask: (h, w) bool crop of the part.
+        offset: (x0, y0) of the crop (px).
+        image_shape: (H, W).
+
+    Returns:
+        IoU in [0, 1], NaN when ``poly`` is None or both are empty.
+    """
+    if poly is None:
+        return float("nan")
+    H, W = image_shape
+    ox, oy = offset
+    mh, mw = mask.shape
+    x0 = int(max(0, min(ox, np.floor(poly[:, 0].min()))))
+    y0 = int(max(0, min(oy, np.floor(poly[:, 1].min()))))
+    x1 = int(min(W, max(ox + mw, np.ceil(poly[:, 0].max()) + 1)))
+    y1 = int(min(H, max(oy + mh, np.ceil(poly[:, 1].max()) + 1)))
+    if x1 <= x0 or y1 <= y0:
+        return float("nan")
+    canvas = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
+    shifted = np.round((poly - [x0, y0]) * 16.0).astype(np.int32)
+    cv2.fillConvexPoly(canvas, shifted, 1, lineType=cv2.LINE_8, shift=4)
+    rend = canvas.astype(bool)
+    obs = np.zeros_like(rend)
+    xa, ya = max(ox, x0), max(oy, y0)
+    xb, yb = min(ox + mw, x1), min(oy + mh, y1)
+    if xa < xb and ya < yb:
+        obs[ya - y0:yb - y0, xa - x0:xb - x0] = mask[ya - oy:yb - oy, xa - ox:xb - ox]
+    inter = np.count_nonzero(rend & obs)
+    union = np.count_nonzero(rend | obs)
+    return inter / union if union else float("nan")

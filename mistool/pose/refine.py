@@ -1,0 +1,211 @@
+"""Sequence-level refinement of the metric pose (:func:`refine_sequence`).
+
+1. **Trocar**: per instrument, the robust least-squares intersection of the shaft's 3D axis
+   lines (:mod:`mistool.pose.trocar`), written to ``trocar_*_mm`` on every row of that
+   instrument (NaN when the tool pivots too little for a point to be defined).
+2. **Trocar constraint**, per frame:
+
+   - *one limb line* (the shaft along the image border): the axis lies at distance r from
+     the visible line's tangent plane, passes through the trocar and meets the joint's
+     viewing ray: closed form (:func:`mistool.pose.cylinder.axis_through_point`);
+   - *two limb lines*: the axis direction from the lines does not depend on the apparent
+     width, but the depth does (a 1 px width error at 150 mm is ~3% of depth). A second
+     estimate of J comes from the line through the trocar with the measured direction,
+     met with the joint's viewing ray; both are fused by their expected variances.
+3. **Temporal filtering** (:mod:`mistool.pose.filtering`) of end, start and axis per
+   (instrument, part): ``"offline"`` zero-phase smoother, ``"online"`` causal filter,
+   ``"none"``. Quaternions are recomputed from the filtered axes.
+4. The per-frame auxiliary columns (``aux_*``) are dropped.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mistool.errors import ConfigError
+from mistool.model import TrackTable
+from mistool.pose.cylinder import (
+    axis_through_point,
+    closest_on_axis,
+    quat_from_z,
+    tangent_plane,
+)
+from mistool.pose.filtering import MODES, filter_series
+from mistool.pose.measure import AUX_KEYS
+from mistool.pose.trocar import Trocar, intersect_lines
+
+__all__ = ["ACCEL_MM_S2", "refine_sequence"]
+
+#: White-acceleration scale of the Kalman filter for positions (mm/s^2) and axes (1/s^2).
+ACCEL_MM_S2 = 100.0
+_ACCEL_AXIS = 1.0
+#: Assumed limb-line error (px, 1 sigma) behind the per-frame depth uncertainty.
+_LINE_SIGMA_PX = 0.3
+#: Assumed axis-direction error (rad, 1 sigma) behind the trocar-based joint.
+_DIR_SIGMA_RAD = math.radians(0.4)
+
+_END = ("end_x_mm", "end_y_mm", "end_z_mm")
+_START = ("start_x_mm", "start_y_mm", "start_z_mm")
+_AXIS = ("axis_x", "axis_y", "axis_z")
+_QUAT = ("qw", "qx", "qy", "qz")
+_TROCAR = ("trocar_x_mm", "trocar_y_mm", "trocar_z_mm")
+
+
+def _get3(cols: dict[str, np.ndarray], names: tuple[str, ...], idx: np.ndarray) -> np.ndarray:
+    return np.stack([cols[n][idx] for n in names], axis=1)
+
+
+def _set3(cols: dict[str, np.ndarray], names: tuple[str, ...], idx: np.ndarray,
+          values: np.ndarray) -> None:
+    for j, n in enumerate(names):
+        cols[n][idx] = values[:, j]
+
+
+def _trocar_fusion(cols: dict[str, np.ndarray], idx: np.ndarray, trocar: Trocar,
+                   K: np.ndarray, radius: float) -> None:
+    """Re-solve the shaft rows ``idx`` (one instrument) with the trocar constraint."""
+    T = trocar.point
+    for i in idx:
+        lines = [np.array([cols[f"aux_l{k}{c}"][i] for c in "abc"]) for k in (1, 2)]
+        have = [bool(np.all(np.isfinite(line))) for line in lines]
+        jpx = np.array([cols["aux_u_px"][i], cols["aux_v_px"][i]])
+        if not np.all(np.isfinite(jpx)):
+            continue
+        ray = np.linalg.solve(K, np.array([jpx[0], jpx[1], 1.0]))
+        ray /= np.linalg.norm(ray)
+        J = np.array([cols[n][i] for n in _END])
+        a = np.array([cols[n][i] for n in _AXIS])
+        if have[0] and have[1] and np.all(np.isfinite(J)) and np.all(np.isfinite(a)):
+            # second joint estimate: line through the trocar with the measured direction,
+            # met with the joint's ray (closest points of two lines)
+            t = float(closest_on_axis(ray[None], T, a)[0])
+            jt = T + t * a
+            s_r = float(ray @ jt)
+            sin_ang = math.sqrt(max(1.0 - float(ray @ a) ** 2, 1e-6))
+            sig_t = (float(np.linalg.norm(J - T)) * _DIR_SIGMA_RAD + trocar.rms_mm) / sin_ang
+            sens = cols["aux_sens_mm_px"][i]
+            sig_m = (sens if np.isfinite(sens) else 5.0) * _LINE_SIGMA_PX
+            if s_r <= 0 or not np.isfinite(sig_t):
+                continue
+            jt = s_r * ray  # on the joint's viewing ray
+            w_t, w_m = 1.0 / sig_t**2, 1.0 / sig_m**2
+            Jf = (w_t * jt + w_m * J) / (w_t + w_m)
+            shift = Jf - J
+            for names in (_END, _START):
+                v = np.array([cols[n][i] for n in names])
+                if np.all(np.isfinite(v)):
+                    for j, n in enumerate(names):
+                        cols[n][i] = v[j] + shift[j]
+        elif have[0] != have[1]:
+            line = lines[0] if have[0] else lines[1]
+            sol = axis_through_point(tangent_plane(line, K), radius, T, ray)
+            if sol is None:
+                continue
+            p, a = sol
+            t = float(closest_on_axis(ray[None], p, a)[0])
+            J = p + t * a
+            for j, n in enumerate(_END):
+                cols[n][i] = J[j]
+            for j, n in enumerate(_AXIS):
+                cols[n][i] = a[j]
+            for j, n in enumerate(_START):
+                cols[n][i] = p[j]
+
+
+def _realign_clasper(cols: dict[str, np.ndarray], shaft_idx: np.ndarray,
+                     clasper_idx: np.ndarray, frames: np.ndarray) -> None:
+    """Move each clasper row's start (= J) and end with its shaft row's joint."""
+    by_frame = {int(frames[i]): i for i in shaft_idx}
+    for i in clasper_idx:
+        s = by_frame.get(int(frames[i]))
+        if s is None:
+            continue
+        J = np.array([cols[n][s] for n in _END])
+        start = np.array([cols[n][i] for n in _START])
+        tip = np.array([cols[n][i] for n in _END])
+        if not (np.all(np.isfinite(J)) and np.all(np.isfinite(start))):
+            continue
+        shift = J - start
+        for j, n in enumerate(_START):
+            cols[n][i] = J[j]
+        if np.all(np.isfinite(tip)):
+            for j, n in enumerate(_END):
+                cols[n][i] = tip[j] + shift[j]
+
+
+def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline"
+                    ) -> TrackTable:
+    """Sequence-level metric refinement: trocar, trocar constraint, temporal filtering.
+
+    Args:
+        table: the motion table with the per-frame metric columns of
+            :func:`~mistool.pose.measure_instance` (and its ``aux_*`` columns).
+        config: the sequence's ``mistool.config.Config`` (camera, fps, diameters).
+        smoothing: ``"none"``, ``"offline"`` (zero-phase smoother) or ``"online"``
+            (causal filter).
+
+    Returns:
+        A new table: metric columns updated, ``trocar_*_mm`` filled, ``aux_*`` dropped.
+
+    Raises:
+        ConfigError: unknown ``smoothing``.
+    """
+    if smoothing not in MODES:
+        raise ConfigError(f"smoothing = {smoothing!r}: choose one of {', '.join(MODES)}")
+    if table.num_rows == 0 or "end_x_mm" not in table:
+        return TrackTable({c: v for c, v in table.items() if c not in AUX_KEYS})
+    cols = {c: np.array(table[c], copy=True) for c in table.columns}
+    for name in (*_END, *_START, *_AXIS, *_QUAT, *_TROCAR, "quality", *AUX_KEYS):
+        if name not in cols:
+            cols[name] = np.full(table.num_rows, np.nan)
+    camera = getattr(config, "camera", None)
+    fps = float(getattr(config, "fps", 25.0) or 25.0)
+    frames = np.asarray(cols["frame"])
+    inst = np.asarray(cols["instrument"]).astype(str)
+    part = np.asarray(cols["part"]).astype(str)
+    for name in np.unique(inst):
+        rows = inst == name
+        shaft_idx = np.flatnonzero(rows & (part == "shaft"))
+        shaft_idx = shaft_idx[np.argsort(frames[shaft_idx], kind="stable")]
+        J = _get3(cols, _END, shaft_idx)
+        a = _get3(cols, _AXIS, shaft_idx)
+        trocar = intersect_lines(J, a)
+        if trocar is None:
+            continue
+        for j, n in enumerate(_TROCAR):
+            cols[n][rows] = trocar.point[j]
+        diameter = None
+        if hasattr(config, "shaft_diameter_for"):
+            diameter = config.shaft_diameter_for(name)
+        if camera is not None and diameter:
+            _trocar_fusion(cols, shaft_idx, trocar, np.asarray(camera.K, float), diameter / 2)
+            _realign_clasper(cols, shaft_idx, np.flatnonzero(rows & (part != "shaft")), frames)
+        # orient axes away from the trocar (distal) where the frame had no distal cue
+        nod = shaft_idx[cols["aux_distal"][shaft_idx] == 0]
+        if len(nod):
+            mid = _get3(cols, _START, nod)
+            ax = _get3(cols, _AXIS, nod)
+            flip = np.einsum("ij,ij->i", mid - trocar.point, ax) < 0
+            _set3(cols, _AXIS, nod[flip], -ax[flip])
+    if smoothing != "none":
+        for _key, idx in TrackTable({"frame": frames, "instrument": inst,
+                                          "part": part}).groups("instrument", "part"):
+            idx = idx[np.argsort(frames[idx], kind="stable")]
+            t = frames[idx] / fps
+            for names, acc, floor in ((_END, ACCEL_MM_S2, 0.05), (_START, ACCEL_MM_S2, 0.05),
+                                      (_AXIS, _ACCEL_AXIS, 1e-4)):
+                y = _get3(cols, names, idx)
+                f = filter_series(t, y, smoothing, acc, floor)
+                if names is _AXIS:
+                    f /= np.linalg.norm(f, axis=1, keepdims=True)
+                _set3(cols, names, idx, f)
+    ax = _get3(cols, _AXIS, np.arange(table.num_rows))
+    ok = np.all(np.isfinite(ax), axis=1)
+    for i in np.flatnonzero(ok):
+        q = quat_from_z(ax[i] / np.linalg.norm(ax[i]))
+        for j, n in enumerate(_QUAT):
+            cols[n][i] = q[j]
+    return TrackTable({c: v for c, v in cols.items() if c not in AUX_KEYS})
+
