@@ -1,0 +1,87 @@
+"""``mistool serve``: replay a sequence in 3D in the browser."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+
+DESCRIPTION = """\
+Replay a recorded procedure in 3D in the browser: every instrument's shaft and clasper as
+two linked cylinders following the tracked motion, the endoscope as a frustum showing the
+current mask, a ground grid, a timeline (slider, play/pause, speed 0.25x-4x, step, loop),
+the 2D overlay (mask blended over the procedure's own video when mistool.toml gives
+'source', with each part's rotated box), camera presets (Endoscope, Side, Top, Reset),
+plots of x/y/z and roll/pitch/yaw with a cursor, and trails of each tip and joint.
+
+The sequence is tracked first (progress bar on stderr), unless --poses gives a motion
+table (e.g. from 'mistool track'). Problems with SEQUENCE are reported before the server
+starts. The URL printed is the one really in use: when the port is busy the next free
+one is taken. Ctrl+C stops the server.
+
+3D modes (switch in the GUI): 'metric' (millimetres, the default when mistool.toml has
+[camera]) and 'paper' (the paper's vpython scene in pixel units: cylinder length = box
+length, radius = half the box width, the clasper's base attached to the shaft's end).
+
+Every browser shares one timeline and the display options; each has its own camera.
+Keyboard: space or K play/pause, J / L one frame back / forward, Home first frame
+(also in viser's command palette, Ctrl+K).
+
+examples:
+  mistool serve                         # the bundled sample_masks/
+  mistool serve masks/ --port 8081
+  mistool serve masks/ --poses masks_motion.csv
+  mistool serve masks/ --host 0.0.0.0   # reachable from other machines
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``serve`` subcommand."""
+    p = subparsers.add_parser(
+        "serve", help="replay a sequence in 3D in the browser", description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("sequence", metavar="SEQUENCE", nargs="?", default=None,
+                   help="folder of label images or mask video (default: bundled sample)")
+    p.add_argument("--port", type=int, default=8080,
+                   help="first port to try (default 8080; 0 = any free port)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="interface to listen on (default 127.0.0.1; 0.0.0.0 for all)")
+    p.add_argument("--poses", metavar="POSES.csv",
+                   help="show this motion table instead of tracking the sequence")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--environment-map", action="store_true",
+                   help="light the scene with viser's HDR environment map (slow to start "
+                        "without a GPU)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
+        stop: threading.Event | None = None) -> int:
+    """Serve until Ctrl+C (or until ``stop`` is set, for in-process tests)."""
+    from mistool.errors import ConfigError
+    from mistool.viewer import ReplayViewer, load_sequence  # viser only for this command
+
+    if not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port {args.port}: must be in 0..65535")
+    progress = not args.quiet and sys.stderr.isatty()
+    sequence = load_sequence(args.sequence, poses=args.poses, progress=progress)
+    try:
+        viewer = ReplayViewer(sequence, host=args.host, port=args.port,
+                              environment_map=args.environment_map)
+    except OSError as exc:
+        raise ConfigError(f"--host {args.host}: cannot listen: {exc.strerror or exc}") from None
+    replay = sequence.replay
+    print(f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
+          f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode", flush=True)
+    print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
+    if ready is not None:
+        ready.set()
+    try:
+        waiter = stop or threading.Event()
+        while not waiter.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        print("mistool serve: stopped", file=sys.stderr)
+    finally:
+        viewer.close()
+    return 0

@@ -1,0 +1,246 @@
+"""The replay viewer: a viser server showing one sequence's replay.
+
+Shared or per-browser? The **timeline and display options are shared** by every browser
+connected to one server (slider, play/pause, speed, mode, trails, opacity, plot
+selection): a teacher scrubs and the class follows, and the server's work per frame does
+not grow with the number of browsers. **Cameras are per browser**: orbiting or a camera
+preset moves only the browser that asked (except that the "Endoscope" preset hides the
+frustum for everyone, since the scene is shared, and the other presets show it again).
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import io
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import viser
+
+from mistool.errors import InputPathError
+from mistool.model import TrackTable
+from mistool.viewer.overlay import FrameStore, OverlayRenderer, encode_jpeg
+from mistool.viewer.plots import PlotPanel
+from mistool.viewer.replay import Replay, build_replay
+from mistool.viewer.scene import PRESETS, SceneView
+from mistool.viewer.timeline import Timeline
+
+
+@dataclass(frozen=True)
+class LoadedSequence:
+    """What the viewer needs about a sequence: its replay and its frames on disk."""
+
+    replay: Replay
+    """The precomputed replay."""
+    frames: FrameStore
+    """Lazy access to its mask (and source video) frames."""
+    name: str
+    """A short name for titles."""
+
+
+def load_sequence(path: str | Path | None, *, poses: str | Path | None = None,
+                  progress: bool = False, table: TrackTable | None = None) -> LoadedSequence:
+    """Open a sequence for the viewer: track it (or load its motion table) and index its
+    frames. Every problem is raised here, before any server starts.
+
+    Args:
+        path: the sequence folder or mask video; None for the bundled sample.
+        poses: a motion table CSV to show instead of tracking the sequence.
+        progress: show a tracking progress bar on stderr.
+        table: an in-memory motion table to show instead of tracking.
+
+    Raises:
+        MistoolError: bad path, masks, ``mistool.toml`` or table (one-line message).
+    """
+    from mistool.export import read_csv
+    from mistool.resources import sample_masks_dir
+    from mistool.sequence import list_frames, resolve
+
+    seq_path, config = resolve(sample_masks_dir() if path is None else path)
+    frames = FrameStore(seq_path, config)
+    num_frames: int | None = frames.num_mask_frames or None
+    shape: tuple[int, int] | None = None
+    if frames.has_masks:
+        first = frames.labels(0)
+        if first is not None:
+            shape = (int(first.shape[0]), int(first.shape[1]))
+    if table is None and poses is not None:
+        table = read_csv(poses)
+    elif table is None:
+        if seq_path.is_dir() and not list_frames(seq_path):
+            raise InputPathError(f"{seq_path}: no label images in this folder; pass a folder "
+                                 "of masks, a mask video, or --poses with a motion table")
+        from mistool import api  # tracking only when no table is given
+
+        result = api.run(seq_path, config, progress=progress)
+        table, num_frames, config = result.table, result.num_frames, result.config
+        if result.shape is not None:
+            shape = result.shape
+    image_wh = (shape[1], shape[0]) if shape is not None else None
+    replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
+    return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
+
+
+def quiet_server(host: str, port: int) -> viser.ViserServer:
+    """A viser server that prints nothing (viser 1.1.1 prints a banner even when not
+    verbose; library code never prints, the command line prints the URL itself)."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        return viser.ViserServer(host=host, port=port, verbose=False, label="mistool")
+
+
+class ReplayViewer:
+    """A running viewer: server, scene, overlay, timeline, plots."""
+
+    def __init__(self, sequence: LoadedSequence, *, host: str = "127.0.0.1", port: int = 8080,
+                 environment_map: bool = False, trail_frames: int = 25,
+                 opacity: float = 0.6) -> None:
+        """
+        Args:
+            sequence: from :func:`load_sequence`.
+            host: interface to listen on.
+            port: first port to try (viser moves to the next free one); 0 = any free port.
+            environment_map: light the scene with viser's HDR environment map (costly in
+                software rendering; see ``scripts/bench_viewer.py``); default lights
+                otherwise.
+            trail_frames: initial trail length (frames; 0 = off).
+            opacity: initial mask opacity of the overlay, [0, 1].
+        """
+        self.sequence = sequence
+        replay = self.replay = sequence.replay
+        self.update_seconds: collections.deque[float] = collections.deque(maxlen=2000)
+        self._lock = threading.Lock()
+        self.server = server = quiet_server(host, port)
+        server.gui.configure_theme(control_width="large", show_logo=False,
+                                   titlebar_content=None)
+        if not environment_map:
+            server.scene.configure_environment_map(None)
+        self.renderer = OverlayRenderer(replay, sequence.frames) \
+            if sequence.frames.has_masks or sequence.frames.has_source else None
+        first = self.renderer.render(0, opacity) if self.renderer else None
+        mode = replay.default_mode
+        self.scene = SceneView(server, replay, mode, overlay=first, trail_frames=trail_frames)
+        gui = server.gui
+        gui.add_markdown(f"**mistool replay** · {sequence.name} · {replay.num_frames} frames "
+                         f"at {replay.fps:g} fps · {len(replay.instruments)} instrument(s)")
+        with gui.add_folder("Playback"):
+            self.timeline = Timeline(server, replay.num_frames, replay.fps, self._draw)
+        with gui.add_folder("View"):
+            labels = {"metric": "Metric (mm)", "paper": "Paper (px)"}
+            self.mode = gui.add_dropdown("3D mode", tuple(labels[m] for m in replay.modes),
+                                         initial_value=labels[mode])
+            if "metric" not in replay.modes:
+                gui.add_markdown("_Metric mode needs `[camera]` in mistool.toml and a "
+                                 "metric pose._")
+            self.camera_buttons = gui.add_button_group("Camera", PRESETS)
+            self.trail = gui.add_slider("Trail (frames)", min=0, max=200, step=1,
+                                        initial_value=trail_frames)
+            self.opacity = gui.add_slider("Mask opacity", min=0.0, max=1.0, step=0.05,
+                                          initial_value=opacity)
+            self.boxes = gui.add_checkbox("Rotated boxes", initial_value=True)
+            gui.add_markdown(self._legend())
+        with gui.add_folder("2D overlay"):
+            self.image = gui.add_image(first if first is not None else
+                                       np.zeros((4, 4, 3), np.uint8), format="jpeg",
+                                       jpeg_quality=80)
+        with gui.add_folder("Plots", expand_by_default=False):
+            self.plots = PlotPanel(gui, replay, mode)
+        self.mode.on_update(lambda _: self._set_mode(
+            next(m for m in replay.modes if labels[m] == self.mode.value)))
+        self.camera_buttons.on_click(lambda e: self._camera(e.client, str(e.target.value)))
+        self.trail.on_update(lambda _: self._redraw(trails=True))
+        self.opacity.on_update(lambda _: self._redraw())
+        self.boxes.on_update(lambda _: self._redraw())
+        position, look_at, up, fov = self.scene.camera_pose("Reset")
+        server.initial_camera.position = tuple(position)
+        server.initial_camera.look_at = tuple(look_at)
+        server.initial_camera.up = tuple(up)
+        server.initial_camera.fov = fov
+        self.timeline.request(0)
+
+    # -- public -------------------------------------------------------------------------
+    @property
+    def port(self) -> int:
+        """The port the server really listens on."""
+        return self.server.get_port()
+
+    @property
+    def url(self) -> str:
+        """The address to open in a browser."""
+        host = self.server.get_host()
+        shown = "localhost" if host in ("0.0.0.0", "::", "") else host
+        return f"http://{shown}:{self.port}"
+
+    def draw_now(self, frame: int) -> float:
+        """Draw ``frame`` synchronously (benchmarks); returns the seconds it took."""
+        return self._draw(frame)
+
+    def close(self) -> None:
+        """Stop playback and the server."""
+        self.timeline.stop()
+        with contextlib.redirect_stdout(io.StringIO()):  # viser prints "Server stopped"
+            self.server.stop()
+        self.sequence.frames.close()
+
+    # -- internals ----------------------------------------------------------------------
+    def _legend(self) -> str:
+        rows = []
+        for i, name in enumerate(self.replay.instruments):
+            r, g, b = (int(c) for c in self.replay.colours[i])
+            rows.append(f"<span style='color:rgb({r},{g},{b})'>■</span> {name}")
+        return "Instruments: " + " &nbsp; ".join(rows)
+
+    def _overlay(self, frame: int) -> np.ndarray | None:
+        if self.renderer is None:
+            return None
+        return self.renderer.render(frame, float(self.opacity.value), bool(self.boxes.value))
+
+    def _draw(self, frame: int) -> float:
+        """Show ``frame`` everywhere; returns the seconds it took (also recorded)."""
+        t0 = time.perf_counter()
+        with self._lock:
+            overlay = self._overlay(frame)
+            with self.server.atomic():
+                self.scene.show(frame)
+                if overlay is not None:
+                    jpeg = encode_jpeg(overlay, 80)
+                    self._set_jpeg(overlay, jpeg)
+                self.plots.set_frame(frame)
+        dt = time.perf_counter() - t0
+        self.update_seconds.append(dt)
+        return dt
+
+    def _set_jpeg(self, rgb: np.ndarray, jpeg: bytes) -> None:
+        """Send one encoded JPEG to both the GUI image and the frustum's image plane."""
+        # Public setters would encode the same image twice; viser 1.1.1 (pinned) keeps
+        # the encoded bytes in these props, so the one encoding is shared.
+        self.image._image = rgb
+        self.image._format = "jpeg"
+        self.image._data = jpeg
+        if self.scene.show_frustum_image:
+            self.scene.frustum._image = rgb
+            self.scene.frustum._format = "jpeg"
+            self.scene.frustum._image_data = jpeg
+
+    def _redraw(self, trails: bool = False) -> None:
+        with self._lock:
+            if trails:
+                self.scene.set_trail_frames(int(self.trail.value))
+            frame = self.timeline.shown if self.timeline.shown >= 0 else 0
+        self.timeline._shown = -1  # force the render thread to redraw this frame
+        self.timeline.request(frame)
+
+    def _set_mode(self, mode: str) -> None:
+        with self._lock:
+            self.scene.set_mode(mode)
+            self.plots.set_mode(mode)
+
+    def _camera(self, client: viser.ClientHandle | None, preset: str) -> None:
+        if client is None:
+            return
+        with self._lock:
+            self.scene.set_frustum_image_visible(preset != "Endoscope")
+        self.scene.apply_camera(client, preset)

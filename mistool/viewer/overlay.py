@@ -1,0 +1,309 @@
+"""The 2D overlay: a frame's mask, colourised per instrument and part, blended over the
+procedure's own video frame when there is one, with each part's rotated box drawn.
+
+Frames are read lazily (one at a time, on demand) from the sequence folder or mask video,
+and from ``source`` in ``mistool.toml`` (a video file or a folder of RGB frames). Nothing
+here imports viser. Images are RGB uint8, shape ``(h, w, 3)``, at a display size no larger
+than :data:`MAX_OVERLAY_SIDE` (the JPEG sent to the browser stays small).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mistool.config import Config
+from mistool.errors import InputPathError, MaskFormatError
+from mistool.sequence import (
+    IMAGE_EXTENSIONS,
+    VIDEO_EXTENSIONS,
+    list_frames,
+    natural_key,
+    read_label_image,
+)
+from mistool.viewer.replay import Replay
+
+#: Longest side (px) of the overlay image sent to the browser.
+MAX_OVERLAY_SIDE = 480
+#: Colour (RGB) of mask pixels whose label is a part value but that no box explains.
+UNASSIGNED_RGB = (200, 200, 200)
+#: Background (RGB) where there is no source video.
+BACKGROUND_RGB = (24, 24, 28)
+
+
+class _VideoReader:
+    """Random access to a video's frames (sequential reads are fast, seeks are not)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+        if not self._cap.isOpened():
+            raise MaskFormatError(f"{path}: cannot open as a video")
+        self._next = 0
+        self.num_frames = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))
+
+    def read(self, index: int) -> np.ndarray | None:
+        """The BGR (or grey) frame at ``index``, or None past the end."""
+        if index != self._next:
+            self._cap.set(cv2.CAP_PROP_POS_FRAMES, index)
+        ok, img = self._cap.read()
+        self._next = index + 1 if ok else -1
+        return img if ok else None
+
+    def close(self) -> None:
+        self._cap.release()
+
+
+class FrameStore:
+    """Lazy, random-access frames of a sequence: label images and source video frames.
+
+    Thread-safe (one lock); a small LRU cache keeps the most recent decoded frames.
+    """
+
+    def __init__(self, sequence: Path | None, config: Config, *, cache_frames: int = 8) -> None:
+        """
+        Args:
+            sequence: the folder of label images or the mask video (None: no masks).
+            config: the sequence's config (``source``, colour masks).
+            cache_frames: decoded frames kept in memory.
+        """
+        self.config = config
+        self._lock = threading.Lock()
+        self._cache: OrderedDict[tuple[str, int], np.ndarray | None] = OrderedDict()
+        self._cache_frames = cache_frames
+        self._mask_files: list[Path] = []
+        self._mask_video: _VideoReader | None = None
+        if sequence is not None:
+            if sequence.is_dir():
+                self._mask_files = list_frames(sequence)
+            elif sequence.suffix.lower() in VIDEO_EXTENSIONS:
+                self._mask_video = _VideoReader(sequence)
+        self._source_files: list[Path] = []
+        self._source_video: _VideoReader | None = None
+        src = config.source
+        if src is not None:
+            if not src.exists():
+                raise InputPathError(f"{config.path or 'mistool.toml'}: source {src} does not "
+                                     "exist; fix 'source' or remove it")
+            if src.is_dir():
+                self._source_files = sorted(
+                    (p for p in src.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
+                    key=lambda p: natural_key(p.name))
+            else:
+                self._source_video = _VideoReader(src)
+
+    @property
+    def has_masks(self) -> bool:
+        """Whether label images can be read."""
+        return bool(self._mask_files) or self._mask_video is not None
+
+    @property
+    def has_source(self) -> bool:
+        """Whether the procedure's own video frames can be read."""
+        return bool(self._source_files) or self._source_video is not None
+
+    @property
+    def num_mask_frames(self) -> int:
+        """Number of mask frames (0 without masks)."""
+        if self._mask_video is not None:
+            return self._mask_video.num_frames
+        return len(self._mask_files)
+
+    def _cached(self, key: tuple[str, int]) -> tuple[bool, np.ndarray | None]:
+        if key in self._cache:
+            self._cache.move_to_end(key)
+            return True, self._cache[key]
+        return False, None
+
+    def _store(self, key: tuple[str, int], value: np.ndarray | None) -> None:
+        self._cache[key] = value
+        while len(self._cache) > self._cache_frames:
+            self._cache.popitem(last=False)
+
+    def labels(self, index: int) -> np.ndarray | None:
+        """The ``(H, W)`` label image of frame ``index`` (None when there is none)."""
+        with self._lock:
+            hit, value = self._cached(("mask", index))
+            if hit:
+                return value
+            value = None
+            if 0 <= index < len(self._mask_files):
+                value = read_label_image(self._mask_files[index],
+                                         colour=self.config.colour_masks)
+            elif self._mask_video is not None:
+                img = self._mask_video.read(index)
+                if img is not None:
+                    value = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+            self._store(("mask", index), value)
+            return value
+
+    def source(self, index: int) -> np.ndarray | None:
+        """The RGB source frame ``index`` (None when there is none)."""
+        with self._lock:
+            hit, value = self._cached(("source", index))
+            if hit:
+                return value
+            img = None
+            if 0 <= index < len(self._source_files):
+                img = cv2.imread(str(self._source_files[index]), cv2.IMREAD_COLOR)
+            elif self._source_video is not None:
+                img = self._source_video.read(index)
+            value = None
+            if img is not None:
+                value = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB if img.ndim == 2
+                                     else cv2.COLOR_BGR2RGB)
+            self._store(("source", index), value)
+            return value
+
+    def close(self) -> None:
+        """Release open videos."""
+        for v in (self._mask_video, self._source_video):
+            if v is not None:
+                v.close()
+
+
+def display_size(image_wh: tuple[int, int], max_side: int = MAX_OVERLAY_SIDE) -> tuple[int, int]:
+    """(w, h) of the overlay for an image of size ``image_wh``, longest side <= max_side."""
+    w, h = image_wh
+    s = min(1.0, max_side / max(w, h))
+    return max(1, int(round(w * s))), max(1, int(round(h * s)))
+
+
+class OverlayRenderer:
+    """Draws a frame's overlay: colourised mask, source blend, rotated boxes."""
+
+    def __init__(self, replay: Replay, frames: FrameStore,
+                 max_side: int = MAX_OVERLAY_SIDE) -> None:
+        self.replay = replay
+        self.frames = frames
+        self.size_wh = display_size(replay.image_wh, max_side)
+        self._scale = self.size_wh[0] / replay.image_wh[0]
+        cfg = replay.config
+        parts = replay.parts
+        # Part lookup for label values: 0 = background, p + 1 = parts[p].
+        self._own_values = bool(cfg.instruments)
+        self._lut_part = np.zeros(65536, dtype=np.uint8)
+        self._lut_inst = np.full(65536, 255, dtype=np.uint8)  # 255 = decided by the boxes
+        if not cfg.colour_masks:
+            for part, (lo, hi) in cfg.parts.items():
+                if part in parts:
+                    self._lut_part[lo:hi + 1] = parts.index(part) + 1
+            for spec in cfg.instruments:
+                if spec.name not in replay.instruments:
+                    continue
+                i = replay.instruments.index(spec.name)
+                for part, (lo, hi) in spec.parts.items():
+                    if part in parts:
+                        self._lut_part[lo:hi + 1] = parts.index(part) + 1
+                        self._lut_inst[lo:hi + 1] = i
+        # Colour table: [instrument, part] -> RGB; row I = unassigned.
+        n_i, n_p = len(replay.instruments), len(parts)
+        self._colours = np.zeros((n_i + 1, n_p + 1, 3), dtype=np.uint8)
+        for i in range(n_i):
+            for p, part in enumerate(parts):
+                self._colours[i, p + 1] = replay.part_colour(i, part)
+        self._colours[n_i, 1:] = UNASSIGNED_RGB
+        if (n_i + 1) * (n_p + 1) > 256:
+            raise ValueError(f"overlay: too many instruments ({n_i}) to colour")
+        self._lut_rgb = np.zeros((1, 256, 3), dtype=np.uint8)
+        self._lut_rgb[0, :(n_i + 1) * (n_p + 1)] = self._colours.reshape(-1, 3)
+
+    def _part_image(self, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Per display pixel: part index (0 = none) and, for own-value configs, instrument."""
+        w, h = self.size_wh
+        small = cv2.resize(labels, (w, h), interpolation=cv2.INTER_NEAREST)
+        if self.replay.config.colour_masks:
+            part = np.zeros((h, w), dtype=np.uint8)
+            inst = np.full((h, w), 255, dtype=np.uint8)
+            cfg = self.replay.config
+            specs = [(None, cfg.parts)] + [(s.name, s.parts) for s in cfg.instruments]
+            for name, table in specs:
+                for pname, (lo, hi) in table.items():
+                    if pname not in self.replay.parts:
+                        continue
+                    m = (small >= lo) & (small <= hi)
+                    part[m] = self.replay.parts.index(pname) + 1
+                    if name in self.replay.instruments:
+                        inst[m] = self.replay.instruments.index(name)
+            return part, inst if cfg.instruments else None
+        idx = small.astype(np.intp, copy=False)
+        part = self._lut_part[idx]
+        return part, (self._lut_inst[idx] if self._own_values else None)
+
+    def render(self, frame: int, opacity: float = 0.6, boxes: bool = True) -> np.ndarray:
+        """The overlay of ``frame``: RGB uint8 ``(h, w, 3)`` at :attr:`size_wh`.
+
+        Args:
+            frame: frame index.
+            opacity: mask opacity over the source frame (or the dark background), [0, 1].
+            boxes: draw each part's rotated box.
+        """
+        w, h = self.size_wh
+        replay = self.replay
+        src = self.frames.source(frame)
+        if src is not None:
+            base = cv2.resize(src, (w, h), interpolation=cv2.INTER_AREA)
+        else:
+            base = np.empty((h, w, 3), dtype=np.uint8)
+            base[:] = BACKGROUND_RGB
+        labels = self.frames.labels(frame)
+        corners = replay.corners[frame] * self._scale if 0 <= frame < replay.num_frames \
+            else None
+        if labels is not None:
+            part, inst = self._part_image(labels)
+            if inst is None:
+                inst = self._instances_from_boxes(part, corners)
+            # One code per pixel, (instrument, part) -> colour through a 256-entry LUT.
+            code = np.minimum(inst, len(replay.instruments)) * np.uint8(len(replay.parts) + 1)
+            code += part
+            colour = cv2.LUT(cv2.merge([code, code, code]), self._lut_rgb)
+            mask = (part > 0).view(np.uint8)
+            a = float(np.clip(opacity, 0.0, 1.0))
+            if a > 0 and cv2.countNonZero(mask):
+                blended = cv2.addWeighted(base, 1.0 - a, colour, a, 0.0)
+                cv2.copyTo(blended, mask, base)
+        if boxes and corners is not None:
+            self._draw_boxes(base, corners)
+        return base
+
+    def _instances_from_boxes(self, part: np.ndarray, corners: np.ndarray | None) -> np.ndarray:
+        """Instrument index per pixel for merged masks: the instrument whose box of that
+        part covers the pixel (later instruments win overlaps); unassigned elsewhere."""
+        n_i = len(self.replay.instruments)
+        inst = np.full(part.shape, n_i, dtype=np.uint8)
+        if corners is None:
+            return inst
+        raster = np.full(part.shape, 255, dtype=np.uint8)
+        for p in range(corners.shape[1]):
+            raster[:] = 255
+            for i in range(n_i):
+                c = corners[i, p]
+                if np.isfinite(c).all():
+                    cv2.fillPoly(raster, [np.round(c).astype(np.int32)], i)
+            m = (part == p + 1) & (raster != 255)
+            inst[m] = raster[m]
+        return inst
+
+    def _draw_boxes(self, img: np.ndarray, corners: np.ndarray) -> None:
+        for i in range(corners.shape[0]):
+            for p, pname in enumerate(self.replay.parts):
+                c = corners[i, p]
+                if not np.isfinite(c).all():
+                    continue
+                colour = self.replay.part_colour(i, pname)
+                pts = np.round(c * 4).astype(np.int32)  # 2 fractional bits
+                cv2.polylines(img, [pts], True, colour, 2 if pname == "shaft" else 1,
+                              cv2.LINE_AA, shift=2)
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int = 80) -> bytes:
+    """JPEG bytes of an RGB uint8 image."""
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
+                           [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
+    if not ok:  # pragma: no cover - OpenCV always encodes uint8 RGB
+        raise RuntimeError("JPEG encoding failed")
+    return buf.tobytes()

@@ -1,0 +1,192 @@
+"""The timeline: frame slider, play/pause, speed, step, loop, frame number and time, and
+keyboard shortcuts.
+
+One timeline is shared by every connected browser (a teacher scrubs, the class follows;
+each browser keeps its own camera). All frame changes go through one render thread that
+always draws the *latest* requested frame, so rapid scrubbing never queues a backlog and
+never leaves a stale frame on screen. Keyboard shortcuts are viser commands (hotkeys):
+space or K plays/pauses, J / L step one frame back / forward, Home goes to the first frame.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import viser
+
+#: Playback speeds offered (multiples of the sequence's fps).
+SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
+
+
+class Timeline:
+    """Playback state and its GUI; calls ``draw(frame)`` from its own thread."""
+
+    def __init__(self, server: viser.ViserServer, num_frames: int, fps: float,
+                 draw: Callable[[int], None]) -> None:
+        """
+        Args:
+            server: the viser server (GUI shared by all clients).
+            num_frames: frames in the sequence (>= 1).
+            fps: the sequence's frames per second.
+            draw: shows one frame (called from the render thread only).
+        """
+        self.server = server
+        self.num_frames = int(num_frames)
+        self.fps = float(fps)
+        self._draw = draw
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._target = 0
+        self._shown = -1
+        self.playing = False
+        self.frames_drawn = 0
+        self.draw_errors: list[BaseException] = []
+        gui = server.gui
+        last = max(self.num_frames - 1, 1)
+        self.slider = gui.add_slider("Frame", min=0, max=last, step=1, initial_value=0,
+                                     disabled=self.num_frames < 2)
+        self.play_button = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY,
+                                          hint="Play / pause (space or K)")
+        self.step_buttons = gui.add_button_group("Step", ("-1 (J)", "+1 (L)"))
+        self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1x")
+        self.loop = gui.add_checkbox("Loop", initial_value=True)
+        self.info = gui.add_markdown(self._info_text(0))
+        self.slider.on_update(lambda _: self.request(int(self.slider.value)))
+        self.play_button.on_click(lambda _: self.toggle())
+        self.step_buttons.on_click(
+            lambda e: self.step(-1 if str(e.target.value).startswith("-") else 1))
+        self.commands = [
+            gui.add_command("Play / pause", hotkey="space", description="Toggle playback"),
+            gui.add_command("Play / pause (K)", hotkey="K", description="Toggle playback"),
+            gui.add_command("Previous frame", hotkey="J", description="Step back one frame"),
+            gui.add_command("Next frame", hotkey="L", description="Step forward one frame"),
+            gui.add_command("First frame", hotkey="home", description="Go to frame 0"),
+        ]
+        self.commands[0].on_trigger(lambda _: self.toggle())
+        self.commands[1].on_trigger(lambda _: self.toggle())
+        self.commands[2].on_trigger(lambda _: self.step(-1))
+        self.commands[3].on_trigger(lambda _: self.step(1))
+        self.commands[4].on_trigger(lambda _: self.seek(0))
+        self._thread = threading.Thread(target=self._run, name="mistool-timeline",
+                                        daemon=True)
+        self._thread.start()
+
+    # -- control ------------------------------------------------------------------------
+    @property
+    def frame(self) -> int:
+        """The frame most recently requested."""
+        return self._target
+
+    @property
+    def shown(self) -> int:
+        """The frame most recently drawn (-1 before the first)."""
+        return self._shown
+
+    def speed_factor(self) -> float:
+        """The selected speed as a multiple of the sequence's fps."""
+        return float(str(self.speed.value).rstrip("x"))
+
+    def request(self, frame: int) -> None:
+        """Ask for ``frame`` to be shown (clamped); returns at once."""
+        frame = min(max(int(frame), 0), self.num_frames - 1)
+        with self._lock:
+            self._target = frame
+        self._wake.set()
+
+    def seek(self, frame: int) -> None:
+        """Move the slider (and so every browser) to ``frame``."""
+        frame = min(max(int(frame), 0), self.num_frames - 1)
+        self.slider.value = frame
+        self.request(frame)
+
+    def step(self, delta: int) -> None:
+        """Pause and move ``delta`` frames (wrapping when looping)."""
+        self.set_playing(False)
+        frame = self._target + delta
+        if self.loop.value:
+            frame %= self.num_frames
+        self.seek(frame)
+
+    def toggle(self) -> None:
+        """Play if paused, pause if playing."""
+        self.set_playing(not self.playing)
+
+    def set_playing(self, playing: bool) -> None:
+        """Start or stop playback."""
+        if playing == self.playing:
+            return
+        if playing and not self.loop.value and self._target >= self.num_frames - 1:
+            self.seek(0)
+        self.playing = playing
+        self.play_button.label = "Pause" if playing else "Play"
+        self.play_button.icon = viser.Icon.PLAYER_PAUSE if playing else viser.Icon.PLAYER_PLAY
+        self._wake.set()
+
+    def stop(self) -> None:
+        """Stop the render thread (the GUI stays)."""
+        self._stop.set()
+        self._wake.set()
+        self._thread.join(timeout=5.0)
+
+    def wait_shown(self, frame: int, timeout: float = 5.0) -> bool:
+        """Block until ``frame`` has been drawn (tests and benchmarks)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self._shown == frame:
+                return True
+            time.sleep(0.002)
+        return False
+
+    # -- render thread ------------------------------------------------------------------
+    def _info_text(self, frame: int) -> str:
+        return (f"**Frame** {frame} / {self.num_frames - 1} &nbsp; "
+                f"**Time** {frame / self.fps:.2f} s")
+
+    def _run(self) -> None:
+        next_tick = time.monotonic()
+        while not self._stop.is_set():
+            if self.playing:
+                period = 1.0 / (self.fps * self.speed_factor())
+                now = time.monotonic()
+                if now < next_tick:
+                    self._wake.wait(next_tick - now)
+                    self._wake.clear()
+                    if not self.playing or self._stop.is_set():
+                        continue
+                    if time.monotonic() < next_tick:  # woken by a scrub: draw it now
+                        self._draw_target()
+                        continue
+                # Hold the frame rate: schedule from the previous tick, but do not try to
+                # catch up more than one period after a stall.
+                next_tick = max(next_tick + period, time.monotonic())
+                frame = self._target + 1
+                if frame >= self.num_frames:
+                    if self.loop.value:
+                        frame = 0
+                    else:
+                        self.set_playing(False)
+                        continue
+                with self._lock:
+                    self._target = frame
+                self.slider.value = frame
+                self._draw_target()
+            else:
+                self._wake.wait(0.5)
+                self._wake.clear()
+                next_tick = time.monotonic()
+                self._draw_target()
+
+    def _draw_target(self) -> None:
+        frame = self._target
+        if frame == self._shown:
+            return
+        try:
+            self._draw(frame)
+            self.info.content = self._info_text(frame)
+        except Exception as exc:  # keep the replay alive; surfaced by the viewer
+            self.draw_errors.append(exc)
+        self._shown = frame
+        self.frames_drawn += 1
