@@ -21,7 +21,6 @@ the wrist as clasper: the metallic head.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
@@ -39,6 +38,7 @@ from mistool.errors import ConfigError, InputPathError
 from mistool.export import atomic_write, write_csv
 from mistool.geometry import min_area_box
 from mistool.model import TrackTable
+from mistool.paper import paper_motion
 from mistool.synth.corrupt import Corruptions, Corruptor
 from mistool.synth.motion import MotionOptions, generate_motion
 from mistool.synth.render import PART_CODES, RayCaster
@@ -325,7 +325,7 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
         if writer is not None:
             writer.release()
             writer = None
-        truth = _add_paper_motion(_rows_to_table(rows))
+        truth = _add_paper_motion(_rows_to_table(rows), cam.camera.fx)
         write_csv(truth, tmp / "truth.csv")
         opts = {"frames": frames, "instruments": instruments, "seed": seed,
                 "preset": preset, "fps": float(fps), "distinct_labels": distinct_labels,
@@ -351,12 +351,8 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
     return SynthResult(out, truth, config)
 
 
-def _add_paper_motion(truth: TrackTable) -> TrackTable:
+def _add_paper_motion(truth: TrackTable, focal_px: float) -> TrackTable:
     """Fill the paper's motion columns of the truth: Algorithm 2 applied to the clean
-    boxes (what the paper method gives on perfect masks)."""
-    with contextlib.suppress(ImportError):  # paper.py is written in parallel (issue 2)
-        from mistool.paper import paper_motion
-
-        if truth.num_rows:
-            return paper_motion(truth.sorted(), focal_px=1.0)
-    return truth.sorted()
+    boxes with ``f = fx`` (what ``mistool track`` computes on perfect masks)."""
+    truth = truth.sorted()
+    return paper_motion(truth, focal_px=focal_px) if truth.num_rows else truth
