@@ -48,16 +48,20 @@ def min_area_box(points: np.ndarray) -> tuple[RotatedBox, np.ndarray]:
     Raises:
         ValueError: if ``points`` is empty or not (N, 2).
     """
+    rect = cv2.minAreaRect(_as_cv_points(points))
+    corners = np.asarray(cv2.boxPoints(rect), dtype=np.float64).reshape(4, 2)
+    return _canonical(rect), corners
+
+
+def _as_cv_points(points: np.ndarray) -> np.ndarray:
     pts = np.asarray(points)
     if pts.ndim == 3 and pts.shape[1] == 1:  # OpenCV contour layout (N, 1, 2)
         pts = pts[:, 0, :]
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) == 0:
-        raise ValueError(f"min_area_box: expected (N, 2) points with N >= 1, got {pts.shape}")
+        raise ValueError(f"expected (N, 2) points with N >= 1, got shape {pts.shape}")
     if pts.dtype != np.int32 and pts.dtype != np.float32:
         pts = pts.astype(np.float32) if pts.dtype.kind == "f" else pts.astype(np.int32)
-    rect = cv2.minAreaRect(pts)
-    corners = np.asarray(cv2.boxPoints(rect), dtype=np.float64).reshape(4, 2)
-    return _canonical(rect), corners
+    return pts
 
 
 def _canonical(rect: tuple) -> RotatedBox:
@@ -261,8 +265,7 @@ def fit_part(mask: np.ndarray, min_area_px: int = 0, offset: tuple[int, int] = (
         pts = np.concatenate(contours, axis=0).reshape(-1, 2)
     ox, oy = offset[0] + x, offset[1] + y
     pts = pts + np.asarray((ox, oy), np.int32)
-    fit = min_area_box(pts)
-    box, corners = grow_to_pixel_edges(pts, fit[0]) if pixel_edges else fit
+    box, corners = grow_to_pixel_edges(pts) if pixel_edges else min_area_box(pts)
     return PartFit(box=box, corners=corners, area_px=area, mask=kept, offset=(ox, oy))
 
 
@@ -314,8 +317,9 @@ def _lattice_gaps(normals: np.ndarray, h: np.ndarray, t_lo: np.ndarray, t_hi: np
     return gaps
 
 
-def grow_to_pixel_edges(points: np.ndarray, box: RotatedBox) -> tuple[RotatedBox, np.ndarray]:
-    """Move each side of a box fitted to pixel centres half-way to the next pixel row.
+def grow_to_pixel_edges(points: np.ndarray, box: RotatedBox | None = None
+                        ) -> tuple[RotatedBox, np.ndarray]:
+    """Minimum-area box of pixel centres, each side moved half-way to the next pixel row.
 
     A shape drawn on the pixel grid lights the pixels whose centres it covers; the box of
     those centres (the paper's box) lies inside the shape by up to one pixel row on each
@@ -324,43 +328,39 @@ def grow_to_pixel_edges(points: np.ndarray, box: RotatedBox) -> tuple[RotatedBox
     covered centres and the next row of pixel centres beyond them, so each side moves out
     by half of :func:`_lattice_gaps` (the error left is at most half that gap, <= 0.5 px,
     per side). A single pixel becomes a 1 x 1 box, a one-pixel-wide line gets width 1.
-    The angle is kept.
+    The angle is that of ``cv2.minAreaRect``, and the corners keep OpenCV's own
+    ``boxPoints`` order for the grown rectangle.
 
     Args:
-        points: (N, 2) integer pixel centres the box was fitted to.
-        box: their minimum-area box (:func:`min_area_box`).
+        points: (N, 2) integer pixel centres, N >= 1.
+        box: unused (kept for symmetry with :func:`min_area_box`'s result).
 
     Returns:
-        ``(box, corners)`` like :func:`min_area_box`, corners in ``cv2.boxPoints`` order.
+        ``(box, corners)`` like :func:`min_area_box`.
     """
-    pts = np.asarray(points, dtype=np.float64)
-    t = math.radians(box.angle_deg)
+    pts = _as_cv_points(points)
+    (_, _), (_, _), angle = cv2.minAreaRect(pts)
+    t = math.radians(float(angle))
     c, s = math.cos(t), math.sin(t)
-    u = np.array([c, s])  # along the long side
-    v = np.array([-s, c])  # across it
-    pu = pts @ u
-    pv = pts @ v
-    u_lo, u_hi = float(pu.min()), float(pu.max())
-    v_lo, v_hi = float(pv.min()), float(pv.max())
-    # sides: +v and -v (the long sides, spanning u), +u and -u (the ends, spanning v);
-    # tangent of normal n is (-n_y, n_x): for +v it is -u, for +u it is +v.
-    normals = np.stack([v, -v, u, -u])
-    h = np.array([v_hi, -v_lo, u_hi, -u_lo])
-    t_lo = np.array([-u_hi, u_lo, v_lo, -v_hi])
-    t_hi = np.array([-u_lo, u_hi, v_hi, -v_lo])
+    e1 = np.array([c, s])  # OpenCV's first side ("width") direction
+    e2 = np.array([-s, c])
+    pf = pts.astype(np.float64)
+    p1 = pf @ e1
+    p2 = pf @ e2
+    a_lo, a_hi = float(p1.min()), float(p1.max())
+    b_lo, b_hi = float(p2.min()), float(p2.max())
+    # sides with outward normals +e2, -e2 (spanning e1), +e1, -e1 (spanning e2); the
+    # tangent of normal n is (-n_y, n_x): for +e2 it is -e1, for +e1 it is +e2.
+    normals = np.stack([e2, -e2, e1, -e1])
+    h = np.array([b_hi, -b_lo, a_hi, -a_lo])
+    t_lo = np.array([-a_hi, a_lo, b_lo, -b_hi])
+    t_hi = np.array([-a_lo, a_hi, b_hi, -b_lo])
     g = _lattice_gaps(normals, h, t_lo, t_hi) / 2.0
-    v_hi, v_lo, u_hi, u_lo = v_hi + g[0], v_lo - g[1], u_hi + g[2], u_lo - g[3]
-    cu, cv_ = (u_lo + u_hi) / 2.0, (v_lo + v_hi) / 2.0
-    cx = cu * c - cv_ * s
-    cy = cu * s + cv_ * c
-    length, width = u_hi - u_lo, v_hi - v_lo
-    angle = box.angle_deg
-    if width > length:  # cannot happen for a min-area fit, but keep the box canonical
-        length, width, angle = width, length, (angle + 90.0) % 180.0
-    grown = RotatedBox(cx=cx, cy=cy, length=length, width=width, angle_deg=angle)
-    corners = np.asarray(cv2.boxPoints(((cx, cy), (length, width), angle)),
-                         dtype=np.float64).reshape(4, 2)
-    return grown, corners
+    b_hi, b_lo, a_hi, a_lo = b_hi + g[0], b_lo - g[1], a_hi + g[2], a_lo - g[3]
+    ca, cb = (a_lo + a_hi) / 2.0, (b_lo + b_hi) / 2.0
+    rect = ((ca * c - cb * s, ca * s + cb * c), (a_hi - a_lo, b_hi - b_lo), float(angle))
+    corners = np.asarray(cv2.boxPoints(rect), dtype=np.float64).reshape(4, 2)
+    return _canonical(rect), corners
 
 
 def mask_box(mask: np.ndarray, offset: tuple[int, int] = (0, 0), *, pixel_edges: bool = True
