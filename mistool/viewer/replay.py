@@ -189,6 +189,9 @@ def _paper_columns(table: TrackTable) -> TrackTable:
     """The table with the paper's per-frame columns, computed when they are all missing."""
     if "paper_x_px" in table and np.isfinite(np.asarray(table["paper_x_px"], float)).any():
         return table
+    corners = [f"{a}{k}_px" for k in range(1, 5) for a in ("x", "y")]
+    if not all(c in table and np.isfinite(np.asarray(table[c], float)).all() for c in corners):
+        return table  # Algorithm 2 needs every box's corners
     try:
         from mistool.paper import paper_motion  # the algorithms helper's Algorithm 2
     except ImportError:  # pragma: no cover - until mistool.paper exists

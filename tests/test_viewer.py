@@ -1,0 +1,319 @@
+"""The viewer without a browser: replay geometry, overlay pixels, timeline, CLI, export.
+
+The browser tests are in ``test_viewer_browser.py``.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import socket
+import threading
+import time
+from contextlib import redirect_stdout
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mistool.cli import main
+from mistool.config import Camera, Config, config_from_dict
+from mistool.errors import InputPathError, MistoolError, TableError
+from mistool.model import TrackTable
+from mistool.viewer import ReplayViewer, build_replay, export_html, load_sequence
+from mistool.viewer.overlay import FrameStore, OverlayRenderer
+from mistool.viewer.replay import (
+    METRIC_UNITS_PER_MM,
+    PAPER_UNITS_PER_PX,
+    R_WORLD_CAMERA,
+    euler_from_quat,
+    quat_z_to,
+)
+
+CAMERA = Camera(fx=600.0, fy=600.0, cx=359.5, cy=287.5)
+
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    w, x, y, z = q
+    r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return r @ v
+
+
+@pytest.mark.parametrize("d", [(0, 0, 1), (0, 0, -1), (1, 0, 0), (0, 1, 0),
+                               (0.6, -0.8, 0.0), (0.3, 0.4, -0.866)])
+def test_quat_z_to_rotates_z_onto_direction(d: tuple[float, ...]) -> None:
+    d = np.asarray(d, float) / np.linalg.norm(d)
+    q = quat_z_to(d)
+    assert np.isclose(np.linalg.norm(q), 1.0)
+    np.testing.assert_allclose(_rotate(q, np.array([0.0, 0.0, 1.0])), d, atol=1e-9)
+
+
+def test_euler_from_quat_recovers_a_yaw() -> None:
+    q = np.array([math.cos(math.radians(15)), 0.0, 0.0, math.sin(math.radians(15))])
+    np.testing.assert_allclose(euler_from_quat(q), [0.0, 0.0, 30.0], atol=1e-9)
+
+
+def _metric_table() -> TrackTable:
+    """One instrument, frames 0 and 2 (frame 1 absent), shaft and clasper in mm."""
+    rows = []
+    for f in (0, 2):
+        joint = np.array([10.0 + f, 5.0, 80.0])
+        shaft_start = joint - np.array([0.0, 0.0, 40.0])
+        tip = joint + np.array([0.0, 10.0, 0.0])
+        rows.append(dict(frame=f, instrument="a", part="shaft", cx_px=300, cy_px=200,
+                         length_px=200, width_px=40, angle_deg=0.0,
+                         start_x_mm=shaft_start[0], start_y_mm=shaft_start[1],
+                         start_z_mm=shaft_start[2], end_x_mm=joint[0], end_y_mm=joint[1],
+                         end_z_mm=joint[2], axis_x=0.0, axis_y=0.0, axis_z=1.0))
+        # The clasper's own start is off the joint: the viewer attaches it anyway.
+        rows.append(dict(frame=f, instrument="a", part="clasper", cx_px=400, cy_px=220,
+                         length_px=60, width_px=20, angle_deg=90.0,
+                         start_x_mm=joint[0] + 3, start_y_mm=joint[1], start_z_mm=joint[2],
+                         end_x_mm=tip[0], end_y_mm=tip[1], end_z_mm=tip[2],
+                         axis_x=0.0, axis_y=1.0, axis_z=0.0))
+    return TrackTable({k: [r[k] for r in rows] for k in rows[0]})
+
+
+def test_metric_cylinders_are_linked_in_millimetres() -> None:
+    config = Config(camera=CAMERA, shaft_diameter_mm=8.0)
+    replay = build_replay(_metric_table(), config, num_frames=3)
+    assert replay.default_mode == "metric"
+    g = replay.modes["metric"]
+    s = METRIC_UNITS_PER_MM
+    joint_w = R_WORLD_CAMERA @ np.array([12.0, 5.0, 80.0]) * s
+    # Shaft: from start to joint, 40 mm long, radius 4 mm.
+    assert g.visible[2, 0, 0] and g.visible[2, 0, 1]
+    assert np.isclose(g.length[2, 0, 0], 40.0 * s)
+    assert np.isclose(g.radius[2, 0, 0], 4.0 * s)
+    shaft_end = g.centre[2, 0, 0] + 0.5 * g.length[2, 0, 0] * _rotate(g.wxyz[2, 0, 0], [0, 0, 1])
+    np.testing.assert_allclose(shaft_end, joint_w, atol=1e-9)
+    # Clasper: its base is the shaft's end (joint), its end the tip.
+    clasp_base = g.centre[2, 0, 1] - 0.5 * g.length[2, 0, 1] * _rotate(g.wxyz[2, 0, 1],
+                                                                        [0, 0, 1])
+    np.testing.assert_allclose(clasp_base, joint_w, atol=1e-9)
+    assert np.isclose(g.length[2, 0, 1], 10.0 * s)
+    # Camera y (down) is world -z: the tip 10 mm "down" in the image is lower in the world.
+    np.testing.assert_allclose(g.tip[2, 0], joint_w + np.array([0.0, 0.0, -10.0 * s]))
+    # Frame 1 has no rows: nothing drawn, no trail point.
+    assert not g.visible[1].any() and np.isnan(g.tip[1]).all()
+    # The metric position series is the part's end in mm.
+    np.testing.assert_allclose(replay.series["metric/position"][0, 0, 1], [10.0, 15.0, 80.0])
+
+
+def test_without_camera_or_metric_values_paper_mode_is_the_default() -> None:
+    table = _metric_table()
+    paper = {"paper_x_px": table["cx_px"], "paper_y_px": table["cy_px"],
+             "paper_z": np.zeros(table.num_rows), "paper_roll_deg": np.zeros(table.num_rows),
+             "paper_pitch_deg": np.zeros(table.num_rows),
+             "paper_yaw_deg": np.zeros(table.num_rows)}
+    replay = build_replay(table.with_columns(**paper), Config())
+    assert list(replay.modes) == ["paper"] and replay.default_mode == "paper"
+
+
+def test_paper_cylinders_follow_the_papers_scene() -> None:
+    """Base at the paper's (x, y, z), length = box length, radius = half the box width,
+    axis = +x turned by the yaw, clasper base on the shaft's end (the paper, Section 4)."""
+    table = TrackTable({
+        "frame": [0, 0], "instrument": ["1", "1"], "part": ["shaft", "clasper"],
+        "cx_px": [100.0, 100.0], "cy_px": [50.0, 250.0], "length_px": [200.0, 60.0],
+        "width_px": [40.0, 20.0], "angle_deg": [90.0, 0.0],
+        "paper_x_px": [100.0, 999.0], "paper_y_px": [50.0, 999.0], "paper_z": [0.0, 0.0],
+        "paper_roll_deg": [90.0, 0.0], "paper_pitch_deg": [0.0, 0.0],
+        "paper_yaw_deg": [90.0, 0.0]})
+    config = Config(camera=CAMERA)  # no metric columns: paper only
+    replay = build_replay(table, config, image_wh=(720, 576))
+    g = replay.modes["paper"]
+    s = PAPER_UNITS_PER_PX
+
+    def world(x: float, y: float) -> np.ndarray:  # pixel plane at depth fy
+        return R_WORLD_CAMERA @ np.array([x - 360.0, y - 288.0, CAMERA.fy]) * s
+
+    axis0 = _rotate(g.wxyz[0, 0, 0], np.array([0.0, 0.0, 1.0]))
+    base0 = g.centre[0, 0, 0] - 0.5 * g.length[0, 0, 0] * axis0
+    np.testing.assert_allclose(base0, world(100.0, 50.0), atol=1e-9)
+    np.testing.assert_allclose(axis0, R_WORLD_CAMERA @ np.array([0.0, 1.0, 0.0]), atol=1e-9)
+    assert np.isclose(g.length[0, 0, 0], 200.0 * s) and np.isclose(g.radius[0, 0, 0], 20 * s)
+    axis1 = _rotate(g.wxyz[0, 0, 1], np.array([0.0, 0.0, 1.0]))
+    base1 = g.centre[0, 0, 1] - 0.5 * g.length[0, 0, 1] * axis1
+    np.testing.assert_allclose(base1, world(100.0, 250.0), atol=1e-9)  # the shaft's end
+    np.testing.assert_allclose(axis1, R_WORLD_CAMERA @ np.array([1.0, 0.0, 0.0]), atol=1e-9)
+    assert np.isclose(g.radius[0, 0, 1], 10 * s)
+
+
+@pytest.mark.parametrize("columns, message", [
+    ({"frame": [], "instrument": [], "part": []}, "missing column 'cx_px'"),
+    ({"frame": [0], "instrument": ["a"], "part": ["blade"], "cx_px": [1.0], "cy_px": [1.0],
+      "length_px": [2.0], "width_px": [1.0]}, "unknown part"),
+    ({"frame": [0], "instrument": ["a"], "part": ["shaft"], "cx_px": [1.0], "cy_px": [1.0],
+      "length_px": [2.0], "width_px": [1.0]}, "nothing to show"),
+])
+def test_bad_tables_raise_one_line_errors(columns: dict, message: str) -> None:
+    with pytest.raises(TableError, match=message) as info:
+        build_replay(TrackTable(columns), Config())
+    assert "\n" not in str(info.value)
+
+
+# --- a synthetic sequence shared by the tests below ----------------------------------
+@pytest.fixture(scope="module")
+def synth_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from mistool.synth import synthesize
+
+    out = tmp_path_factory.mktemp("viewer") / "seq"
+    synthesize(out, frames=40, instruments=2, seed=3)
+    return out
+
+
+@pytest.fixture(scope="module")
+def sequence(synth_dir: Path):
+    return load_sequence(synth_dir, poses=synth_dir / "truth.csv")
+
+
+def _busy_frame(replay) -> int:
+    g = replay.modes[replay.default_mode]
+    counts = g.visible.reshape(replay.num_frames, -1).sum(axis=1)
+    return int(np.argmax(counts))
+
+
+def test_overlay_colours_each_instrument_part_and_draws_boxes(sequence) -> None:
+    replay = sequence.replay
+    k = _busy_frame(replay)
+    renderer = OverlayRenderer(replay, sequence.frames)
+    img = renderer.render(k, opacity=1.0, boxes=False)
+    w, h = renderer.size_wh
+    assert img.shape == (h, w, 3) and img.dtype == np.uint8
+    colours = img.reshape(-1, 3)
+    for i in range(len(replay.instruments)):
+        for part in replay.parts:
+            c = np.array(replay.part_colour(i, part))
+            if replay.modes[replay.default_mode].visible[k, i, replay.parts.index(part)]:
+                assert (np.abs(colours.astype(int) - c).sum(axis=1) == 0).sum() > 20, \
+                    (replay.instruments[i], part)
+    # Opacity 0 shows no mask; boxes add outline pixels.
+    plain = renderer.render(k, opacity=0.0, boxes=False)
+    assert len(np.unique(plain.reshape(-1, 3), axis=0)) == 1
+    boxed = renderer.render(k, opacity=0.0, boxes=True)
+    assert (boxed != plain).any(axis=2).sum() > 100
+
+
+def test_overlay_blends_over_the_source_video(synth_dir: Path, sequence, tmp_path: Path) -> None:
+    src = tmp_path / "rgb"
+    src.mkdir()
+    for i in range(sequence.replay.num_frames):
+        cv2.imwrite(str(src / f"f{i}.png"), np.full((576, 720, 3), (0, 0, 255), np.uint8))
+    config = config_from_dict({"source": str(src), "camera": {"fx": 600.0, "fy": 600.0,
+                                                               "cx": 359.5, "cy": 287.5}})
+    frames = FrameStore(synth_dir, config)
+    assert frames.has_source and frames.has_masks
+    img = OverlayRenderer(sequence.replay, frames).render(0, opacity=0.5, boxes=False)
+    # Background pixels are the source (BGR red -> RGB red).
+    assert (np.abs(img.astype(int) - (255, 0, 0)).sum(axis=2) <= 3).mean() > 0.5
+
+
+def test_load_sequence_reports_problems_before_serving(tmp_path: Path) -> None:
+    with pytest.raises(InputPathError, match="no such file"):
+        load_sequence(tmp_path / "missing")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputPathError, match="no label images"):
+        load_sequence(empty)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,instrument\n0,a\n")
+    with pytest.raises(TableError, match="part"):
+        load_sequence(empty, poses=bad)
+
+
+def test_viewer_draws_frames_and_timeline_coalesces_scrubbing(sequence) -> None:
+    viewer = ReplayViewer(sequence, port=0)
+    try:
+        names = set(viewer.server.scene._handle_from_node_name)  # viser's own scene registry
+        for inst in sequence.replay.instruments:
+            for part in ("shaft", "clasper"):
+                assert f"/instruments/{inst}/{part}" in names
+        assert "/endoscope" in names and "/grid" in names
+        tl = viewer.timeline
+        for k in range(sequence.replay.num_frames):  # rapid scrubbing
+            tl.request(k)
+        last = sequence.replay.num_frames - 1
+        assert tl.wait_shown(last)
+        assert tl.frames_drawn < sequence.replay.num_frames + 1  # no backlog drawn
+        tl.step(1)  # loops to 0
+        assert tl.wait_shown(0) and int(tl.slider.value) == 0
+        tl.speed.value = "4x"
+        tl.set_playing(True)
+        time.sleep(0.5)
+        tl.set_playing(False)
+        # 4x of 25 fps over 0.5 s is 50 frames; allow for a slow, shared machine.
+        assert tl.frames_drawn >= 10 and not tl.draw_errors
+        k = _busy_frame(sequence.replay)
+        tl.seek(k)
+        assert tl.wait_shown(k)
+        cyl = viewer.scene.cylinders[0, 0]
+        assert cyl.visible == bool(viewer.replay.modes[viewer.scene.mode].visible[k, 0, 0])
+    finally:
+        viewer.close()
+
+
+def test_cli_serve_prints_the_port_it_really_got(synth_dir: Path) -> None:
+    blocker = socket.socket()
+    blocker.bind(("127.0.0.1", 0))
+    blocker.listen()
+    busy = blocker.getsockname()[1]
+    from mistool.cli import build_parser
+    from mistool.cli.serve import run
+
+    args = build_parser().parse_args(["serve", str(synth_dir), "--poses",
+                                      str(synth_dir / "truth.csv"), "--port", str(busy)])
+    ready, stop = threading.Event(), threading.Event()
+    out = io.StringIO()
+    result: list[int] = []
+
+    def serve() -> None:
+        with redirect_stdout(out):
+            result.append(run(args, ready=ready, stop=stop))
+
+    thread = threading.Thread(target=serve)
+    thread.start()
+    try:
+        assert ready.wait(30)
+        url = next(line for line in out.getvalue().splitlines() if "http://" in line)
+        port = int(url.split("http://")[1].split()[0].rsplit(":", 1)[1])
+        assert port != busy
+        with socket.create_connection(("127.0.0.1", port), timeout=5):
+            pass
+    finally:
+        stop.set()
+        thread.join(30)
+        blocker.close()
+    assert result == [0]
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["serve", "{tmp}/nope"], "no such file"),
+    (["serve", "{seq}", "--poses", "{tmp}/nope.csv"], "no such file"),
+    (["serve", "{seq}", "--port", "70000"], "--port 70000"),
+    (["export-html", "{seq}", "--poses", "{seq}/truth.csv", "--stride", "0", "-o",
+      "{tmp}/x.html"], "--stride 0"),
+])
+def test_cli_bad_input_is_one_line_error(argv: list[str], needle: str, synth_dir: Path,
+                                        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    argv = [a.format(tmp=tmp_path, seq=synth_dir) for a in argv]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mistool: error:") and needle in err and "\n" not in err
+    assert not (tmp_path / "x.html").exists()
+
+
+def test_export_html_is_standalone(sequence, tmp_path: Path) -> None:
+    out = tmp_path / "replay.html"
+    summary = export_html(sequence, out, max_frames=10)
+    assert summary.frames == 10 and out.stat().st_size == summary.bytes
+    html = out.read_text(encoding="utf-8")
+    assert "window.__VISER_EMBED_DATA__=" in html
+    # Offline: no script or stylesheet is fetched from elsewhere.
+    assert "<script src=\"http" not in html and "<link rel=\"stylesheet\" href=\"http" not in html
+    with pytest.raises(MistoolError, match="--mode"):
+        export_html(sequence, tmp_path / "y.html", mode="nonsense")
+    assert not (tmp_path / "y.html").exists()
