@@ -1,3 +1,48 @@
-"""mistool: 3D motion of surgical instruments from segmentation masks."""
+"""mistool: 3D motion of surgical instruments from segmentation masks.
+
+The public API (imported lazily, so ``import mistool`` stays light and never imports
+viser)::
+
+    table = mistool.track("masks/")                    # a folder, a mask video or arrays
+    tracker = mistool.Tracker(mistool.load_config("mistool.toml"))   # frame by frame
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
+
+__all__ = ["Config", "MistoolError", "RotatedBox", "TrackTable", "Tracker", "load_config",
+           "track"]
+
+# name -> module that defines it
+_LAZY = {
+    "track": "mistool.api",
+    "Tracker": "mistool.api",
+    "load_config": "mistool.config",
+    "Config": "mistool.config",
+    "TrackTable": "mistool.model",
+    "RotatedBox": "mistool.model",
+    "MistoolError": "mistool.errors",
+}
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mistool.api import Tracker, track
+    from mistool.config import Config, load_config
+    from mistool.errors import MistoolError
+    from mistool.model import RotatedBox, TrackTable
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'mistool' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(list(globals()) + __all__)

@@ -1,0 +1,165 @@
+"""The Python API: track() over folders/arrays, the frame-by-frame Tracker, ordering,
+flat memory (bounded frames in flight), warnings, empty input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import warnings
+import weakref
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+import mistool
+from mistool.api import MistoolWarning, Tracker, run, track
+from mistool.config import Config, config_from_dict
+from mistool.errors import ConfigError, MistoolError
+from mistool.model import COLUMN_NAMES, TrackTable
+
+H, W = 120, 160
+
+
+def _frame(i: int, *, two: bool = False) -> np.ndarray:
+    """Axis-aligned shaft [x0, x0+50) x [50, 60) and clasper right of it; x0 = 10 + 2i."""
+    img = np.zeros((H, W), np.uint8)
+    x0 = 10 + 2 * i
+    img[50:60, x0:x0 + 50] = 160
+    img[48:62, x0 + 50:x0 + 62] = 70
+    if two:  # a second, separate instrument, vertical, moving down
+        img[5 + i:45 + i, 130:138] = 160
+    return img
+
+
+def _compare(a: TrackTable, b: TrackTable) -> None:
+    assert a.columns == b.columns and a.num_rows == b.num_rows
+    for c in a.columns:
+        if a[c].dtype == object:
+            assert a[c].tolist() == b[c].tolist(), c
+        else:
+            np.testing.assert_array_equal(a[c], b[c], err_msg=c)
+
+
+def test_public_names() -> None:
+    assert mistool.track is track and mistool.Tracker is Tracker
+    assert mistool.Config is Config and issubclass(mistool.MistoolError, Exception)
+    assert {"load_config", "TrackTable", "RotatedBox"} <= set(dir(mistool))
+
+
+def test_track_arrays_rows_and_columns() -> None:
+    frames = [_frame(i) for i in range(6)]
+    table = track(frames, Config(fps=5.0))
+    assert table.columns[: 18] == COLUMN_NAMES[: 18]
+    assert table.num_rows == 12
+    assert table["frame"].tolist() == [0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5]
+    assert table["part"].tolist()[:2] == ["shaft", "clasper"]
+    assert len(set(table["instrument"].tolist())) == 1
+    shaft = table[table["part"] == "shaft"]
+    np.testing.assert_allclose(shaft["time_s"], np.arange(6) / 5.0)
+    # pixel centres x0 .. x0+49 and 50 .. 59: centre (x0 + 24.5, 54.5)
+    np.testing.assert_allclose(shaft["cx_px"], 10 + 2 * np.arange(6) + 24.5, atol=0.5)
+    np.testing.assert_allclose(shaft["cy_px"], 54.5, atol=0.5)
+    assert np.all((shaft["angle_deg"] < 0.5) | (shaft["angle_deg"] > 179.5))
+    np.testing.assert_array_equal(shaft["area_px"], 500.0)
+    corners = np.stack([shaft[f"{a}{k}_px"] for k in range(1, 5) for a in "xy"], axis=1)
+    np.testing.assert_allclose(corners.reshape(-1, 4, 2).mean(axis=1),
+                               np.stack([shaft["cx_px"], shaft["cy_px"]], axis=1), atol=1e-6)
+    assert np.isnan(shaft["dx_px"][0])  # first frame: no motion
+    np.testing.assert_allclose(shaft["dx_px"][1:], 2.0, atol=0.5)
+    assert np.isnan(table["end_x_mm"]).all()  # no camera
+
+
+def test_folder_equals_arrays_and_workers_keep_order(tmp_path: Path) -> None:
+    frames = [_frame(i, two=True) for i in range(20)]
+    for i, img in enumerate(frames):
+        cv2.imwrite(str(tmp_path / f"m{i}.png"), img)
+    (tmp_path / "mistool.toml").write_text("fps = 20.0\n")
+    by_folder = track(tmp_path, workers=2)
+    by_arrays = track(frames, Config(fps=20.0), workers=1)
+    _compare(by_folder, by_arrays)
+    assert len(set(by_folder["instrument"].tolist())) == 2
+    _compare(track(str(tmp_path), config=tmp_path / "mistool.toml", workers=3), by_folder)
+
+
+def test_frames_in_flight_are_bounded() -> None:
+    """Memory stays flat: the pipeline never holds more than a few frames at once."""
+    alive: list[weakref.ref] = []
+    peak = 0
+
+    def frames() -> Iterator[np.ndarray]:
+        nonlocal peak
+        for i in range(60):
+            img = _frame(i % 20)
+            alive.append(weakref.ref(img))
+            peak = max(peak, sum(r() is not None for r in alive))
+            yield img
+
+    table = track(frames(), Config(), workers=2)
+    assert table.num_rows == 120
+    assert peak <= 2 * 2 + 2, peak  # window of 2 x workers, plus the one being read
+
+
+def test_empty_and_single_frame() -> None:
+    empty = track([np.zeros((H, W), np.uint8)] * 3, Config())
+    assert empty.num_rows == 0 and empty.columns[:4] == COLUMN_NAMES[:4]
+    assert empty["cx_px"].dtype == np.float64
+    result = run([_frame(0)], Config())
+    assert result.num_frames == 1 and result.shape == (H, W) and result.table.num_rows == 2
+    assert result.instruments and result.parts == ("shaft", "clasper")
+
+
+def test_unknown_values_warn_once() -> None:
+    frames = [_frame(i) for i in range(4)]
+    frames[1][0:5, 0:5] = 33
+    frames[3][0:5, 0:5] = 34
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        track(frames, Config())
+    msgs = [str(w.message) for w in caught if issubclass(w.category, MistoolWarning)]
+    assert len(msgs) == 1 and "33, 34" in msgs[0]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"smoothing": "kalman"}, "smoothing = 'kalman'"),
+    ({"workers": 0}, "workers = 0"),
+    ({"config": 3}, "config: expected a Config"),
+])
+def test_bad_arguments(kwargs: dict, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        track([_frame(0)], **kwargs)
+
+
+def test_size_change_in_arrays() -> None:
+    with pytest.raises(MistoolError, match="frame 2: frame size changed"):
+        track([_frame(0), _frame(1), np.zeros((H, W + 1), np.uint8)], Config())
+
+
+def test_tracker_matches_track() -> None:
+    frames = [_frame(i, two=True) for i in range(8)]
+    frames[3][:, 120:] = 0  # the second instrument leaves for a frame
+    cfg = Config(fps=8.0)
+    tracker = Tracker(cfg, smoothing="none")
+    per_frame = [tracker.update(f) for f in frames]
+    assert tracker.num_frames == 8
+    whole = track(frames, cfg, smoothing="none")
+    _compare(tracker.table(), whole)
+    stitched = TrackTable.concat(per_frame).sorted()
+    for col in ("frame", "cx_px", "angle_deg", "dx_px", "dy_px", "dz", "dyaw_deg"):
+        np.testing.assert_array_equal(stitched[col], whole[col], err_msg=col)
+    assert stitched["instrument"].tolist() == whole["instrument"].tolist()
+
+
+def test_tracker_rejects_size_change() -> None:
+    tracker = Tracker(config_from_dict({}))
+    tracker.update(_frame(0))
+    with pytest.raises(MistoolError, match="frame 1: frame size changed"):
+        tracker.update(np.zeros((10, 10), np.uint8))
+
+
+def test_import_does_not_pull_viser() -> None:
+    code = ("import sys, mistool, mistool.api, mistool.cli.track; mistool.track; "
+            "assert 'viser' not in sys.modules, 'viser imported'")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
