@@ -227,3 +227,245 @@ def unknown_values(labels: np.ndarray, config: Config) -> np.ndarray:
     for lo, hi in ranges:
         known |= (values >= lo) & (values <= hi)
     return values[~known]
+
+
+@dataclass
+class _Track:
+    """An instrument the tracker has seen (mutable state, internal)."""
+
+    name: str
+    last_frame: int
+    centroid: np.ndarray  # (2,) px, where the instrument itself is believed to be
+    velocity: np.ndarray  # (2,) px per frame
+    area: float
+    angle: float | None  # shaft (or largest part) direction, deg in [0, 180)
+    elongation: float  # (length - width) / length of that box, 0..1
+    merged: bool = False  # inside a blob shared with another instrument: coasting
+    hidden: bool = False  # ... and that blob carries another instrument's name
+    size: float = 0.0  # largest sqrt(area) seen, px: the instrument's scale
+    seen: int = 1
+
+
+def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
+    part = inst.parts.get("shaft") or max(inst.parts.values(), key=lambda p: p.area_px)
+    box = part.box
+    if box.length <= 0:
+        return None, 0.0
+    return box.angle_deg, (box.length - box.width) / box.length
+
+
+def _angle_diff(a: float, b: float) -> float:
+    d = abs(a - b) % 180.0
+    return min(d, 180.0 - d)
+
+
+class IdentityTracker:
+    """Names instruments consistently across frames.
+
+    With ``config.instruments`` the name is the instance's label. In merged masks each
+    instance is matched to the known instruments by a cost built from the distance to
+    the instrument's predicted position (constant velocity), the difference in shaft
+    direction and the ratio of areas; the assignment minimises the total cost
+    (exhaustively for a few instruments, greedily beyond). Names are ``"1"``, ``"2"``,
+    ... in order of first appearance.
+
+    - Crossing: when two instruments touch they form one instance. The instance keeps the
+      name of the best match; the other instrument, whose predicted position lies inside
+      that instance, is kept alive, and both *coast* on their predicted motion (their
+      state is not polluted by the merged blob's centroid) until they separate, when
+      position and shaft direction tell them apart again.
+    - Leaving and coming back: an instrument unseen for up to ``max_gap_s`` seconds is
+      remembered; a new instance near where it was last seen (and similar in direction)
+      gets its old name back; after that gap it is forgotten and a newcomer gets a new
+      name.
+
+    ``assign`` must be called in frame order (it keeps state); it is not thread-safe.
+    """
+
+    #: Gate: a match costs at most this much (the distance term is in units of the
+    #: instrument's size, sqrt(area)).
+    MAX_COST = 3.0
+    #: Weights of the direction (per 90 deg) and log-area-ratio terms.
+    ANGLE_WEIGHT = 1.5
+    AREA_WEIGHT = 0.3
+    #: Extra cost per frame unseen, so recently seen instruments are preferred.
+    GAP_WEIGHT = 0.02
+    #: Extra cost for an instrument hidden in another's blob to take that blob's name.
+    HIDDEN_PENALTY = 0.5
+
+    def __init__(self, config: Config, *, max_gap_s: float = 2.0) -> None:
+        self._config = config
+        self._max_gap = max(1, int(round(max_gap_s * config.fps)))
+        self._tracks: list[_Track] = []
+        self._next = 1
+        self._last_frame: int | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every name handed out so far, in order of first appearance."""
+        return tuple(t.name for t in self._tracks)
+
+    def assign(self, frame_index: int, instances: list[InstanceObservation]) -> list[str]:
+        """Names for one frame's instances.
+
+        Args:
+            frame_index: the frame's 0-based index; increasing between calls.
+            instances: :func:`observe_frame`'s result for that frame.
+
+        Returns:
+            One instrument name per instance, same order, all different.
+        """
+        if self._config.instruments and all(i.label is not None for i in instances):
+            return [str(i.label) for i in instances]
+        if self._last_frame is not None and frame_index <= self._last_frame:
+            raise ValueError(f"IdentityTracker.assign: frame {frame_index} after frame "
+                             f"{self._last_frame}; frames must come in increasing order")
+        self._last_frame = frame_index
+        live = [t for t in self._tracks if frame_index - t.last_frame <= self._max_gap]
+        cost = np.full((len(live), len(instances)), np.inf)
+        for a, t in enumerate(live):
+            for b, inst in enumerate(instances):
+                cost[a, b] = self._cost(t, inst, frame_index)
+        pairs = _assignment(cost, self.MAX_COST)
+        names: list[str | None] = [None] * len(instances)
+        matched_tracks = set()
+        for a, b in pairs:
+            names[b] = live[a].name
+            matched_tracks.add(a)
+        # instruments hidden inside a matched instance (crossing): keep them coasting
+        blob_of: dict[int, list[int]] = {}
+        for a, t in enumerate(live):
+            if a in matched_tracks or frame_index - t.last_frame > max(3, self._max_gap // 4):
+                continue
+            pred = self._predict(t, frame_index)
+            for a2, b in pairs:
+                # a blob that holds both: the prediction is inside it, and it is clearly
+                # larger than the instrument it was matched to
+                grown = instances[b].area_px > 1.3 * live[a2].area or live[a2].merged
+                if grown and _inside(pred, instances[b].bbox_xywh, margin=0.15):
+                    blob_of.setdefault(b, []).append(a)
+                    break
+        merged_blobs = set(blob_of)
+        for a, b in pairs:
+            self._update(live[a], instances[b], frame_index, merged=b in merged_blobs)
+        for hidden in blob_of.values():
+            for a in hidden:
+                t = live[a]
+                t.centroid = self._predict(t, frame_index)
+                t.last_frame = frame_index
+                t.merged = t.hidden = True
+        for b, inst in enumerate(instances):
+            if names[b] is None:
+                track = self._new_track(inst, frame_index)
+                names[b] = track.name
+        return [str(n) for n in names]
+
+    # internals ------------------------------------------------------------------------
+    def _predict(self, t: _Track, frame: int) -> np.ndarray:
+        gap = frame - t.last_frame
+        steps = gap if t.merged or gap <= 5 else 5  # lost: look near where it was last
+        return t.centroid + t.velocity * steps
+
+    def _cost(self, t: _Track, inst: InstanceObservation, frame: int) -> float:
+        gap = frame - t.last_frame
+        pred = self._predict(t, frame)
+        c = np.asarray(inst.centroid_px)
+        # scale: the instrument's full size, also when it was last seen only partly
+        scale = max(t.size, math.sqrt(inst.area_px), 10.0)
+        cost = float(np.hypot(*(c - pred))) / scale
+        angle, elong = _appearance(inst)
+        if angle is not None and t.angle is not None:
+            w = min(elong, t.elongation)
+            cost += self.ANGLE_WEIGHT * w * _angle_diff(angle, t.angle) / 90.0
+        if not t.merged and gap <= 5:  # not a blob's area, nor an exit's partial one
+            cost += self.AREA_WEIGHT * abs(math.log(max(inst.area_px, 1) / max(t.area, 1.0)))
+        cost += self.GAP_WEIGHT * (gap - 1)
+        if t.hidden:  # a shared blob keeps the name it had: no flapping during a crossing
+            cost += self.HIDDEN_PENALTY
+        return cost
+
+    def _update(self, t: _Track, inst: InstanceObservation, frame: int, *,
+                merged: bool) -> None:
+        gap = frame - t.last_frame
+        c = np.asarray(inst.centroid_px, dtype=np.float64)
+        if merged:  # the blob's centroid is not this instrument's: coast
+            t.centroid = self._predict(t, frame)
+            t.merged = True
+        else:
+            if gap <= 5 and not t.merged:
+                v = (c - t.centroid) / gap
+                t.velocity = v if t.seen == 1 else 0.5 * t.velocity + 0.5 * v
+            elif gap > 5:
+                t.velocity = np.zeros(2)
+            t.centroid = c
+            t.area = float(inst.area_px)
+            t.size = max(t.size, math.sqrt(t.area))
+            angle, elong = _appearance(inst)
+            t.angle, t.elongation = angle, elong
+            t.merged = False
+        t.hidden = False
+        t.last_frame = frame
+        t.seen += 1
+
+    def _new_track(self, inst: InstanceObservation, frame: int) -> _Track:
+        angle, elong = _appearance(inst)
+        t = _Track(name=str(self._next), last_frame=frame,
+                   centroid=np.asarray(inst.centroid_px, dtype=np.float64),
+                   velocity=np.zeros(2), area=float(inst.area_px), angle=angle,
+                   elongation=elong, size=math.sqrt(inst.area_px))
+        self._next += 1
+        self._tracks.append(t)
+        return t
+
+
+def _inside(p: np.ndarray, bbox: tuple[int, int, int, int], margin: float) -> bool:
+    x, y, w, h = bbox
+    mx, my = margin * w, margin * h
+    return bool(x - mx <= p[0] <= x + w + mx and y - my <= p[1] <= y + h + my)
+
+
+def _assignment(cost: np.ndarray, max_cost: float) -> list[tuple[int, int]]:
+    """Pairs (row, col) minimising the total cost; pairs above ``max_cost`` are not made
+    (leaving a row or column unmatched costs ``max_cost``)."""
+    n_r, n_c = cost.shape
+    if n_r == 0 or n_c == 0:
+        return []
+    c = np.where(cost <= max_cost, cost, np.inf)
+    if min(n_r, n_c) <= 6 and max(n_r, n_c) <= 8:
+        return _exhaustive(c, max_cost)
+    pairs = []  # greedy, cheapest first
+    used_r: set[int] = set()
+    used_c: set[int] = set()
+    for flat in np.argsort(c, axis=None):
+        r, k = divmod(int(flat), n_c)
+        if not np.isfinite(c[r, k]):
+            break
+        if r not in used_r and k not in used_c:
+            pairs.append((r, k))
+            used_r.add(r)
+            used_c.add(k)
+    return pairs
+
+
+def _exhaustive(c: np.ndarray, max_cost: float) -> list[tuple[int, int]]:
+    n_r, n_c = c.shape
+    best: tuple[float, list[tuple[int, int]]] = (math.inf, [])
+
+    def rec(r: int, used: int, total: float, pairs: list[tuple[int, int]]) -> None:
+        nonlocal best
+        if total >= best[0]:
+            return
+        if r == n_r:
+            total += max_cost * (n_c - len(pairs))  # unmatched columns
+            if total < best[0]:
+                best = (total, list(pairs))
+            return
+        rec(r + 1, used, total + max_cost, pairs)  # row r unmatched
+        for k in range(n_c):
+            if not used >> k & 1 and np.isfinite(c[r, k]):
+                pairs.append((r, k))
+                rec(r + 1, used | 1 << k, total + c[r, k], pairs)
+                pairs.pop()
+
+    rec(0, 0, 0.0, [])
+    return best[1]

@@ -1,0 +1,260 @@
+"""observe_frame (instances and parts) and IdentityTracker (names across frames)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mistool.config import Config, config_from_dict
+from mistool.errors import MaskFormatError
+from mistool.model import RotatedBox
+from mistool.tracking import IdentityTracker, observe_frame, unknown_values
+
+H, W = 576, 720
+SHAFT, WRIST, CLASPER = 10, 20, 30  # endovis17 preset values
+MERGED = config_from_dict({"labels": "endovis17", "fps": 25.0})
+
+
+def fill_box(img: np.ndarray, box: RotatedBox, value: int) -> None:
+    """Light the pixels whose centres lie inside ``box`` (exact, no OpenCV)."""
+    c = box.corners()
+    x0, y0 = np.maximum(np.floor(c.min(0)).astype(int), 0)
+    x1, y1 = np.minimum(np.ceil(c.max(0)).astype(int) + 1, img.shape[::-1])
+    if x1 <= x0 or y1 <= y0:
+        return
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    t = math.radians(box.angle_deg)
+    u = (xx - box.cx) * math.cos(t) + (yy - box.cy) * math.sin(t)
+    v = -(xx - box.cx) * math.sin(t) + (yy - box.cy) * math.cos(t)
+    inside = (np.abs(u) <= box.length / 2) & (np.abs(v) <= box.width / 2)
+    img[yy[inside], xx[inside]] = value
+
+
+def draw_tool(img: np.ndarray, tip: tuple[float, float], angle_deg: float, *,
+              shaft=SHAFT, clasper=CLASPER, shaft_len=260.0, width=22.0,
+              clasper_len=40.0) -> None:
+    """A shaft coming from direction ``angle_deg + 180`` and a clasper ending at ``tip``.
+    ``angle_deg`` is the distal direction, from +x towards +y."""
+    t = math.radians(angle_deg)
+    d = np.array([math.cos(t), math.sin(t)])
+    tip_ = np.asarray(tip, float)
+    joint = tip_ - clasper_len * d
+    sc = joint - shaft_len / 2 * d
+    cc = joint + clasper_len / 2 * d
+    a = angle_deg % 180.0
+    fill_box(img, RotatedBox(sc[0], sc[1], shaft_len, width, a), shaft)
+    fill_box(img, RotatedBox(cc[0], cc[1], clasper_len, width * 0.8, a), clasper)
+
+
+def frame(*tools: tuple[tuple[float, float], float]) -> np.ndarray:
+    img = np.zeros((H, W), np.uint8)
+    for tip, ang in tools:
+        draw_tool(img, tip, ang)
+    return img
+
+
+# observe_frame ----------------------------------------------------------------------
+
+def test_one_instrument_parts_and_boxes():
+    img = frame(((400.0, 300.0), 20.0))
+    (inst,) = observe_frame(img, MERGED)
+    assert inst.label is None
+    assert set(inst.parts) == {"shaft", "clasper"}
+    shaft, clasper = inst.parts["shaft"], inst.parts["clasper"]
+    assert shaft.box.angle_deg == pytest.approx(20.0, abs=0.5)
+    assert clasper.box.length == pytest.approx(40.0, abs=1.0)
+    assert shaft.area_px == int((img == SHAFT).sum())
+    assert clasper.area_px == int((img == CLASPER).sum())
+    assert inst.area_px == shaft.area_px + clasper.area_px
+    ys, xs = np.nonzero(img)
+    assert inst.centroid_px == pytest.approx((xs.mean(), ys.mean()))
+    assert inst.bbox_xywh == (xs.min(), ys.min(), xs.max() - xs.min() + 1,
+                              ys.max() - ys.min() + 1)
+    # the part's crop and offset give back exactly its pixels
+    back = np.zeros_like(img, bool)
+    x0, y0 = shaft.offset
+    h, w = shaft.mask.shape
+    back[y0:y0 + h, x0:x0 + w] = shaft.mask
+    assert np.array_equal(back, img == SHAFT)
+
+
+@pytest.mark.parametrize("tools, expected", [
+    ([((300.0, 200.0), 10.0)], 1),
+    ([((300.0, 150.0), 10.0), ((420.0, 450.0), 170.0)], 2),
+    ([((200.0, 100.0), 30.0), ((500.0, 300.0), 160.0), ((360.0, 520.0), 270.0)], 3),
+])
+def test_instances_by_connectivity(tools, expected):
+    insts = observe_frame(frame(*tools), MERGED)
+    assert len(insts) == expected
+    assert all(set(i.parts) == {"shaft", "clasper"} for i in insts)
+    areas = [i.area_px for i in insts]
+    assert areas == sorted(areas, reverse=True)
+
+
+def test_clasper_across_one_pixel_gap_stays_one_instrument():
+    img = np.zeros((100, 200), np.uint8)
+    img[40:60, 10:100] = SHAFT
+    img[42:58, 101:130] = CLASPER  # column 100 is background: a 1-px gap
+    (inst,) = observe_frame(img, MERGED)
+    assert set(inst.parts) == {"shaft", "clasper"}
+    img[42:58, 101:103] = 0  # now a 3-px gap: two instances
+    assert len(observe_frame(img, MERGED)) == 2
+
+
+def test_specks_are_ignored():
+    img = frame(((400.0, 300.0), 20.0))
+    img[10:13, 10:13] = SHAFT  # 9-px speck, alone
+    img[500, 20] = CLASPER
+    clean = frame(((400.0, 300.0), 20.0))
+    (inst,) = observe_frame(img, MERGED)
+    (ref,) = observe_frame(clean, MERGED)
+    assert inst.parts["shaft"].box == ref.parts["shaft"].box
+    assert inst.area_px == ref.area_px
+    # a speck of clasper value touching nothing but inside the instance's crop is dropped
+    img2 = clean.copy()
+    img2[int(ref.centroid_px[1]) + 60, int(ref.centroid_px[0])] = CLASPER
+    (inst2,) = observe_frame(img2, MERGED)
+    assert inst2.parts["clasper"].area_px == ref.parts["clasper"].area_px
+
+
+def test_min_area_zero_keeps_one_pixel_parts():
+    img = np.zeros((20, 20), np.uint8)
+    img[5, 7] = SHAFT
+    assert observe_frame(img, MERGED) == []
+    cfg = config_from_dict({"labels": "endovis17", "min_area_px": 0})
+    (inst,) = observe_frame(img, cfg)
+    box = inst.parts["shaft"].box
+    assert (box.cx, box.cy, box.length, box.width) == (7.0, 5.0, 1.0, 1.0)
+
+
+def test_own_label_values():
+    cfg = config_from_dict({"instrument": [
+        {"name": "left", "shaft": 160, "clasper": 70},
+        {"name": "right", "shaft": [100, 110], "clasper": 50},
+    ]})
+    img = np.zeros((H, W), np.uint8)
+    draw_tool(img, (300.0, 300.0), 0.0, shaft=160, clasper=70)
+    draw_tool(img, (330.0, 310.0), 180.0, shaft=105, clasper=50)  # touching: still two
+    insts = observe_frame(img, cfg)
+    assert [i.label for i in insts] == ["left", "right"]
+    assert insts[1].parts["shaft"].area_px == int((img == 105).sum())
+    assert IdentityTracker(cfg).assign(0, insts) == ["left", "right"]
+
+
+def test_empty_frame_and_bad_input():
+    assert observe_frame(np.zeros((H, W), np.uint8), MERGED) == []
+    with pytest.raises(MaskFormatError):
+        observe_frame(np.zeros((4, 4, 3), np.uint8), MERGED)
+    with pytest.raises(MaskFormatError):
+        observe_frame(np.zeros((4, 4), np.float32), MERGED)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int64, np.uint32])
+def test_dtypes_agree(dtype):
+    img = frame(((400.0, 300.0), 20.0))
+    (ref,) = observe_frame(img, MERGED)
+    (got,) = observe_frame(img.astype(dtype), MERGED)
+    assert got.parts["shaft"].box == ref.parts["shaft"].box
+
+
+def test_unknown_values():
+    img = np.zeros((10, 10), np.uint8)
+    img[0, :3] = [SHAFT, 99, 7]
+    assert unknown_values(img, MERGED).tolist() == [7, 99]
+    assert unknown_values(img.astype(np.uint16), MERGED).tolist() == [7, 99]
+    assert unknown_values(img, Config()).tolist() == [7, 10, 99]  # endovis15: 160, 70
+
+
+# IdentityTracker ----------------------------------------------------------------------
+
+def run(frames: list[list[tuple[str, tuple[float, float], float]]], max_gap_s: float = 2.0):
+    """Track drawn frames; returns, per frame, {true tool: assigned name} matched by the
+    tool's tip lying in the named instance's clasper box."""
+    tracker = IdentityTracker(MERGED, max_gap_s=max_gap_s)
+    out = []
+    for k, tools in enumerate(frames):
+        img = frame(*[(tip, ang) for _, tip, ang in tools])
+        insts = observe_frame(img, MERGED)
+        names = tracker.assign(k, insts)
+        assert len(set(names)) == len(names)
+        got = {}
+        for tool, tip, _ in tools:
+            for inst, name in zip(insts, names, strict=True):
+                c = inst.parts.get("clasper")
+                if c is not None and _near(c.box, tip):
+                    got[tool] = name
+        out.append(got)
+    return out
+
+
+def _near(box: RotatedBox, p: tuple[float, float]) -> bool:
+    return math.hypot(box.cx - p[0], box.cy - p[1]) < box.length
+
+
+def crossing(n: int = 50):
+    """A moves right and B left, their shafts crossing like an X mid-way."""
+    frames = []
+    for k in range(n):
+        s = k / (n - 1)
+        a = ("A", (150 + 450 * s, 300.0), 60.0)
+        b = ("B", (600 - 450 * s, 320.0), 120.0)
+        frames.append([a, b])
+    return frames
+
+
+def test_two_instruments_crossing_keep_their_names():
+    frames = crossing()
+    counts = [len(observe_frame(frame(*[(t, a) for _, t, a in f]), MERGED)) for f in frames]
+    merged = [k for k, c in enumerate(counts) if c == 1]
+    assert len(merged) >= 10  # they do merge into one instance mid-way
+    after = [k for k in range(merged[-1] + 1, len(frames))]
+    assert len(after) >= 5 and all(counts[k] == 2 for k in after)
+    res = run(frames)
+    for k in range(merged[0] - 5):
+        assert res[k] == {"A": "1", "B": "2"}, k
+    for k in after:
+        assert res[k] == {"A": "1", "B": "2"}, k
+    # the shared blob keeps one name while they overlap
+    assert len({res[k]["A"] for k in merged[1:-1]}) == 1
+
+
+def test_three_instruments_crossing_and_one_passing_by():
+    frames = crossing()
+    for k, f in enumerate(frames):
+        f.append(("C", (150 + 4 * k, 500.0), 300.0))
+    res = run(frames)
+    assert res[0] == {"A": "1", "B": "2", "C": "3"}
+    assert res[-1] == {"A": "1", "B": "2", "C": "3"}
+
+
+@pytest.mark.parametrize("gap_frames, same_name", [(10, True), (40, True), (80, False)])
+def test_leaving_and_coming_back(gap_frames, same_name):
+    """B leaves through the right border, stays out for a while, comes back there."""
+    frames = []
+    for k in range(15):  # B slides out to the right
+        frames.append([("A", (250.0, 300.0), 0.0), ("B", (600.0 + 30 * k, 150.0), 340.0)])
+    for _ in range(gap_frames):
+        frames.append([("A", (250.0, 300.0), 0.0)])
+    for k in range(15):  # and back in
+        frames.append([("A", (250.0, 300.0), 0.0), ("B", (1020.0 - 30 * k, 160.0), 340.0)])
+    res = run(frames, max_gap_s=2.0)  # 50 frames at 25 fps
+    first = res[0]
+    assert sorted(first.values()) == ["1", "2"]
+    assert all(r["A"] == first["A"] for r in res)
+    assert res[-1]["B"] == (first["B"] if same_name else "3")
+
+
+def test_names_in_order_of_first_appearance():
+    frames = [[("A", (300.0, 200.0), 10.0)]] * 3
+    frames += [[("A", (300.0, 200.0), 10.0), ("B", (500.0, 450.0), 200.0)]] * 3
+    res = run(frames)
+    assert res[0] == {"A": "1"} and res[-1] == {"A": "1", "B": "2"}
+
+
+def test_frames_must_increase():
+    tracker = IdentityTracker(MERGED)
+    tracker.assign(3, [])
+    with pytest.raises(ValueError, match="increasing"):
+        tracker.assign(3, [])
