@@ -22,12 +22,19 @@ __all__ = [
     "axis_from_lines",
     "axis_through_point",
     "closest_on_axis",
+    "cross3",
     "pixel_rays",
     "project",
     "quat_from_z",
     "ray_cylinder",
     "tangent_plane",
 ]
+
+
+def cross3(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cross product of two (3,) vectors (``np.cross`` is slow on tiny inputs)."""
+    return np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                     u[0] * v[1] - u[1] * v[0]])
 
 
 def tangent_plane(line: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -60,7 +67,7 @@ def axis_from_lines(n1: np.ndarray, n2: np.ndarray, radius_mm: float
     c = float(n1 @ n2)
     if c <= -0.999999:  # opposite normals: the two lines coincide, no wedge
         return None
-    a = np.cross(n1, n2)
+    a = cross3(n1, n2)
     s = np.linalg.norm(a)
     if s < 1e-9:
         return None

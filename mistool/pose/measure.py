@@ -33,6 +33,7 @@ import numpy as np
 from mistool.pose.cylinder import (
     axis_from_lines,
     closest_on_axis,
+    cross3,
     pixel_rays,
     project,
     quat_from_z,
@@ -40,7 +41,7 @@ from mistool.pose.cylinder import (
     tangent_plane,
 )
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask
-from mistool.pose.silhouette import OTHER, boundary_points, fit_line_robust, make_canvas
+from mistool.pose.silhouette import boundary_points, fit_line_robust, make_canvas
 
 __all__ = ["AUX_KEYS", "POSE_KEYS", "SENSITIVITY_MAX_MM_PER_PX", "measure_instance"]
 
@@ -72,9 +73,30 @@ def _nan_row() -> dict[str, float]:
     return {k: math.nan for k in POSE_KEYS + AUX_KEYS}
 
 
-def _pixels(mask: np.ndarray, offset: tuple[int, int]) -> np.ndarray:
-    ys, xs = np.nonzero(mask)
-    return np.stack([xs + float(offset[0]), ys + float(offset[1])], axis=1)
+def _as_u8(mask: np.ndarray) -> np.ndarray:
+    m = np.ascontiguousarray(mask)
+    return m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).astype(np.uint8)
+
+
+def _outline(mask_u8: np.ndarray, offset: tuple[int, int]
+             ) -> tuple[np.ndarray, dict[str, float]]:
+    """Outline pixels (N, 2) of a mask (full-image px) and its region moments.
+
+    A region's extreme points in any direction are outline pixels, so the outline
+    replaces the full pixel list wherever only extremes are needed (much faster).
+    """
+    contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
+    mom = {"m00": 0.0, "m10": 0.0, "m01": 0.0, "m20": 0.0, "m11": 0.0, "m02": 0.0}
+    for c in contours:
+        m = cv2.moments(c)
+        for k in mom:
+            mom[k] += m[k]
+    if mom["m00"] < 1.0:  # degenerate outlines (lines of pixels): count pixels instead
+        m = cv2.moments(mask_u8, binaryImage=True)
+        mom = {k: m[k] for k in mom}
+    pts += offset
+    return pts, mom
 
 
 def _on_border(px: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
@@ -143,21 +165,22 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     row = out["shaft"]
     rng = np.random.default_rng(_SEED)
 
-    smask = np.ascontiguousarray(shaft.mask, dtype=np.uint8)
+    smask = _as_u8(shaft.mask)
     others = [(p.mask, p.offset) for n, p in parts.items() if n != "shaft"]
     canvas = make_canvas(shaft.mask, shaft.offset, others, image_shape)
-    bnd = boundary_points(canvas)
 
-    # principal axis of the shaft's pixels
-    mom = cv2.moments(smask, binaryImage=True)
+    # principal axis of the shaft's region
+    pix, mom = _outline(smask, shaft.offset)
     if mom["m00"] <= 0:
         return out
-    cx = mom["m10"] / mom["m00"] + shaft.offset[0]
-    cy = mom["m01"] / mom["m00"] + shaft.offset[1]
-    theta = 0.5 * math.atan2(2.0 * mom["mu11"], mom["mu20"] - mom["mu02"])
+    bnd = boundary_points(canvas, pix)
+    xm, ym = mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]
+    mu20 = mom["m20"] / mom["m00"] - xm * xm
+    mu02 = mom["m02"] / mom["m00"] - ym * ym
+    mu11 = mom["m11"] / mom["m00"] - xm * ym
+    theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
     e = np.array([math.cos(theta), math.sin(theta)])
-    centre = np.array([cx, cy])
-    pix = _pixels(shaft.mask, shaft.offset)
+    centre = np.array([xm + shaft.offset[0], ym + shaft.offset[1]])
     s_pix = (pix - centre) @ e
 
     # which end is distal: toward the other parts, else away from the image border
@@ -179,19 +202,20 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     row["aux_distal"] = 1.0 if distal != 0 else 0.0
 
     # limb-line candidates
-    width = float(shaft.box.width) if hasattr(shaft, "box") else 2.0 * math.sqrt(
-        max(mom["mu02"], mom["mu20"]) / mom["m00"])
+    width = float(shaft.box.width) if hasattr(shaft, "box") else 4.0 * math.sqrt(
+        max(min(mu20, mu02), 0.25))
     zone = 0.6 * width + 2.0
     pts = bnd.bg
     s = (pts - centre) @ e
     keep = s < s_max - zone
     if not prox_at_border:
         keep &= s > s_min + zone
-    if np.any(canvas.labels == OTHER):
-        near = cv2.dilate((canvas.labels == OTHER).astype(np.uint8), np.ones((5, 5), np.uint8))
-        ix = np.clip(np.floor(pts[:, 0]).astype(int) - canvas.x0, 0, near.shape[1] - 1)
-        iy = np.clip(np.floor(pts[:, 1]).astype(int) - canvas.y0, 0, near.shape[0] - 1)
-        keep &= near[iy, ix] == 0
+    if len(bnd.other):  # leave out points within 3 px of another part
+        lo, hi = bnd.other.min(axis=0) - 3.0, bnd.other.max(axis=0) + 3.0
+        box = np.flatnonzero(keep & np.all((pts >= lo) & (pts <= hi), axis=1))
+        if len(box):
+            d2 = ((pts[box, None, :] - bnd.other[None, ::2, :]) ** 2).sum(axis=2)
+            keep[box[d2.min(axis=1) < 9.0]] = False
     eperp = np.array([-e[1], e[0]])
     q = (pts - centre) @ eperp
     lines: list[np.ndarray | None] = []
@@ -323,7 +347,7 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
          image_shape: tuple[int, int], length: float | None
          ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Tip (3,), clasper axis (3,) and the tip's pixel (2,) (or Nones)."""
-    pts = _pixels(clasper.mask, clasper.offset)
+    pts, _ = _outline(_as_u8(clasper.mask), clasper.offset)
     jpx = project(joint[None], K)[0]
     v = pts - jpx
     mean = v.mean(axis=0)
@@ -342,7 +366,7 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
         if length is None:
             return None, None, tip_px
         r2 = pixel_rays((jpx + 10.0 * u)[None], K)[0]
-        nc = np.cross(joint / np.linalg.norm(joint), r2)
+        nc = cross3(joint / np.linalg.norm(joint), r2)
         nc /= np.linalg.norm(nc)
         c = a - (a @ nc) * nc
         if np.linalg.norm(c) < 1e-6:
