@@ -11,8 +11,10 @@ never the ground truth (``truth.csv`` always describes the clean, exact projecti
   background on the instrument, 2-7 px);
 - ``speckle``: mean number of label specks per frame (1-3 px blobs of a random part value,
   anywhere: false positives and wrong labels);
-- ``occluders``: number of tissue blobs (smooth shapes 25-70 px across, drifting slowly)
-  hiding whatever is under them;
+- ``occluders``: number of tissue blobs (unions of three ellipses, 30-90 px across) hiding
+  whatever is under them; blob ``k`` hovers over instrument ``k mod K``'s head (the mean of
+  its wrist and clasper pixels, else of its shaft), drifting about it on a slow smooth path,
+  as tissue that the jaws work in covers them;
 - ``hide_clasper``: fraction of frames in which the clasper (and wrist) of a tool is hidden
   (in runs of about a second, per instrument);
 - lossy video encoding is done by the writer (``video`` codec) on the corrupted frames.
@@ -76,17 +78,16 @@ class Corruptor:
         self.shape = shape
         self.seed = seed
         h, w = shape
-        # occluders: centres drifting on smooth paths, each a union of 3 ellipses
+        # occluders: offsets from the anchored instrument's head on slow smooth paths
         rng = _rng(seed, _OCCLUDE)
         self._blobs = []
-        for _ in range(corruptions.occluders):
-            centre = rng.uniform([0.15 * w, 0.15 * h], [0.85 * w, 0.85 * h])
-            vel = rng.normal(0, 12.0, 2)  # px/s
-            freq = rng.uniform(0.05, 0.2, 2)
+        for k in range(corruptions.occluders):
+            amp = rng.uniform(10.0, 45.0, 2)
+            freq = rng.uniform(0.05, 0.25, 2)
             phase = rng.uniform(0, 2 * math.pi, 2)
-            lobes = [(rng.uniform(-15, 15, 2), rng.uniform(12, 35, 2), rng.uniform(0, 180))
+            lobes = [(rng.uniform(-15, 15, 2), rng.uniform(15, 40, 2), rng.uniform(0, 180))
                      for _ in range(3)]
-            self._blobs.append((centre, vel, freq, phase, lobes))
+            self._blobs.append((k % max(1, instruments), amp, freq, phase, lobes))
         self.fps = fps
         # hidden clasper: per instrument, runs of ~1 s covering the requested fraction
         self._hidden = np.zeros((instruments, frames), dtype=bool)
@@ -152,8 +153,18 @@ class Corruptor:
         if c.occluders > 0:
             t = frame / self.fps
             mask = np.zeros((h, w), dtype=np.uint8)
-            for centre, vel, freq, phase, lobes in self._blobs:
-                p = centre + vel * t + 40.0 * np.sin(2 * math.pi * freq * t + phase)
+            anchors: dict[int, np.ndarray | None] = {}
+            for inst, amp, freq, phase, lobes in self._blobs:
+                if inst not in anchors:
+                    mine = instance == inst + 1
+                    ys, xs = np.nonzero(mine & (part >= 2))
+                    if len(xs) == 0:
+                        ys, xs = np.nonzero(mine)
+                    anchors[inst] = np.array([xs.mean(), ys.mean()]) if len(xs) else None
+                anchor = anchors[inst]
+                if anchor is None:  # nothing of that tool to hide
+                    continue
+                p = anchor + amp * np.sin(2 * math.pi * freq * t + phase)
                 for off, axes, ang in lobes:
                     q = p + off
                     cv2.ellipse(mask, (int(round(q[0])), int(round(q[1]))),
