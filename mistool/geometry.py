@@ -49,8 +49,29 @@ def min_area_box(points: np.ndarray) -> tuple[RotatedBox, np.ndarray]:
         ValueError: if ``points`` is empty or not (N, 2).
     """
     rect = cv2.minAreaRect(_as_cv_points(points))
-    corners = np.asarray(cv2.boxPoints(rect), dtype=np.float64).reshape(4, 2)
+    corners = box_points(rect)
     return _canonical(rect), corners
+
+
+def box_points(rect: tuple) -> np.ndarray:
+    """``cv2.boxPoints`` in float64: the corners of an OpenCV ``RotatedRect``.
+
+    Same formula and corner order as OpenCV's ``RotatedRect::points`` (checked against
+    ``cv2.boxPoints`` by the tests), without its float32 rounding.
+
+    Args:
+        rect: ``((cx, cy), (w, h), angle_deg)`` as ``cv2.minAreaRect`` returns.
+
+    Returns:
+        (4, 2) float64 corners.
+    """
+    (cx, cy), (w, h), angle = rect
+    t = math.radians(float(angle))
+    b, a = math.cos(t) * 0.5, math.sin(t) * 0.5
+    p0 = (cx - a * h - b * w, cy + b * h - a * w)
+    p1 = (cx + a * h - b * w, cy - b * h - a * w)
+    return np.array([p0, p1, (2 * cx - p0[0], 2 * cy - p0[1]),
+                     (2 * cx - p1[0], 2 * cy - p1[1])], dtype=np.float64)
 
 
 def _as_cv_points(points: np.ndarray) -> np.ndarray:
@@ -289,7 +310,7 @@ def _lattice_gaps(normals: np.ndarray, h: np.ndarray, t_lo: np.ndarray, t_hi: np
         (S,) gaps, px (1.0 where the band holds no lattice point, which cannot happen for
         a box fitted to pixel centres).
     """
-    eps = 1e-7
+    eps = 1e-4  # lattice points this close to a side are on it (float32 angle)
     nx, ny = normals[:, 0], normals[:, 1]
     tx, ty = -ny, nx
     horiz = np.abs(ny) >= np.abs(nx)
@@ -359,8 +380,7 @@ def grow_to_pixel_edges(points: np.ndarray, box: RotatedBox | None = None
     b_hi, b_lo, a_hi, a_lo = b_hi + g[0], b_lo - g[1], a_hi + g[2], a_lo - g[3]
     ca, cb = (a_lo + a_hi) / 2.0, (b_lo + b_hi) / 2.0
     rect = ((ca * c - cb * s, ca * s + cb * c), (a_hi - a_lo, b_hi - b_lo), float(angle))
-    corners = np.asarray(cv2.boxPoints(rect), dtype=np.float64).reshape(4, 2)
-    return _canonical(rect), corners
+    return _canonical(rect), box_points(rect)
 
 
 def mask_box(mask: np.ndarray, offset: tuple[int, int] = (0, 0), *, pixel_edges: bool = True
