@@ -88,21 +88,6 @@ class TrackResult:
         return tuple(p for p in PARTS if p in seen)
 
 
-class _ProvisionalIdentity:
-    """Stand-in until tracking.IdentityTracker lands: label name or size rank."""
-
-    def __init__(self, config: Config) -> None:
-        self.config = config
-
-    def assign(self, frame_index: int, instances: list[Any]) -> list[str]:
-        return [inst.label or str(i + 1) for i, inst in enumerate(instances)]
-
-
-def _identity_tracker(config: Config) -> Any:
-    cls = getattr(tracking, "IdentityTracker", None)
-    return cls(config) if cls is not None else _ProvisionalIdentity(config)
-
-
 def _pose_module() -> ModuleType | None:
     """``mistool.pose`` when it is installed with its interface, else None."""
     try:
@@ -266,7 +251,7 @@ def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
         source, _resolve_config(config))
     cfg = seq.config
     pose = _pose_module() if metric and cfg.camera is not None else None
-    tracker = _identity_tracker(cfg)
+    tracker = tracking.IdentityTracker(cfg)
     rows = _Rows(cfg.fps)
     unknown: set[int] = set()
     bar = None
@@ -364,7 +349,7 @@ class Tracker:
         self.smoothing = smoothing
         self._pose = (_pose_module() if metric and self.config.camera is not None
                       else None)
-        self._tracker = _identity_tracker(self.config)
+        self._tracker = tracking.IdentityTracker(self.config)
         self._frames: list[TrackTable] = []
         self._last: dict[tuple[str, str], tuple[TrackTable, ...]] = {}
         self._shape: tuple[int, int] | None = None

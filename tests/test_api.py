@@ -163,3 +163,23 @@ def test_import_does_not_pull_viser() -> None:
     code = ("import sys, mistool, mistool.api, mistool.cli.track; mistool.track; "
             "assert 'viser' not in sys.modules, 'viser imported'")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_mask_video_tracks_like_the_png_frames(tmp_path: Path) -> None:
+    frames = [_frame(i) for i in range(10)]
+    path = tmp_path / "Segmentation.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25, (W, H), False)
+    for img in frames:
+        writer.write(img)
+    writer.release()
+    video = track(path, workers=2)
+    exact = track(frames, Config())
+    assert video["part"].tolist() == exact["part"].tolist()  # lossy, but every part found
+    np.testing.assert_allclose(video["cx_px"], exact["cx_px"], atol=1.0)
+    np.testing.assert_allclose(video["cy_px"], exact["cy_px"], atol=1.0)
+
+
+def test_progress_bar_does_not_change_results(capsys: pytest.CaptureFixture) -> None:
+    frames = [_frame(i) for i in range(5)]
+    _compare(track(frames, Config(), progress=True), track(frames, Config()))
+    assert capsys.readouterr().out == ""  # the bar goes to stderr only
