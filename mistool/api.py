@@ -40,7 +40,7 @@ from mistool import paper, tracking
 from mistool.config import Config, load_config
 from mistool.errors import ConfigError
 from mistool.model import COLUMN_NAMES, PARTS, TrackTable
-from mistool.sequence import Frame, MaskSequence, open_sequence, to_labels
+from mistool.sequence import VIDEO_TOLERANCE, Frame, MaskSequence, open_sequence, to_labels
 
 #: Allowed values of ``smoothing``.
 SMOOTHING = ("none", "offline", "online")
@@ -124,8 +124,10 @@ class _FrameResult:
     shape: tuple[int, int]
 
 
-def _process(labels: np.ndarray, config: Config, pose: ModuleType | None) -> _FrameResult:
-    """The per-frame work (thread-safe): observations, metric pose, unknown values."""
+def _process(labels: np.ndarray, config: Config, pose: ModuleType | None,
+             lossy: bool = False) -> _FrameResult:
+    """The per-frame work (thread-safe): observations, metric pose, unknown values
+    (``lossy``: a mask video, see :func:`_unknown_values`)."""
     instances = tracking.observe_frame(labels, config)
     metrics: list[dict[str, dict[str, float]] | None] = []
     for inst in instances:
@@ -137,23 +139,29 @@ def _process(labels: np.ndarray, config: Config, pose: ModuleType | None) -> _Fr
             inst, (labels.shape[0], labels.shape[1]), config.camera,
             config.shaft_diameter_for(name) if name else config.shaft_diameter_mm,
             config.clasper_length_for(name) if name else config.clasper_length_mm))
-    unknown = _unknown_values(labels, config)
+    unknown = _unknown_values(labels, config, lossy)
     return _FrameResult(instances, metrics, unknown, (labels.shape[0], labels.shape[1]))
 
 
-def _unknown_values(labels: np.ndarray, config: Config) -> np.ndarray:
+def _unknown_values(labels: np.ndarray, config: Config, lossy: bool = False) -> np.ndarray:
     """``tracking.unknown_values``, on the values present (an 8-bit histogram is ~7x faster
-    than scanning the image in numpy)."""
+    than scanning the image in numpy).
+
+    In a mask video (``lossy``) the codec smears values around every edge, so a value
+    counts only where it covers at least ``min_area_px`` pixels of the frame, and values
+    up to :data:`~mistool.sequence.VIDEO_TOLERANCE` are background."""
     if labels.dtype == np.uint8 and labels.ndim == 2:
         hist = cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel()
-        present = np.flatnonzero(hist).astype(np.uint8)[None, :]
-        return np.asarray(tracking.unknown_values(present, config))
+        values = np.flatnonzero(hist >= (max(config.min_area_px, 1) if lossy else 1))
+        if lossy:
+            values = values[values > VIDEO_TOLERANCE]
+        return np.asarray(tracking.unknown_values(values.astype(np.uint8)[None, :], config))
     return np.asarray(tracking.unknown_values(labels, config))
 
 
-def _load_and_process(frame: Frame, config: Config,
-                      pose: ModuleType | None) -> _FrameResult:
-    return _process(frame.load(), config, pose)
+def _load_and_process(frame: Frame, config: Config, pose: ModuleType | None,
+                      lossy: bool) -> _FrameResult:
+    return _process(frame.load(), config, pose, lossy)
 
 
 class _Rows:
@@ -214,17 +222,19 @@ def _finish(table: TrackTable, config: Config, pose: ModuleType | None,
 
 
 def _ordered_results(frames: Iterator[Frame], config: Config, pose: ModuleType | None,
-                     workers: int) -> Iterator[tuple[Frame, _FrameResult]]:
+                     workers: int, lossy: bool = False
+                     ) -> Iterator[tuple[Frame, _FrameResult]]:
     """``(frame, result)`` in frame order; at most ``2 * workers`` frames in flight."""
     if workers <= 1:
         for frame in frames:
-            yield frame, _load_and_process(frame, config, pose)
+            yield frame, _load_and_process(frame, config, pose, lossy)
         return
     pending: collections.deque[tuple[Frame, Future[_FrameResult]]] = collections.deque()
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="mistool")
     try:
         for frame in frames:
-            pending.append((frame, pool.submit(_load_and_process, frame, config, pose)))
+            pending.append((frame, pool.submit(_load_and_process, frame, config, pose,
+                                               lossy)))
             if len(pending) >= 2 * workers:
                 done, fut = pending.popleft()
                 yield done, fut.result()
@@ -262,7 +272,8 @@ def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
                    dynamic_ncols=True, leave=False)
     num_frames = 0
     try:
-        for frame, result in _ordered_results(seq.frames(), cfg, pose, n_workers):
+        for frame, result in _ordered_results(seq.frames(), cfg, pose, n_workers,
+                                              lossy=seq.kind == "video"):
             seq.check_shape(frame, result.shape)
             names = tracker.assign(frame.index, result.instances)
             rows.add_frame(frame.index, list(names), result)

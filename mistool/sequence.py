@@ -34,7 +34,9 @@ paper masks by *intensity range*). For video input every part given as a single 
 where needed so that the ranges of different values never overlap; parts given as
 ``[lo, hi]`` ranges are used as given. Colour-masked videos are packed exactly (no
 tolerance), so they only work with a lossless codec. Grey videos are converted to one
-channel with OpenCV's BGR-to-grey conversion.
+channel with OpenCV's BGR-to-grey conversion. The smear is not reported as unknown label
+values: in videos a value must cover ``min_area_px`` pixels of a frame to count, and
+values up to the tolerance are background.
 
 OpenCV's own warnings about corrupt files are silenced (log level ERROR) while mistool
 reads a sequence: mistool reports them itself as one-line :class:`MistoolError`.
