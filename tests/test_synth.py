@@ -140,6 +140,10 @@ def test_nearer_instrument_hides_the_farther_one():
     buf2 = _render_prims([near, far])
     assert buf2.instance[int(round(v)), int(round(u))] == 1
     assert np.array_equal(buf.depth, buf2.depth)
+    # each instrument alone: the far one is complete there; the composite is their union
+    assert buf.alone[0][int(round(v)), int(round(u))] > 0
+    assert np.array_equal(buf.instance > 0, (buf.alone[0] > 0) | (buf.alone[1] > 0))
+    assert np.array_equal(buf.instance == 1, (buf.alone[0] > 0) & ~(buf.instance == 2))
 
 
 def _pose(axis, insertion=110.0, roll=0.0, wrist=0.0, yaw=0.0, jaw=30.0):
@@ -279,6 +283,7 @@ def test_truth_boxes_are_the_clean_masks_boxes(tmp_path):
             assert truth["length_px"][r] == pytest.approx(box.length, abs=1e-4)
             assert truth["angle_deg"][r] == pytest.approx(box.angle_deg, abs=1e-4)
             assert truth["area_px"][r] == len(xs)
+    assert np.all(truth["visible_frac"] == 1.0)  # one instrument: nothing hides it
     # exact 3D: unit axes, and the clasper tip lies near its box
     ax = np.stack([truth["axis_x"], truth["axis_y"], truth["axis_z"]], 1)
     assert np.allclose(np.linalg.norm(ax, axis=1), 1.0, atol=1e-5)
@@ -287,6 +292,14 @@ def test_truth_boxes_are_the_clean_masks_boxes(tmp_path):
     uv = CAM.project(tip)
     dist = np.hypot(uv[:, 0] - truth["cx_px"][cl], uv[:, 1] - truth["cy_px"][cl])
     assert (dist <= truth["length_px"][cl] / 2 + 2).all()
+
+
+def test_visible_fraction_counts_what_the_other_instrument_hides(tmp_path):
+    res = synthesize(tmp_path / "s", frames=60, instruments=2, seed=0,
+                     scene=SceneOptions(motion=MotionOptions(enter=False)))
+    v = read_csv(res.path / "truth.csv")["visible_frac"]
+    assert np.all((v > 0) & (v <= 1.0))
+    assert (v < 0.999).any() and (v == 1.0).mean() > 0.5  # tools cross, mostly apart
 
 
 def test_folder_config_and_labels(tmp_path):

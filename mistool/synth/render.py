@@ -31,6 +31,9 @@ class RenderBuffers:
     """(H, W) uint8: 0 background, ``i + 1`` for instrument ``i``."""
     part: np.ndarray
     """(H, W) uint8: 0 background, 1 shaft, 2 wrist, 3 clasper (3D parts)."""
+    alone: list[np.ndarray]
+    """Per instrument, its (H, W) uint8 part map rendered without the other instruments
+    (what occlusion between instruments hid)."""
 
 
 PART_CODES: dict[str, int] = {"shaft": 1, "wrist": 2, "clasper": 3}
@@ -141,12 +144,16 @@ class RayCaster:
         return self._sphere(prim)
 
     def render(self, instruments: list[list[PartGeometry]]) -> RenderBuffers:
-        """Render instruments (each a list of parts) into depth, instance and part maps."""
+        """Render instruments (each a list of parts) into depth, instance and part maps;
+        each instrument is rendered alone, then composited by depth."""
         h, w = self.cam.height, self.cam.width
         depth = np.full((h, w), np.inf, dtype=np.float32)
         instance = np.zeros((h, w), dtype=np.uint8)
         part = np.zeros((h, w), dtype=np.uint8)
+        alone: list[np.ndarray] = []
         for i, parts in enumerate(instruments):
+            d_i = np.full((h, w), np.inf, dtype=np.float32)
+            p_i = np.zeros((h, w), dtype=np.uint8)
             for pg in parts:
                 code = PART_CODES[pg.part]
                 for prim in pg.primitives:
@@ -154,9 +161,17 @@ class RayCaster:
                     if res is None:
                         continue
                     (x0, y0, x1, y1), t = res
-                    zb = depth[y0:y1, x0:x1]
+                    zb = d_i[y0:y1, x0:x1]
                     nearer = t < zb
                     zb[nearer] = t[nearer]
-                    instance[y0:y1, x0:x1][nearer] = i + 1
-                    part[y0:y1, x0:x1][nearer] = code
-        return RenderBuffers(depth, instance, part)
+                    p_i[y0:y1, x0:x1][nearer] = code
+            if i == 0:
+                depth, part = d_i.copy(), p_i.copy()
+                instance[p_i > 0] = 1
+            else:
+                nearer = d_i < depth
+                depth[nearer] = d_i[nearer]
+                instance[nearer] = i + 1
+                part[nearer] = p_i[nearer]
+            alone.append(p_i)
+        return RenderBuffers(depth, instance, part, alone)

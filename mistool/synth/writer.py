@@ -55,8 +55,8 @@ from mistool.synth.scene import (
 VIDEO_CODECS: dict[str, str] = {"mjpg": "MJPG", "xvid": "XVID", "mp4v": "mp4v"}
 
 #: Extra truth columns (after the known ones): the true joint angles and insertion.
-TRUTH_EXTRAS: tuple[str, ...] = ("roll_deg", "wrist_deg", "jaw_yaw_deg", "jaw_open_deg",
-                                 "insertion_mm")
+TRUTH_EXTRAS: tuple[str, ...] = ("visible_frac", "roll_deg", "wrist_deg", "jaw_yaw_deg",
+                                 "jaw_open_deg", "insertion_mm")
 
 
 @dataclass(frozen=True)
@@ -124,13 +124,16 @@ def _part_box(mask: np.ndarray) -> tuple[object, np.ndarray, int] | None:
 
 
 def truth_rows(frame: int, fps: float, labels_clean: np.ndarray, instance: np.ndarray,
-               parts: list[list[PartGeometry]], poses: list[InstrumentPose],
-               values: list[dict[str, int]], preset: str, names: list[str]) -> list[dict]:
+               alone: list[np.ndarray], parts: list[list[PartGeometry]],
+               poses: list[InstrumentPose], values: list[dict[str, int]],
+               names: list[str]) -> list[dict]:
     """The truth rows of one frame: one per instrument x label part with >= 1 clean pixel.
 
     ``cx_px .. angle_deg``, corners and ``area_px`` come from the clean mask of that
     instrument's part (its own pixels after occlusion by nearer instruments);
-    ``end_*``, ``axis_*``, ``start_*``, ``q*`` and ``trocar_*`` are exact from the 3D model.
+    ``end_*``, ``axis_*``, ``start_*``, ``q*`` and ``trocar_*`` are exact from the 3D model;
+    ``visible_frac`` is the part's clean area over its area with no other instrument in
+    the scene (``alone``: per instrument, the label image it would have alone).
     """
     rows: list[dict] = []
     for i, (pgs, pose) in enumerate(zip(parts, poses, strict=True)):
@@ -142,6 +145,7 @@ def truth_rows(frame: int, fps: float, labels_clean: np.ndarray, instance: np.nd
                 continue
             box, corners, area = found
             geo = by_name[lpart]
+            full = int(np.count_nonzero(alone[i] == value)) if len(alone) > 1 else area
             row = {"frame": frame, "time_s": frame / fps, "instrument": names[i],
                    "part": lpart, "cx_px": box.cx, "cy_px": box.cy,
                    "length_px": box.length, "width_px": box.width,
@@ -156,9 +160,9 @@ def truth_rows(frame: int, fps: float, labels_clean: np.ndarray, instance: np.nd
                 row[f"start_{ax}_mm"] = geo.start_mm[j]
                 row[f"trocar_{ax}_mm"] = pose.trocar_mm[j]
             row.update(qw=q[0], qx=q[1], qy=q[2], qz=q[3])
-            row.update(roll_deg=pose.roll_deg, wrist_deg=pose.wrist_deg,
-                       jaw_yaw_deg=pose.jaw_yaw_deg, jaw_open_deg=pose.jaw_open_deg,
-                       insertion_mm=pose.insertion_mm)
+            row.update(visible_frac=area / max(full, area), roll_deg=pose.roll_deg,
+                       wrist_deg=pose.wrist_deg, jaw_yaw_deg=pose.jaw_yaw_deg,
+                       jaw_open_deg=pose.jaw_open_deg, insertion_mm=pose.insertion_mm)
             rows.append(row)
     return rows
 
@@ -311,8 +315,10 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
             parts = [instrument_parts(p, geom) for p in frame_poses]
             buf = caster.render(parts)
             clean = lut[buf.instance, buf.part]
-            rows += truth_rows(f, float(fps), clean, buf.instance, parts, frame_poses,
-                               values, preset, names)
+            alone = [lut[i + 1][a] for i, a in enumerate(buf.alone)] if instruments > 1 \
+                else []
+            rows += truth_rows(f, float(fps), clean, buf.instance, alone, parts, frame_poses,
+                               values, names)
             labels = corruptor.apply(clean, buf.instance, buf.part, f, all_values) \
                 if corr.any() else clean
             if not cv2.imwrite(str(tmp / f"{f:06d}.png"), labels,
@@ -347,7 +353,6 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     config = load_config(out / "mistool.toml")
-    truth = truth.with_columns()  # same table, as written
     return SynthResult(out, truth, config)
 
 
