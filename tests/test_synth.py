@@ -358,3 +358,33 @@ def test_refuses_a_non_empty_folder_and_leaves_nothing_on_failure(tmp_path):
     with pytest.raises(ConfigError):
         synthesize(tmp_path / "bad", frames=2, preset="nope")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_corruption_strengths_do_what_they_say():
+    from mistool.synth.corrupt import Corruptor
+
+    labels = np.zeros((120, 160), np.uint8)
+    labels[40:80, 20:140] = 160
+    labels[50:70, 100:140] = 70
+    inst = (labels > 0).astype(np.uint8)
+    part = np.where(labels == 160, 1, np.where(labels == 70, 3, 0)).astype(np.uint8)
+
+    def run(**kw):
+        c = Corruptor(Corruptions(**kw), labels.shape, 100, 1, 25.0, seed=0)
+        return c, c.apply(labels, inst, part, 0, [70, 160])
+
+    area = np.count_nonzero(labels)
+    assert np.count_nonzero(run(bias_px=2)[1]) > area
+    eroded = run(bias_px=-2)[1]
+    assert np.count_nonzero(eroded) < area
+    assert (eroded[40:42] == 0).all() and (eroded[44:76, 24:136] == labels[44:76, 24:136]).all()
+    jit = run(jitter_px=3.0)[1]
+    moved = np.argwhere(jit != labels)
+    assert len(moved) and np.abs(np.count_nonzero(jit) - area) < 0.1 * area
+    c, _ = run(hide_clasper=0.3)
+    assert c._hidden.sum() == 30
+    hidden_frame = int(np.flatnonzero(c._hidden[0])[0])
+    out = c.apply(labels, inst, part, hidden_frame, [70, 160])
+    assert not (out == 70).any() and (out == 160).sum() == (labels == 160).sum()
+    _, occ = run(occluders=2)
+    assert np.count_nonzero(occ) < area and set(np.unique(occ)) <= {0, 70, 160}
