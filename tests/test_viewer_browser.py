@@ -1,0 +1,308 @@
+"""The viewer in a real browser: Debian's chromium driven by playwright (software WebGL).
+
+Asserts what a person would see: the page renders, each instrument's shaft and clasper are
+on screen in its colour, the frame slider works and changes the picture, a camera preset
+moves the camera, keyboard shortcuts step and play, several browsers at once (one closing
+mid-playback) leave no error or stuck state, and the exported HTML replays offline.
+
+Under CI (env ``CI`` set) these tests must run: a missing chromium or playwright FAILS.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mistool.viewer import ReplayViewer, export_html, load_sequence
+from mistool.viewer.scene import node_name
+
+CHROMIUM = Path("/usr/bin/chromium")
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+VIEWPORT = {"width": 1280, "height": 800}
+#: The 3D view left of the GUI panel and below viser's notification (x, y, w, h).
+SCENE_CLIP = {"x": 0, "y": 160, "width": 860, "height": 640}
+#: Where the browser test saves its screenshot (a temporary folder unless set).
+SCREENSHOT_ENV = "MISTOOL_SCREENSHOT"
+
+
+def _require_browser() -> None:
+    reason = None
+    if not CHROMIUM.exists():
+        reason = f"{CHROMIUM} not installed (apt-get install chromium)"
+    else:
+        try:
+            import playwright.sync_api  # noqa: F401
+        except ImportError:
+            reason = "playwright is not installed (pip install playwright)"
+    if reason is not None:
+        if os.environ.get("CI"):
+            pytest.fail(f"browser tests must run under CI: {reason}")
+        pytest.skip(reason)
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory: pytest.TempPathFactory):
+    from mistool.synth import synthesize
+
+    out = tmp_path_factory.mktemp("browser") / "seq"
+    synthesize(out, frames=40, instruments=2, seed=3)
+    return load_sequence(out, poses=out / "truth.csv")
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    _require_browser()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def viewer(sequence) -> Iterator[ReplayViewer]:
+    v = ReplayViewer(sequence, port=0)
+    yield v
+    v.close()
+
+
+def _busy_frames(replay) -> np.ndarray:
+    g = replay.modes[replay.default_mode]
+    return np.flatnonzero(g.visible.reshape(replay.num_frames, -1).all(axis=1))
+
+
+def _shot(page, clip: dict | None = None) -> np.ndarray:
+    png = page.screenshot(clip=clip or SCENE_CLIP)
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR),
+                        cv2.COLOR_BGR2RGB)
+
+
+def _hue_pixels(img: np.ndarray, rgb: tuple[int, int, int]) -> int:
+    """Pixels with the hue of ``rgb`` (lit or shaded), saturated enough not to be grid."""
+    hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV).astype(int)
+    target = int(cv2.cvtColor(np.uint8([[rgb]]), cv2.COLOR_RGB2HSV)[0, 0, 0])
+    dh = np.abs(hsv[..., 0] - target)
+    dh = np.minimum(dh, 180 - dh)
+    return int(((dh <= 8) & (hsv[..., 1] > 90) & (hsv[..., 2] > 40)).sum())
+
+
+def _wait(predicate, timeout: float = 10.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _open(browser, url: str):
+    page = browser.new_page(viewport=VIEWPORT)
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_selector("canvas[data-engine]", timeout=20000)
+    page.get_by_role("slider").first.wait_for(timeout=20000)
+    close = page.locator(".mantine-Notification-root button")
+    if close.count():
+        close.first.click()
+    page.errors = errors  # type: ignore[attr-defined]
+    return page
+
+
+def _client(viewer: ReplayViewer):
+    clients = list(viewer.server.get_clients().values())
+    assert clients, "no browser connected"
+    return clients[-1]
+
+
+def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
+                                         tmp_path: Path) -> None:
+    replay = viewer.replay
+    busy = _busy_frames(replay)
+    assert len(busy) >= 2, "the synthetic sequence should show both instruments"
+    page = _open(browser, viewer.url)
+    try:
+        assert _wait(lambda: len(viewer.server.get_clients()) >= 1)
+        # The scene holds each instrument's shaft and clasper (viser's own registry).
+        names = set(viewer.server.scene._handle_from_node_name)
+        for inst in replay.instruments:
+            for part in ("shaft", "clasper"):
+                assert f"/instruments/{node_name(inst)}/{part}" in names
+        # GUI: the frame slider and the play button are there.
+        assert page.get_by_role("slider").count() >= 1
+        assert page.get_by_role("button", name="Play").count() == 1
+
+        # Look through the endoscope at a frame with both instruments: each one's colour
+        # is on screen (the frustum image is hidden in this view, so these are cylinders).
+        frame = int(busy[len(busy) // 2])
+        viewer.timeline.seek(frame)
+        assert viewer.timeline.wait_shown(frame)
+        page.get_by_role("button", name="Endoscope").click()
+        time.sleep(1.0)
+        endo = _shot(page)
+        for i in range(len(replay.instruments)):
+            assert _hue_pixels(endo, replay.part_colour(i, "shaft")) > 300, \
+                f"instrument {replay.instruments[i]} not visible"
+
+        # Back to the overview: the canvas is not blank.
+        client = _client(viewer)
+        before_cam = np.array(client.camera.position)
+        page.get_by_role("button", name="Reset").click()
+        assert _wait(lambda: np.linalg.norm(np.array(client.camera.position) - before_cam)
+                     > 1.0), "Reset preset did not move the camera"
+        time.sleep(1.0)
+        overview = _shot(page)
+        assert overview.std() > 10.0 and len(np.unique(overview.reshape(-1, 3), axis=0)) > 50
+
+        # A camera preset moves this browser's camera, and the picture.
+        reset_cam = np.array(client.camera.position)
+        page.get_by_role("button", name="Top").click()
+        assert _wait(lambda: np.linalg.norm(np.array(client.camera.position) - reset_cam)
+                     > 1.0), "Top preset did not move the camera"
+        time.sleep(1.0)
+        top = _shot(page)
+        assert np.abs(top.astype(int) - overview.astype(int)).mean() > 2.0
+        page.get_by_role("button", name="Reset").click()
+        time.sleep(1.0)
+
+        # Moving the slider (keyboard on its thumb) moves the replay, and the picture.
+        start = int(busy[0])
+        viewer.timeline.seek(start)
+        assert viewer.timeline.wait_shown(start)
+        time.sleep(0.8)
+        first = _shot(page)
+        thumb = page.get_by_role("slider").first
+        thumb.focus()
+        for _ in range(max(1, int(busy[-1]) - start)):
+            page.keyboard.press("ArrowRight")
+        assert _wait(lambda: viewer.timeline.shown == int(busy[-1])), \
+            f"slider moved to {viewer.timeline.shown}, expected {int(busy[-1])}"
+        time.sleep(0.8)
+        moved = _shot(page)
+        assert np.abs(moved.astype(int) - first.astype(int)).mean() > 1.0
+
+        # Keyboard shortcuts: L steps forward, J back, space plays and pauses.
+        page.mouse.click(400, 600)  # focus the 3D view, not an input
+        k = viewer.timeline.frame
+        page.keyboard.press("l")
+        assert _wait(lambda: viewer.timeline.frame == (k + 1) % replay.num_frames)
+        page.keyboard.press("j")
+        assert _wait(lambda: viewer.timeline.frame == k)
+        page.keyboard.press(" ")
+        assert _wait(lambda: viewer.timeline.playing)
+        page.keyboard.press(" ")
+        assert _wait(lambda: not viewer.timeline.playing)
+
+        # The screenshot for the README: Reset view of a busy frame.
+        viewer.timeline.seek(frame)
+        viewer.timeline.wait_shown(frame)
+        time.sleep(1.0)
+        page.screenshot(path=os.environ.get(SCREENSHOT_ENV, str(tmp_path / "viewer.png")))
+        assert not page.errors, page.errors  # type: ignore[attr-defined]
+        assert not viewer.timeline.draw_errors
+    finally:
+        page.close()
+
+
+class _SocketClient:
+    """A bare viser websocket client (what a browser tab is to the server): it receives
+    every message the server sends, as fast as it can, until closed."""
+
+    def __init__(self, url: str) -> None:
+        import threading
+
+        from websockets.sync.client import connect
+
+        import viser
+
+        import msgspec
+
+        from viser._messages import ViewerCameraMessage
+
+        self.ws = connect(url.replace("http://", "ws://"),
+                          subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
+        # viser registers a client when its first camera message arrives.
+        camera = ViewerCameraMessage(wxyz=(1.0, 0.0, 0.0, 0.0), position=(3.0, 3.0, 3.0),
+                                     fov=1.0, near=0.01, far=1000.0, image_height=600,
+                                     image_width=800, look_at=(0.0, 0.0, 0.0),
+                                     up_direction=(0.0, 0.0, 1.0))
+        self.ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+        self.received = 0
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        try:
+            for _ in self.ws:
+                self.received += 1
+        except Exception:  # closed
+            pass
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+def test_ten_viewers_playback_and_some_closing(browser, viewer: ReplayViewer) -> None:
+    """Two real browsers plus eight bare websocket clients (software WebGL makes ten
+    rendering tabs too slow for a test on two cores); five leave mid-playback."""
+    pages = [_open(browser, viewer.url) for _ in range(2)]
+    sockets = [_SocketClient(viewer.url) for _ in range(8)]
+    try:
+        assert _wait(lambda: len(viewer.server.get_clients()) >= 10, 20.0)
+        viewer.timeline.speed.value = "4x"
+        viewer.timeline.set_playing(True)
+        time.sleep(0.8)
+        pages[1].close()  # a browser closing mid-playback
+        for s in sockets[4:]:
+            s.close()
+        drawn = viewer.timeline.frames_drawn
+        time.sleep(0.8)
+        assert viewer.timeline.frames_drawn > drawn, "playback stopped after clients left"
+        viewer.timeline.set_playing(False)
+        # Rapid scrubbing from the remaining browser: the last position wins.
+        thumb = pages[0].get_by_role("slider").first
+        thumb.focus()
+        pages[0].keyboard.press("Home")
+        for _ in range(12):
+            pages[0].keyboard.press("ArrowRight")
+        assert _wait(lambda: viewer.timeline.shown == 12), viewer.timeline.shown
+        assert _wait(lambda: len(viewer.server.get_clients()) == 5, 10.0)
+        assert all(s.received > 50 for s in sockets[:4])  # still being served
+        assert not viewer.timeline.draw_errors
+        assert not pages[0].errors  # type: ignore[attr-defined]
+    finally:
+        for page in pages:
+            if not page.is_closed():
+                page.close()
+        for s in sockets:
+            s.close()
+
+
+def test_exported_html_replays_offline(browser, sequence, tmp_path: Path) -> None:
+    out = tmp_path / "replay.html"
+    export_html(sequence, out, max_frames=30)
+    page = browser.new_page(viewport={"width": 1000, "height": 700})
+    remote: list[str] = []
+    page.on("request", lambda r: remote.append(r.url)
+            if r.url.split(":", 1)[0] not in ("file", "data", "blob") else None)
+    try:
+        page.goto(out.as_uri())
+        page.wait_for_selector("canvas[data-engine]", timeout=20000)
+        time.sleep(1.5)
+        shots = [_shot(page, {"x": 0, "y": 160, "width": 1000, "height": 480})]
+        time.sleep(0.6)
+        shots.append(_shot(page, {"x": 0, "y": 160, "width": 1000, "height": 480}))
+        assert shots[0].std() > 10.0
+        assert np.abs(shots[1].astype(int) - shots[0].astype(int)).mean() > 0.2, \
+            "the recording does not play"
+        assert not remote, remote
+    finally:
+        page.close()
