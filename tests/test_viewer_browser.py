@@ -219,13 +219,10 @@ class _SocketClient:
     def __init__(self, url: str) -> None:
         import threading
 
-        from websockets.sync.client import connect
-
-        import viser
-
         import msgspec
-
+        import viser
         from viser._messages import ViewerCameraMessage
+        from websockets.sync.client import connect
 
         self.ws = connect(url.replace("http://", "ws://"),
                           subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
