@@ -185,3 +185,43 @@ def test_progress_bar_does_not_change_results(capsys: pytest.CaptureFixture) -> 
     frames = [_frame(i) for i in range(5)]
     _compare(track(frames, Config(), progress=True), track(frames, Config()))
     assert capsys.readouterr().out == ""  # the bar goes to stderr only
+
+
+def _write_format(folder: Path, frames: list[np.ndarray], fmt: str) -> None:
+    """Write label frames in one pixel format, with the mistool.toml that reads them."""
+    folder.mkdir()
+    toml = ""
+    for i, img in enumerate(frames):
+        path = folder / f"f{i}.png"
+        if fmt == "grey8":
+            cv2.imwrite(str(path), img)
+        elif fmt == "grey-as-rgb":
+            cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
+        elif fmt == "grey16":
+            cv2.imwrite(str(path), img.astype(np.uint16) * 300)
+            toml = "[parts]\nshaft = 48000\nclasper = 21000\n"
+        elif fmt == "palette":
+            pil = pytest.importorskip("PIL.Image")
+            im = pil.fromarray(img, mode="P")
+            pal = np.zeros((256, 3), np.uint8)
+            pal[160] = (200, 30, 30)
+            pal[70] = (30, 200, 30)
+            im.putpalette(pal.ravel().tolist())
+            im.save(path)
+        elif fmt == "colour":
+            bgr = np.zeros(img.shape + (3,), np.uint8)
+            bgr[img == 160] = (0, 0, 255)  # red shaft
+            bgr[img == 70] = (255, 128, 0)  # blue-ish clasper: #0080ff
+            cv2.imwrite(str(path), bgr)
+            toml = "[parts]\nshaft = \"#ff0000\"\nclasper = \"#0080ff\"\n"
+    (folder / "mistool.toml").write_text(toml)
+
+
+@pytest.mark.parametrize("fmt", ["grey-as-rgb", "grey16", "palette", "colour"])
+def test_pixel_formats_give_the_same_table(tmp_path: Path, fmt: str) -> None:
+    frames = [_frame(i, two=True) for i in range(4)]
+    _write_format(tmp_path / "grey8", frames, "grey8")
+    _write_format(tmp_path / fmt, frames, fmt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no unknown values in any format
+        _compare(track(tmp_path / fmt), track(tmp_path / "grey8"))
