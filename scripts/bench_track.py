@@ -14,8 +14,12 @@ temporary folder, then, alternating, ``--runs`` times each:
 - ``cli``: ``mistool.cli.main(["track", folder, "-o", out.csv, "--quiet"])`` in-process
   (the above plus writing the CSV).
 
-It prints the median seconds of each and the ratios ``baseline / mistool`` (> 1: mistool
-is faster than only decoding). With ``--memory`` it also runs ``api.run`` in fresh
+It prints the median wall-clock seconds of each (and the median CPU time per frame, all
+threads, which is less sensitive to other load on the machine) and the ratios
+``baseline / mistool`` (> 1: mistool is faster than only decoding). The machine's load
+average is printed too: the wall-clock ratio needs the cores to be free.
+
+With ``--memory`` it also runs ``api.run`` in fresh
 subprocesses on N and 4N frames and prints their peak RSS and tracemalloc peak, to show
 that memory does not grow with the number of frames (only the output table does, about
 a kilobyte per frame).
@@ -69,10 +73,11 @@ def make_frames(folder: Path, n: int) -> list[Path]:
     return paths
 
 
-def timed(fn: Callable[[], object]) -> float:
-    start = time.perf_counter()
+def timed(fn: Callable[[], object]) -> tuple[float, float]:
+    """(wall seconds, CPU seconds of this process, all threads) of one call."""
+    start, cpu = time.perf_counter(), time.process_time()
     fn()
-    return time.perf_counter() - start
+    return time.perf_counter() - start, time.process_time() - cpu
 
 
 def child_memory(folder: str, workers: int | None) -> None:
@@ -104,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         child_memory(args.child_memory, args.workers)
         return 0
 
-    from mistool import api
+    from mistool import api, sequence
     from mistool.cli import main as cli_main
 
     with tempfile.TemporaryDirectory(prefix="mistool-bench-") as tmp:
@@ -134,21 +139,29 @@ def main(argv: list[str] | None = None) -> int:
                  "cli": run_cli}
         for fn in tasks.values():  # warm-up: page cache, imports, thread pools
             fn()
+        load0 = os.getloadavg()
         times: dict[str, list[float]] = {k: [] for k in tasks}
+        cpu: dict[str, list[float]] = {k: [] for k in tasks}
         for _ in range(args.runs):
             for name, fn in tasks.items():
-                times[name].append(timed(fn))
+                wall, used = timed(fn)
+                times[name].append(wall)
+                cpu[name].append(used)
         med = {k: statistics.median(v) for k, v in times.items()}
+        med_cpu = {k: statistics.median(v) for k, v in cpu.items()}
         print(f"mistool track benchmark: {args.frames} frames {W}x{H} 8-bit PNG, one "
               f"instrument, {args.runs} runs (median), {os.cpu_count()} CPUs, "
-              f"workers={args.workers or 'auto'}, OpenCV {cv2.__version__}")
+              f"workers={args.workers or 'auto'}, OpenCV {cv2.__version__}, PNG inflate: "
+              f"{sequence._ZLIB.__name__}")
         for name, t in med.items():
             spread = f"{min(times[name]):.3f}-{max(times[name]):.3f}"
             print(f"  {name:18s} {t:7.3f} s  ({args.frames / t:7.1f} frames/s, "
-                  f"runs {spread})")
+                  f"runs {spread}; CPU {1e3 * med_cpu[name] / args.frames:.2f} ms/frame)")
         for base in ("imread", "imread-unchanged"):
             for ours in ("api", "cli"):
-                print(f"  ratio {base} / {ours}: {med[base] / med[ours]:.2f}")
+                print(f"  ratio {base} / {ours}: {med[base] / med[ours]:.2f} wall-clock "
+                      f"(CPU time ratio {med_cpu[base] / med_cpu[ours]:.2f})")
+        print(f"  load average before/after: {load0} / {os.getloadavg()}")
 
         if args.memory:
             big = Path(tmp) / "seq4"
