@@ -54,7 +54,7 @@ class PlotPanel:
             data, ranges = self._data(kind, 0)
             self.charts[kind] = gui.add_uplot(
                 data=data, series=self._series(kind), scales=self._scales(kind, ranges),
-                title=_LABELS[f"{mode}/{kind}"][1], aspect=1.6,
+                title=_LABELS[f"{mode}/{kind}"][1], aspect=1.6, axes=self._axes(kind),
                 legend={"show": True, "live": False})
         self.instrument.on_update(lambda _: self.refresh())
         self.part.on_update(lambda _: self.refresh())
@@ -70,6 +70,12 @@ class PlotPanel:
         out.append({"label": "frame", "stroke": "#444444", "width": 1.0, "dash": (4.0, 3.0),
                     "scale": "y", "points": {"show": False}})
         return tuple(out)
+
+    def _axes(self, kind: str) -> tuple[uplot.Axis, ...]:
+        axes: list[uplot.Axis] = [{"scale": "x"}, {"scale": "y"}]
+        if self.mode == "paper" and kind == "position":
+            axes.append({"scale": "z", "side": 1, "grid": {"show": False}})
+        return tuple(axes)
 
     def _selected(self, kind: str) -> np.ndarray:
         """(F, 3) values of the selected instrument part."""
@@ -111,6 +117,7 @@ class PlotPanel:
             data, ranges = self._data(kind, self._frame)
             chart.series = self._series(kind)
             chart.scales = self._scales(kind, ranges)
+            chart.axes = self._axes(kind)
             chart.title = _LABELS[f"{self.mode}/{kind}"][1]
             chart.data = data
 

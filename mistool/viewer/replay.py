@@ -18,7 +18,8 @@ Two modes place the instruments' cylinders:
   then pitch about y, then yaw about z (the cumulative sum of Algorithm 2's deltas); the
   clasper's base is attached to the shaft's end, as in the paper. The pixel plane sits at
   the distance of the focal length in front of the endoscope, so the cylinders line up
-  with the mask drawn on the frustum's image plane.
+  with the mask drawn on the frustum's image plane (drawn a little further away, behind
+  them). Eq. 5's z is undefined on a part's first frame and is drawn as 0 there.
 
 Every array is dense over ``(frame, instrument, part)`` so that showing a frame is a
 lookup, whatever the sequence length.
@@ -44,6 +45,9 @@ R_WORLD_CAMERA = np.array([[1.0, 0.0, 0.0],
 METRIC_UNITS_PER_MM = 0.1
 #: World units per pixel in paper mode (1 unit = 100 px).
 PAPER_UNITS_PER_PX = 0.01
+#: The paper mode's image plane is drawn this many focal lengths away, behind the pixel
+#: plane holding the cylinders (seen through the endoscope, the two still line up).
+PAPER_IMAGE_BEHIND = 1.25
 #: Length (mm) drawn for a shaft whose proximal end is unknown.
 DEFAULT_SHAFT_LENGTH_MM = 60.0
 #: Radius of the clasper and wrist relative to the shaft's, in metric mode.
@@ -321,7 +325,9 @@ def _paper_geometry(table: TrackTable, fi: np.ndarray, ii: np.ndarray, pi: np.nd
     f_px = config.camera.fy if config.camera is not None else float(max(w, h))
     # Pixel frame (x right, y down, z = Eq. 5's z) -> camera-like frame centred on the
     # image, with the pixel plane at depth f_px, then to the world.
-    base_px = np.stack([v[..., 0] - w / 2.0, v[..., 1] - h / 2.0, f_px + v[..., 2]], axis=-1)
+    # Eq. 5's z is undefined on a part's first frame (no previous area): drawn as 0 there.
+    z = np.where(np.isfinite(v[..., 0]), np.nan_to_num(v[..., 2], nan=0.0), np.nan)
+    base_px = np.stack([v[..., 0] - w / 2.0, v[..., 1] - h / 2.0, f_px + z], axis=-1)
     axis = _rpy_axis(v[..., 3], v[..., 4], v[..., 5])  # in the pixel frame
     vec_px = axis * v[..., 6:7]
     start = np.empty_like(base_px)
@@ -342,7 +348,7 @@ def _paper_geometry(table: TrackTable, fi: np.ndarray, ii: np.ndarray, pi: np.nd
     tip = _distal_point(end_w, visible)
     geometry = ModeGeometry(centre=centre, wxyz=wxyz, length=length, radius=radius,
                             visible=visible, joint=joint, tip=tip,
-                            image_distance=f_px * s, units="100 px")
+                            image_distance=PAPER_IMAGE_BEHIND * f_px * s, units="100 px")
     return geometry, v[..., 0:3].copy(), v[..., 3:6].copy()
 
 
