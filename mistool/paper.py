@@ -80,9 +80,7 @@ def area_eq1(x: np.ndarray, y: np.ndarray, *, full: bool = False) -> np.ndarray:
     Returns:
         (...) area, px^2 (signed).
     """
-    xn, yn = x[..., _NEXT], y[..., _NEXT]  # corner i%4+1
-    k = 4 if full else 3
-    return 0.5 * ((x[..., :k] * yn[..., :k]).sum(-1) - (xn[..., :k] * y[..., :k]).sum(-1))
+    return _area(*_rows(x, y), full=full)
 
 
 def slopes_eq4(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -95,10 +93,7 @@ def slopes_eq4(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         (..., 4) slopes; ``+-inf`` for a vertical edge (sign of its dy), NaN for a
         zero-length edge.
     """
-    dx = x[..., _NEXT] - x
-    dy = y[..., _NEXT] - y
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return dy / dx
+    return np.moveaxis(_slopes(*_rows(x, y)), 0, -1)
 
 
 def internal_angles_eq2(m: np.ndarray) -> np.ndarray:
@@ -111,8 +106,29 @@ def internal_angles_eq2(m: np.ndarray) -> np.ndarray:
         (..., 4) angles in degrees, in ``[-90, 90]``. An infinite slope takes the
         formula's limit; NaN only where a slope is NaN.
     """
-    m1 = m
-    m2 = m[..., _NEXT]
+    return np.moveaxis(_angles(np.moveaxis(np.asarray(m, dtype=np.float64), -1, 0)), 0, -1)
+
+
+# Internals work on corner-major arrays, (4, ...): row i is the paper's corner i + 1.
+def _rows(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return (np.moveaxis(np.asarray(x, dtype=np.float64), -1, 0),
+            np.moveaxis(np.asarray(y, dtype=np.float64), -1, 0))
+
+
+def _area(X: np.ndarray, Y: np.ndarray, *, full: bool) -> np.ndarray:
+    s = X[0] * Y[1] + X[1] * Y[2] + X[2] * Y[3] - X[1] * Y[0] - X[2] * Y[1] - X[3] * Y[2]
+    if full:
+        s = s + X[3] * Y[0] - X[0] * Y[3]
+    return 0.5 * s
+
+
+def _slopes(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (Y[_NEXT] - Y) / (X[_NEXT] - X)
+
+
+def _angles(m1: np.ndarray) -> np.ndarray:
+    m2 = m1[_NEXT]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t = (m2 - m1) / (1.0 + m2 * m1)
         inf1, inf2 = np.isinf(m1), np.isinf(m2)
@@ -124,7 +140,7 @@ def internal_angles_eq2(m: np.ndarray) -> np.ndarray:
             t = np.where(inf1 & ~inf2, lim1, t)
             t = np.where(inf2 & ~inf1, lim2, t)
             t = np.where(inf1 & inf2, 0.0, t)  # two vertical edges are parallel
-    return np.degrees(np.arctan(t))
+    return np.degrees(np.arctan(t, out=t), out=t)
 
 
 def paper_quantities(x: np.ndarray, y: np.ndarray, *, area: str = "paper"
@@ -139,21 +155,27 @@ def paper_quantities(x: np.ndarray, y: np.ndarray, *, area: str = "paper"
         ``A`` (N,) Eq. 1; ``cx``, ``cy`` (N,) Eq. 6; ``m`` (N, 4) Eq. 4; ``a`` (N, 4)
         Eq. 2 (deg); ``e_r``, ``e_p``, ``e_y`` (N,) deg.
     """
+    q = _quantities(*_rows(x, y), area=area)
+    q["m"] = np.moveaxis(q["m"], 0, -1)
+    q["a"] = np.moveaxis(q["a"], 0, -1)
+    return q
+
+
+def _quantities(X: np.ndarray, Y: np.ndarray, *, area: str) -> dict[str, np.ndarray]:
     if area not in ("paper", "shoelace"):
         raise ValueError(f"area must be 'paper' or 'shoelace', got {area!r}")
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
-    m = slopes_eq4(x, y)
-    a = internal_angles_eq2(m)
+    m = _slopes(X, Y)
+    a = _angles(m)
+    slope_deg = np.degrees(np.arctan(m))
     return {
-        "A": area_eq1(x, y, full=area == "shoelace"),
-        "cx": x.mean(-1),
-        "cy": y.mean(-1),
+        "A": _area(X, Y, full=area == "shoelace"),
+        "cx": (X[0] + X[1] + X[2] + X[3]) / 4.0,
+        "cy": (Y[0] + Y[1] + Y[2] + Y[3]) / 4.0,
         "m": m,
         "a": a,
-        "e_r": a[..., 0] + a[..., 3] - a[..., 1] - a[..., 2],
-        "e_p": a[..., 2] + a[..., 3] - a[..., 0] - a[..., 1],
-        "e_y": (180.0 - np.degrees(np.arctan(m)).sum(-1)) / 4.0,
+        "e_r": a[0] + a[3] - a[1] - a[2],
+        "e_p": a[2] + a[3] - a[0] - a[1],
+        "e_y": (180.0 - (slope_deg[0] + slope_deg[1] + slope_deg[2] + slope_deg[3])) / 4.0,
     }
 
 
@@ -214,9 +236,9 @@ def paper_motion(table: TrackTable, focal_px: float = 1.0, *, area: str = "paper
     n = table.num_rows
     if n == 0:
         return table.with_columns(**{c: np.empty(0) for c in PAPER_COLUMNS})
-    x = np.stack([np.asarray(table[f"x{i}_px"], dtype=np.float64) for i in range(1, 5)], -1)
-    y = np.stack([np.asarray(table[f"y{i}_px"], dtype=np.float64) for i in range(1, 5)], -1)
-    q = paper_quantities(x, y, area=area)
+    X = np.stack([np.asarray(table[f"x{i}_px"], dtype=np.float64) for i in range(1, 5)])
+    Y = np.stack([np.asarray(table[f"y{i}_px"], dtype=np.float64) for i in range(1, 5)])
+    q = _quantities(X, Y, area=area)
     prev = previous_rows(table)
     has = prev >= 0
     j = np.where(has, prev, 0)

@@ -159,20 +159,20 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
     union = masks[part_names[0]]
     for p in part_names[1:]:
         union = cv2.bitwise_or(union, masks[p])
-    if MERGE_GAP_PX > 0:
-        # pad so the bridging dilation sees the crop's border like the image's inside
-        pad = MERGE_GAP_PX
-        k = 2 * pad + 1
-        padded = cv2.copyMakeBorder(union, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
-        bridged = cv2.dilate(padded, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
-        bridged = bridged[pad:-pad, pad:-pad]
-    else:
-        bridged = union
-    contours, hierarchy = cv2.findContours(bridged, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    # one connected foreground (the common case) needs no bridging
+    contours, hierarchy = cv2.findContours(union, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     n_inst = int((hierarchy[0][:, 3] < 0).sum()) if contours else 0
+    bridged = union
+    if n_inst > 1 and MERGE_GAP_PX > 0:
+        # the crop holds every foreground pixel, so no padding is needed for the gaps
+        k = 2 * MERGE_GAP_PX + 1
+        bridged = cv2.dilate(union, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+        contours, hierarchy = cv2.findContours(bridged, cv2.RETR_CCOMP,
+                                               cv2.CHAIN_APPROX_SIMPLE)
+        n_inst = int((hierarchy[0][:, 3] < 0).sum())
     if n_inst == 0:
         return out
-    if n_inst == 1:  # one bridged component: everything belongs to it
+    if n_inst == 1:  # one (bridged) component: everything belongs to it
         parts = {}
         for p in part_names:
             obs = _part_observation(p, masks[p], fx, fy, min_area)
