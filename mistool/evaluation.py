@@ -4,7 +4,10 @@ How rows are matched: a prediction's instruments are matched one-to-one to the t
 instruments of the sequence by the Hungarian algorithm on the mean distance between their
 parts' box centres over the (frame, part) pairs both have; instrument names may therefore
 differ (merged masks: the tracker names instances itself). A pair with no common
-(frame, part) is never matched. Rows are then joined on (frame, matched instrument, part).
+(frame, part) is never matched. A predicted instrument left over is a *fragment* (the
+tracker gave a tool a new identity, e.g. after a crossing): it joins its nearest truth
+instrument if it shares no frame with the predicted instruments already matched to it; the
+report counts fragments. Rows are then joined on (frame, matched instrument, part).
 
 What is scored, per method and part (mistool's own extension of the paper's tables):
 
@@ -119,8 +122,25 @@ def match_instruments(pred: TrackTable, truth: TrackTable) -> dict[str, str]:
         mean = np.where(counts > 0, sums / np.maximum(counts, 1), np.inf)
     big = (np.nanmax(mean[np.isfinite(mean)]) + 1.0) * 1e3 if np.isfinite(mean).any() else 1.0
     cost = np.where(np.isfinite(mean), mean, big)
-    return {p_names[a]: t_names[b] for a, b in linear_assignment(cost)
-            if np.isfinite(mean[a, b])}
+    mapping = {p_names[a]: t_names[b] for a, b in linear_assignment(cost)
+               if np.isfinite(mean[a, b])}
+    # fragments: a predicted instrument left over (the tracker changed the identity of a
+    # tool, e.g. after a crossing) joins its nearest truth instrument if it never shares a
+    # frame with the predicted instruments already matched to it
+    frames: dict[str, set[int]] = {}
+    for f, inst in zip(pred["frame"], pred["instrument"], strict=True):
+        frames.setdefault(str(inst), set()).add(int(f))
+    left = sorted((float(mean[pi[n]].min()), n) for n in p_names
+                  if n not in mapping and np.isfinite(mean[pi[n]]).any())
+    for _, name in left:
+        for tj in np.argsort(mean[pi[name]]):
+            if not np.isfinite(mean[pi[name], tj]):
+                break
+            taken = set().union(*(frames[q] for q, t in mapping.items() if t == t_names[tj]))
+            if not taken & frames[name]:
+                mapping[name] = t_names[tj]
+                break
+    return dict(sorted(mapping.items()))
 
 
 def _stats(values: np.ndarray) -> dict[str, float]:
@@ -150,6 +170,12 @@ class MethodReport:
     per_row: TrackTable
     """Per truth row: frame, instrument (truth), part, estimated (0/1), the errors."""
 
+    @property
+    def fragments(self) -> int:
+        """Predicted instruments matched beyond one per truth instrument (identity
+        changes of the tracker)."""
+        return len(self.instrument_map) - len(set(self.instrument_map.values()))
+
 
 @dataclass
 class EvalReport:
@@ -170,7 +196,8 @@ class EvalReport:
             return x
         return {"min_area_px": self.min_area_px,
                 "methods": [{"name": m.name, "instrument_map": m.instrument_map,
-                             "parts": clean(m.parts)} for m in self.methods]}
+                             "fragments": m.fragments, "parts": clean(m.parts)}
+                            for m in self.methods]}
 
     def per_frame(self) -> TrackTable:
         """Every method's per-row errors stacked, with a leading ``method`` column."""
@@ -323,6 +350,8 @@ def format_report(report: EvalReport) -> str:
     out += _table(["part", "method", "coverage", "x (mm)", "y (mm)", "z (mm)",
                    "3D med (mm)", "axis med (deg)", "axis p90 (deg)"], rows2)
     maps = [f"  {m.name}: " + (", ".join(f"{p}->{t}" for p, t in sorted(
-        m.instrument_map.items())) or "no instrument matched") for m in report.methods]
+        m.instrument_map.items())) or "no instrument matched")
+        + (f"  ({m.fragments} fragment(s): the tracker changed a tool's identity)"
+           if m.fragments else "") for m in report.methods]
     out += ["", "Instruments matched (Hungarian on mean box-centre distance):", *maps]
     return "\n".join(out) + "\n"

@@ -173,3 +173,19 @@ def test_match_instruments_by_nearest_boxes():
     inst = np.array(["left" if i == "1" else "right" for i in t["instrument"]], dtype=object)
     assert match_instruments(t.with_columns(instrument=inst), t) == {"left": "1",
                                                                       "right": "2"}
+
+
+def test_a_new_identity_after_a_gap_is_a_fragment_of_the_same_tool():
+    t = _truth(10)
+    inst = t["instrument"].copy()
+    inst[(inst == "1") & (t["frame"] >= 6)] = "7"  # the tracker renamed tool 1 at frame 6
+    m = evaluate({"p": t.with_columns(instrument=inst)}, t).methods[0]
+    assert m.instrument_map == {"1": "1", "2": "2", "7": "1"} and m.fragments == 1
+    assert m.parts["shaft"]["coverage"] == 1.0 and m.parts["shaft"]["x_px"]["mean"] == 0.0
+    assert "1 fragment(s)" in format_report(evaluate({"p": t.with_columns(instrument=inst)},
+                                                     t))
+    # a left-over instrument that overlaps in time with the matched one is not merged in
+    dup = TrackTable.concat([t, t[t["instrument"] == "1"].with_columns(
+        instrument=np.array(["9"] * 20, dtype=object))])
+    m = evaluate({"p": dup}, t).methods[0]
+    assert "9" not in m.instrument_map and m.parts["shaft"]["extra"] == 10
