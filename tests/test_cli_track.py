@@ -76,6 +76,10 @@ def test_default_output_goes_to_the_current_folder(tmp_path: Path,
     assert capsys.readouterr().err == ""  # --quiet: nothing on stderr
     assert (work / "my seq é_motion.csv").is_file()
     assert sorted(os.listdir(seq)) == before  # the input folder is never written to
+    monkeypatch.chdir(seq)  # run from inside the input folder: output goes beside it
+    assert main(["track", ".", "--quiet"]) == 0
+    assert sorted(os.listdir(seq)) == before
+    assert (seq.parent / "my seq é_motion.csv").is_file()
 
 
 def test_options_override_the_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

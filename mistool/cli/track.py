@@ -49,7 +49,8 @@ cx_px, cy_px, length_px, width_px, angle_deg (rotated box; angle of the long sid
 dx_px, dy_px, dz, droll_deg, dpitch_deg, dyaw_deg (paper motion), paper_* (the paper's
 per-frame quantities), end_x_mm..axis_z, start_*_mm, qw..qz, quality, trocar_*_mm
 (metric pose, camera frame in mm). The default output is ./<sequence name>_motion.csv
-in the current folder (never inside the input folder); the file is written atomically.
+in the current folder (its parent when run inside the input folder: mistool never writes
+into the input folder unless -o says so); the file is written atomically.
 
 examples:
   mistool track masks/                      # -> ./masks_motion.csv
@@ -85,10 +86,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def default_output(source: Path) -> Path:
-    """``./<name>_motion.csv`` in the current folder (a video adds its folder's name)."""
-    name = source.resolve().name if source.is_dir() else (
-        f"{source.resolve().parent.name}_{source.stem}")
-    return Path(f"{name or 'sequence'}_motion.csv")
+    """``./<name>_motion.csv`` in the current folder (a video adds its folder's name);
+    when the current folder is the input folder, its parent folder instead."""
+    src = source.resolve()
+    folder = src if src.is_dir() else src.parent
+    name = src.name if src.is_dir() else f"{src.parent.name}_{src.stem}"
+    out = Path(f"{name or 'sequence'}_motion.csv")
+    if Path.cwd().resolve() == folder:  # never write into the input folder unasked
+        out = folder.parent / out
+    return out
 
 
 def run_track(args: argparse.Namespace) -> int:
