@@ -46,10 +46,11 @@ Corruptions (all off by default, seeded, they change the masks and never truth.c
   --bias PX          over-segmentation by PX px (dilation), or under- if negative (erosion)
   --holes N          about N specular-highlight holes per frame on the tools (2-7 px)
   --speckle N        about N label specks per frame (1-3 px, random part values)
-  --occluders N      N tissue blobs (25-70 px) drifting over the scene, hiding the tools
+  --occluders N      N tissue blobs (30-90 px) hovering over the tools' heads, hiding them
   --hide-clasper F   the clasper (and wrist) hidden in a fraction F of the frames, in runs
-  --video CODEC      also write masks.avi with a lossy codec (mjpg, xvid, mp4v); the
-                     toml then gives value ranges wide enough for its smeared values
+  --video CODEC      also write masks.avi with a lossy codec (mjpg, xvid, mp4v; values
+                     smeared by up to ~20 grey levels at edges with mjpg, ~40 with xvid);
+                     the toml then gives value ranges wide enough for the smeared values
 Motion options: --leave-view (each tool retracts out of view once and comes back),
 --no-enter (tools present from the first frame), --no-cross.
 
@@ -94,13 +95,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="tools present from the first frame instead of entering")
     g.add_argument("--no-cross", action="store_true", help="tools do not cross")
     c = p.add_argument_group("corruptions (see above)")
-    c.add_argument("--jitter", type=float, default=0.0, metavar="PX")
-    c.add_argument("--bias", type=int, default=0, metavar="PX")
-    c.add_argument("--holes", type=float, default=0.0, metavar="N")
-    c.add_argument("--speckle", type=float, default=0.0, metavar="N")
-    c.add_argument("--occluders", type=int, default=0, metavar="N")
-    c.add_argument("--hide-clasper", type=float, default=0.0, metavar="F")
-    c.add_argument("--video", choices=("mjpg", "xvid", "mp4v"), metavar="CODEC")
+    c.add_argument("--jitter", type=float, default=0.0, metavar="PX",
+                   help="boundary jitter amplitude")
+    c.add_argument("--bias", type=int, default=0, metavar="PX",
+                   help="dilation (> 0) or erosion (< 0) of the masks")
+    c.add_argument("--holes", type=float, default=0.0, metavar="N",
+                   help="specular holes per frame")
+    c.add_argument("--speckle", type=float, default=0.0, metavar="N",
+                   help="label specks per frame")
+    c.add_argument("--occluders", type=int, default=0, metavar="N",
+                   help="tissue blobs over the tools")
+    c.add_argument("--hide-clasper", type=float, default=0.0, metavar="F",
+                   help="fraction of frames with the clasper hidden")
+    c.add_argument("--video", choices=("mjpg", "xvid", "mp4v"), metavar="CODEC",
+                   help="also write masks.avi (mjpg, xvid, mp4v)")
     p.add_argument("--force", action="store_true", help="replace a non-empty OUT")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress, no summary")
     p.set_defaults(func=run)
