@@ -12,10 +12,10 @@ Steps (camera frame, mm; see the package docstring for the conventions):
    coordinate, so J's axial coordinate is the median over those boundary points of the
    axial coordinate where their rays meet the cylinder (entry point next to the clasper,
    nearest-to-proximal point of the chord next to background).
-4. Tip: the clasper's far end in the image (jaw tips' mid-point), back-projected at the
-   known clasper length from J (the solution bending least from the shaft axis); when
-   the tip is cut by the image border, J + length x the least-bent direction that
-   projects along the clasper's image direction.
+4. Tip: the clasper's far end in the image (the mid-point of the jaw ends), at the depth
+   along its ray that best fits the known clasper length and a small bend from the shaft
+   axis; when the tip is cut by the image border, J + length x the least-bent direction
+   that projects along the clasper's image direction.
 5. ``quality``: IoU of the re-rendered part with its mask (:mod:`mistool.pose.quality`).
 
 Never a confident wrong answer: where the geometry is degenerate (one limb line, the
@@ -181,6 +181,21 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
     e = np.array([math.cos(theta), math.sin(theta)])
     centre = np.array([xm + shaft.offset[0], ym + shaft.offset[1]])
+    # the principal axis fails on a short visible stretch (as wide as long, or wider):
+    # the joint is on the axis, so the direction toward the shaft-clasper boundary is
+    # the axis' direction whatever the shape; without a clasper, a short stretch uses
+    # the direction away from where the shaft leaves the view
+    tr, det = mu20 + mu02, mu20 * mu02 - mu11 * mu11
+    disc = math.sqrt(max(tr * tr / 4.0 - det, 0.0))
+    d0 = None
+    if len(bnd.other) >= 3:
+        d0 = np.median(bnd.other, axis=0) - centre
+    elif tr / 2.0 + disc < 9.0 * max(tr / 2.0 - disc, 1e-9):
+        on_b = _on_border(pix, image_shape)
+        if on_b.any():
+            d0 = centre - pix[on_b].mean(axis=0)
+    if d0 is not None and np.linalg.norm(d0) > 2.0:
+        e = d0 / np.linalg.norm(d0)
     s_pix = (pix - centre) @ e
 
     # which end is distal: toward the other parts, else away from the image border
@@ -202,21 +217,23 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     row["aux_distal"] = 1.0 if distal != 0 else 0.0
 
     # limb-line candidates
-    width = float(shaft.box.width) if hasattr(shaft, "box") else 4.0 * math.sqrt(
-        max(min(mu20, mu02), 0.25))
-    zone = 0.6 * width + 2.0
+    eperp = np.array([-e[1], e[0]])
+    width = float(np.ptp((pix - centre) @ eperp))  # widest apparent width (px)
+    # the joint's end cap reaches at most about half the width along the axis; on short
+    # visible stretches keep most of the stretch for the lines (the robust fit rejects
+    # the cap's points that curve away)
+    zone = min(0.6 * width + 2.0, max(3.0, 0.15 * (s_max - s_min)))
     pts = bnd.bg
     s = (pts - centre) @ e
     keep = s < s_max - zone
     if not prox_at_border:
         keep &= s > s_min + zone
-    if len(bnd.other):  # leave out points within 3 px of another part
-        lo, hi = bnd.other.min(axis=0) - 3.0, bnd.other.max(axis=0) + 3.0
+    if len(bnd.other):  # leave out points within 2 px of another part
+        lo, hi = bnd.other.min(axis=0) - 2.0, bnd.other.max(axis=0) + 2.0
         box = np.flatnonzero(keep & np.all((pts >= lo) & (pts <= hi), axis=1))
         if len(box):
             d2 = ((pts[box, None, :] - bnd.other[None, ::2, :]) ** 2).sum(axis=2)
-            keep[box[d2.min(axis=1) < 9.0]] = False
-    eperp = np.array([-e[1], e[0]])
+            keep[box[d2.min(axis=1) < 4.0]] = False
     q = (pts - centre) @ eperp
     lines: list[np.ndarray | None] = []
     sigmas: list[float] = []
@@ -330,7 +347,8 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     clasper = parts.get("clasper")
     c_axis = None
     if clasper is not None and np.any(clasper.mask):
-        tip, c_axis, tip_px = _tip(clasper, joint, a, K, image_shape, clasper_length_mm)
+        tip, c_axis, tip_px = _tip(clasper, joint, a, K, image_shape, clasper_length_mm,
+                                   2.0 * radius)
         crow = out["clasper"]
         if tip_px is not None:
             crow["aux_u_px"], crow["aux_v_px"] = float(tip_px[0]), float(tip_px[1])
@@ -343,57 +361,133 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     return out
 
 
+#: Tip depth prior: the joint-to-tip distance is the configured clasper length when the
+#: wrist is straight and the jaws closed; opening and bending shorten it by a few percent.
+_TIP_LENGTH_FACTOR = 0.98
+_TIP_LENGTH_SIGMA = 0.06  # relative
+_TIP_BEND_SIGMA_RAD = math.radians(30.0)
+
+
+def _jaw_tips(mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray,
+              width_px: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Far ends of the clasper's jaws in the image.
+
+    The jaw ends are the local maxima of the distance from J's pixel along the clasper's
+    outline (a window of about one jaw width), at least half as far as the farthest;
+    the two farthest that are more than two jaw widths apart are the two open jaws,
+    a single one is closed jaws. Each end is moved onto its jaw's axis: the farthest
+    extent, along the principal direction of the clasper pixels within 2.5 jaw widths
+    (at most half the ends' separation), of those pixels, through their centroid.
+
+    Args:
+        mask_u8: (h, w) uint8 clasper crop; offset: its (x0, y0).
+        jpx: (2,) J's pixel.
+        width_px: expected jaw width in the image (px).
+
+    Returns:
+        (jaw-end pixels (2,), the outline points near each end (M, 2)).
+    """
+    contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return [], []
+    c = max(contours, key=len).reshape(-1, 2).astype(np.float64) + offset
+    d = np.linalg.norm(c - jpx, axis=1)
+    n = len(c)
+    win = int(max(2, min(n // 4, round(width_px))))
+    padded = np.concatenate([d[-win:], d, d[:win]])
+    local = np.lib.stride_tricks.sliding_window_view(padded, 2 * win + 1).max(axis=1)
+    cand = np.flatnonzero((d >= local) & (d >= 0.5 * d.max()))
+    cand = cand[np.argsort(-d[cand])]
+    picks: list[int] = []
+    for i in cand:
+        if all(np.linalg.norm(c[i] - c[j]) > 2.0 * width_px for j in picks):
+            picks.append(int(i))
+        if len(picks) == 2:
+            break
+    ys, xs = np.nonzero(mask_u8)
+    area = np.stack([xs + float(offset[0]), ys + float(offset[1])], axis=1)
+    rad = 2.5 * width_px
+    if len(picks) == 2:
+        rad = min(rad, 0.5 * float(np.linalg.norm(c[picks[0]] - c[picks[1]])))
+    ends, nears = [], []
+    for i in picks:
+        nb = area[np.linalg.norm(area - c[i], axis=1) <= rad]
+        if len(nb) < 3:
+            continue
+        m = nb.mean(axis=0)
+        dd = nb - m
+        cov = dd.T @ dd
+        phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
+        e = np.array([math.cos(phi), math.sin(phi)])
+        if e @ (c[i] - jpx) < 0:
+            e = -e
+        ends.append(m + (float((dd @ e).max()) + 0.5) * e)
+        nears.append(c[np.linalg.norm(c - c[i], axis=1) <= rad])
+    return ends, nears
+
+
 def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
-         image_shape: tuple[int, int], length: float | None
+         image_shape: tuple[int, int], length: float | None, diameter: float
          ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """Tip (3,), clasper axis (3,) and the tip's pixel (2,) (or Nones)."""
-    pts, _ = _outline(_as_u8(clasper.mask), clasper.offset)
+    """Tip (3,), clasper axis (3,) and the tip's pixel (2,) (or Nones).
+
+    The tip's pixel is the mid-point of the jaw ends (:func:`_jaw_tips`). Its depth along
+    the pixel's ray minimises a two-term cost: the joint-to-tip distance near the
+    clasper length (well conditioned when the clasper is foreshortened) and a small bend
+    from the shaft axis (well conditioned when the clasper is seen side-on). When the
+    tip is cut by the image border it is placed at the nominal length along the least
+    bent direction that projects along the clasper's image direction.
+    """
+    mask_u8 = _as_u8(clasper.mask)
     jpx = project(joint[None], K)[0]
-    v = pts - jpx
-    mean = v.mean(axis=0)
-    if np.linalg.norm(mean) < 2.0:
+    width_px = K[0, 0] * 0.25 * diameter / max(float(joint[2]), 1.0)
+    ends, nears = _jaw_tips(mask_u8, clasper.offset, jpx, max(width_px, 2.0))
+    if not ends:
         return None, None, None
-    u = mean / np.linalg.norm(mean)
-    s = v @ u
-    s_max = float(s.max())
-    band = s >= s_max - max(2.0, 0.15 * s_max)
-    q = v[band] @ np.array([-u[1], u[0]])
-    q_mid = 0.5 * (float(q.min()) + float(q.max()))
-    tip_px = jpx + (s_max + 0.5) * u + q_mid * np.array([-u[1], u[0]])
-    hidden = bool(np.any(_on_border(pts[band], image_shape)))
+    tip_px = np.mean(ends, axis=0)
+    if np.linalg.norm(tip_px - jpx) < 2.0:
+        return None, None, None
+    u = (tip_px - jpx) / np.linalg.norm(tip_px - jpx)
+    hidden = any(bool(np.any(_on_border(nb, image_shape))) for nb in nears)
+    l_nom = _TIP_LENGTH_FACTOR * length if length is not None else None
+    # least-bent direction in the plane of the camera centre, J and the tip's ray
     ray = pixel_rays(tip_px[None], K)[0]
+    nc = cross3(joint, ray if not hidden else pixel_rays((jpx + 10.0 * u)[None], K)[0])
+    if np.linalg.norm(nc) < 1e-9:
+        return None, None, tip_px
+    nc /= np.linalg.norm(nc)
+    c = a - (a @ nc) * nc
+    if np.linalg.norm(c) < 1e-6:
+        return None, None, tip_px
+    c /= np.linalg.norm(c)
+    st = project(np.stack([joint, joint + c]), K)
+    if float((st[1] - st[0]) @ u) < 0:
+        c = -c
     if hidden:
-        if length is None:
+        if l_nom is None:
             return None, None, tip_px
-        r2 = pixel_rays((jpx + 10.0 * u)[None], K)[0]
-        nc = cross3(joint / np.linalg.norm(joint), r2)
-        nc /= np.linalg.norm(nc)
-        c = a - (a @ nc) * nc
-        if np.linalg.norm(c) < 1e-6:
-            return None, None, tip_px
-        c /= np.linalg.norm(c)
-        step = project(np.stack([joint, joint + c]), K)
-        if float((step[1] - step[0]) @ u) < 0:
-            c = -c
-        return joint + length * c, c, tip_px
-    if length is None:
-        t = float(closest_on_axis(ray[None], joint, a)[0])
-        x = joint + t * a
-        s_ray = float(ray @ x)
-        tip = s_ray * ray
+        return joint + l_nom * c, c, tip_px
+    s_j = float(ray @ joint)
+    span = 3.0 * (l_nom if l_nom is not None else 16.0)
+    s = np.linspace(max(s_j - span, 1.0), s_j + span, 241)
+    X = s[:, None] * ray
+    d = X - joint
+    ln = np.linalg.norm(d, axis=1)
+    cosb = np.clip((d @ a) / np.maximum(ln, 1e-9), -1.0, 1.0)
+    cost = (np.arccos(cosb) / _TIP_BEND_SIGMA_RAD) ** 2
+    if l_nom is not None:
+        cost += ((ln - l_nom) / (_TIP_LENGTH_SIGMA * l_nom)) ** 2
+    k = int(np.argmin(cost))
+    if 0 < k < len(s) - 1:  # parabolic refinement
+        c0, c1, c2 = cost[k - 1], cost[k], cost[k + 1]
+        den = c0 - 2.0 * c1 + c2
+        off = 0.5 * (c0 - c2) / den if den > 0 else 0.0
+        sk = s[k] + float(np.clip(off, -1.0, 1.0)) * (s[1] - s[0])
     else:
-        b = float(ray @ joint)
-        disc = b * b - float(joint @ joint) + length**2
-        if disc < 0:
-            tip = b * ray
-        else:
-            cands = [(b - math.sqrt(disc)) * ray, (b + math.sqrt(disc)) * ray]
-            cands = [c for c in cands if c[2] > 0]
-            if not cands:
-                return None, None, tip_px
-            tip = max(cands, key=lambda x: float((x - joint) @ a))
-    d = tip - joint
-    nd = np.linalg.norm(d)
+        sk = s[k]
+    tip = sk * ray
+    dv = tip - joint
+    nd = np.linalg.norm(dv)
     if nd < 1e-6:
         return None, None, tip_px
-    return tip, d / nd, tip_px
+    return tip, dv / nd, tip_px
