@@ -425,9 +425,10 @@ def open_sequence(source: str | Path | Iterable[np.ndarray],
         if path.is_dir():
             return _open_folder(path, config)
         return _open_video(path, config)
-    if isinstance(source, np.ndarray) and source.ndim == 2:
-        raise MaskFormatError("source: got one (H, W) array; pass a list of frames, "
-                              "e.g. [labels]")
+    if isinstance(source, np.ndarray) and (
+            source.ndim == 2 or (source.ndim == 3 and source.shape[2] in (3, 4))):
+        raise MaskFormatError(f"source: got one array of shape {source.shape}; pass a list "
+                              "of frames, e.g. [labels], or an (N, H, W) stack")
     return _open_arrays(source, config if config is not None else Config())
 
 

@@ -128,6 +128,14 @@ def test_arrays_source_and_dtypes() -> None:
     assert gen.num_frames is None and len(list(gen)) == 3
 
 
+def test_one_array_is_not_a_sequence() -> None:
+    for one in (np.zeros((4, 5), np.uint8), np.zeros((4, 5, 3), np.uint8)):
+        with pytest.raises(MaskFormatError, match="pass a list of frames"):
+            open_sequence(one)
+    stack = np.zeros((3, 4, 5), np.uint8)  # (N, H, W): N frames
+    assert [i for i, _, _ in open_sequence(stack)] == [0, 1, 2]
+
+
 @pytest.mark.parametrize("bad, message", [
     (np.full((4, 4), -1), "0..65535"),
     (np.full((4, 4), 0.5), "non-integer"),
