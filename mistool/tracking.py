@@ -8,7 +8,10 @@ Two ways to tell instruments apart, chosen by the config:
   shares the part values): instances are the connected components of the *whole*
   instrument (shaft + wrist + clasper pixels together), bridged over gaps of up to
   :data:`MERGE_GAP_PX` pixels so a clasper one pixel away from its shaft stays one
-  instrument. Components smaller than ``config.min_area_px`` are specks and are dropped.
+  instrument. Components smaller than ``config.min_area_px`` are specks and are dropped;
+  a small component close to a much larger one (:data:`FRAGMENT_AREA_FRAC`,
+  :data:`FRAGMENT_GAP_PX`) is a fragment of it (a jaw apart from its clasper at the image
+  border, a piece cut off by an occluder).
   :class:`IdentityTracker` then keeps each instance's name across frames.
 
 Every part's box is Algorithm 1 (:mod:`mistool.geometry`) over all of that part's
@@ -31,6 +34,11 @@ from mistool.model import PARTS, RotatedBox
 #: Merged masks: pixels of one instrument separated by at most this many background
 #: pixels are joined into one instance.
 MERGE_GAP_PX = 1
+
+#: Merged masks: a component with less than this fraction of a larger one's area, within
+#: :data:`FRAGMENT_GAP_PX` of it, is a fragment of that instrument (see observe_frame).
+FRAGMENT_AREA_FRAC = 0.25
+FRAGMENT_GAP_PX = 30.0
 
 
 @dataclass(frozen=True)
@@ -184,21 +192,56 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
     n, cc, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
     counts = np.bincount(cc[union > 0], minlength=n)
     found = []
-    for i in range(1, n):
-        if counts[i] < max(min_area, 1):
-            continue  # a speck of an instrument
-        bx, by, bw, bh = (int(v) for v in stats[i, :4])
-        inside = cc[by:by + bh, bx:bx + bw] == i
+    for group in _group_fragments(counts, stats, max(min_area, 1)):
+        x0 = min(int(stats[i, 0]) for i in group)
+        y0 = min(int(stats[i, 1]) for i in group)
+        x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
+        y1 = max(int(stats[i, 1] + stats[i, 3]) for i in group)
+        sub = cc[y0:y1, x0:x1]
+        inside = sub == group[0] if len(group) == 1 else np.isin(sub, group)
         parts = {}
         for p in part_names:
-            pm = np.where(inside, masks[p][by:by + bh, bx:bx + bw], np.uint8(0))
-            obs = _part_observation(p, pm, fx + bx, fy + by, min_area)
+            pm = np.where(inside, masks[p][y0:y1, x0:x1], np.uint8(0))
+            obs = _part_observation(p, pm, fx + x0, fy + y0, min_area)
             if obs is not None:
                 parts[p] = obs
         if parts:
             found.append(_instance(None, parts))
     found.sort(key=lambda inst: -inst.area_px)
     return found
+
+
+def _group_fragments(counts: np.ndarray, stats: np.ndarray, min_area: int) -> list[list[int]]:
+    """Components (labels 1..n-1) grouped into instruments.
+
+    A component smaller than ``min_area`` pixels is a speck and is dropped. A *fragment*
+    (less than :data:`FRAGMENT_AREA_FRAC` of a larger component's area, its bounding box
+    at most :data:`FRAGMENT_GAP_PX` from that component's) joins the largest such
+    neighbour: a jaw seen apart from its clasper at the image border, or a piece of an
+    instrument cut off by an occluder, is not a new instrument.
+    """
+    labels = [i for i in range(1, len(counts)) if counts[i] >= min_area]
+    labels.sort(key=lambda i: -counts[i])
+    owner: dict[int, int] = {}
+    for k, i in enumerate(labels):
+        owner[i] = i
+        for j in labels[:k]:  # larger components first
+            if owner[j] != j or counts[i] >= FRAGMENT_AREA_FRAC * counts[j]:
+                continue
+            if _bbox_gap(stats[i], stats[j]) <= FRAGMENT_GAP_PX:
+                owner[i] = j
+                break
+    groups: dict[int, list[int]] = {}
+    for i in labels:
+        groups.setdefault(owner[i], []).append(i)
+    return list(groups.values())
+
+
+def _bbox_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """Distance between two (x, y, w, h, ...) boxes' pixel ranges (0 when they overlap)."""
+    dx = max(int(a[0]) - int(b[0] + b[2]) + 1, int(b[0]) - int(a[0] + a[2]) + 1, 0)
+    dy = max(int(a[1]) - int(b[1] + b[3]) + 1, int(b[1]) - int(a[1] + a[3]) + 1, 0)
+    return math.hypot(dx, dy)
 
 
 def unknown_values(labels: np.ndarray, config: Config) -> np.ndarray:

@@ -99,8 +99,26 @@ def test_clasper_across_one_pixel_gap_stays_one_instrument():
     img[42:58, 101:130] = CLASPER  # column 100 is background: a 1-px gap
     (inst,) = observe_frame(img, MERGED)
     assert set(inst.parts) == {"shaft", "clasper"}
-    img[42:58, 101:103] = 0  # now a 3-px gap: two instances
+    img[42:58, 101:103] = 0  # a 3-px gap: the clasper is a small fragment close by
+    (inst,) = observe_frame(img, MERGED)
+    assert set(inst.parts) == {"shaft", "clasper"}
+    img[:, 101:] = 0
+    img[42:58, 140:170] = CLASPER  # 40 px away: another instrument
     assert len(observe_frame(img, MERGED)) == 2
+
+
+@pytest.mark.parametrize("second_area, gap, expected", [
+    (10 * 30, 25, 1),    # a small jaw 25 px from its instrument: a fragment of it
+    (10 * 30, 45, 2),    # too far: its own instrument
+    (40 * 100, 25, 2),   # a large neighbour is never a fragment
+])
+def test_fragments_join_their_instrument(second_area, gap, expected):
+    img = np.zeros((300, 400), np.uint8)
+    img[100:140, 20:300] = SHAFT  # 11200 px
+    h = 10 if second_area == 300 else 40
+    w = second_area // h
+    img[140 + gap:140 + gap + h, 250:250 + w] = CLASPER
+    assert len(observe_frame(img, MERGED)) == expected
 
 
 def test_specks_are_ignored():
