@@ -225,3 +225,23 @@ def test_pixel_formats_give_the_same_table(tmp_path: Path, fmt: str) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no unknown values in any format
         _compare(track(tmp_path / fmt), track(tmp_path / "grey8"))
+
+
+def test_metric_columns_with_a_camera(tmp_path: Path) -> None:
+    """With [camera] the metric pose fills end_*/axis_*; metric=False leaves them empty."""
+    from mistool.resources import sample_masks_dir
+
+    sample = sample_masks_dir()
+    for name in sorted(p.name for p in sample.glob("*.png"))[100:112]:  # tools in view
+        (tmp_path / name).write_bytes((sample / name).read_bytes())
+    (tmp_path / "mistool.toml").write_text((sample / "mistool.toml").read_text())
+    result = run(tmp_path)
+    assert result.metric and result.config.camera is not None
+    axis = np.stack([result.table[c] for c in ("axis_x", "axis_y", "axis_z")], axis=1)
+    ok = np.isfinite(axis).all(axis=1)
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(np.linalg.norm(axis[ok], axis=1), 1.0, atol=1e-6)
+    assert np.all(result.table["end_z_mm"][ok] > 0)  # in front of the camera
+    plain = run(tmp_path, metric=False)
+    assert not plain.metric and np.isnan(plain.table["end_x_mm"]).all()
+    np.testing.assert_array_equal(plain.table["cx_px"], result.table["cx_px"])
