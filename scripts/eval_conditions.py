@@ -43,7 +43,7 @@ CONDITIONS: dict[str, tuple[Corruptions, str | None]] = {
     "holes+speckle": (Corruptions(holes=6.0, speckle=20.0), None),
     "occluded (3 blobs)": (Corruptions(occluders=3), None),
     "clasper hidden 30%": (Corruptions(hide_clasper=0.3), None),
-    "mjpg video": (Corruptions(), "mjpg"),
+    "xvid video": (Corruptions(), "xvid"),
 }
 
 
