@@ -15,9 +15,11 @@ the 2D overlay (mask blended over the procedure's own video when mistool.toml gi
 plots of x/y/z and roll/pitch/yaw with a cursor, and trails of each tip and joint.
 
 The sequence is tracked first (progress bar on stderr), unless --poses gives a motion
-table (e.g. from 'mistool track'). Problems with SEQUENCE are reported before the server
-starts. The URL printed is the one really in use: when the port is busy the next free
-one is taken. Ctrl+C stops the server.
+table (e.g. from 'mistool track'); the table is cached (~/.cache/mistool/tables, keyed by
+the frames' names, sizes and times, mistool.toml and mistool's version), so the next
+'mistool serve' of the unchanged sequence starts at once (--no-cache tracks again).
+Problems with SEQUENCE are reported before the server starts. The URL printed is the one
+really in use: when the port is busy the next free one is taken. Ctrl+C stops the server.
 
 3D modes (switch in the GUI): 'metric' (millimetres, the default when mistool.toml has
 [camera]) and 'paper' (the paper's vpython scene in pixel units: cylinder length = box
@@ -49,6 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--poses", metavar="POSES.csv",
                    help="show this motion table instead of tracking the sequence")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-cache", action="store_true",
+                   help="track again even if this unchanged sequence was tracked before "
+                        "(tables are cached in ~/.cache/mistool/tables)")
     p.add_argument("--environment-map", action="store_true",
                    help="light the scene with viser's HDR environment map (slow to start "
                         "without a GPU)")
@@ -64,7 +69,8 @@ def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port}: must be in 0..65535")
     progress = not args.quiet and sys.stderr.isatty()
-    sequence = load_sequence(args.sequence, poses=args.poses, progress=progress)
+    sequence = load_sequence(args.sequence, poses=args.poses, progress=progress,
+                             cache=not args.no_cache)
     try:
         viewer = ReplayViewer(sequence, host=args.host, port=args.port,
                               environment_map=args.environment_map)

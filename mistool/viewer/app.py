@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import hashlib
 import io
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -21,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import viser
 
-from mistool.errors import InputPathError
+from mistool.errors import InputPathError, MistoolError
 from mistool.model import TrackTable
 from mistool.viewer.overlay import FrameStore, OverlayRenderer, encode_jpeg
 from mistool.viewer.plots import PlotPanel
@@ -42,8 +44,33 @@ class LoadedSequence:
     """A short name for titles."""
 
 
+def cache_dir() -> Path:
+    """Where tracked tables are cached: ``$XDG_CACHE_HOME/mistool/tables`` (default
+    ``~/.cache/mistool/tables``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "mistool" / "tables"
+
+
+def _cache_key(seq_path: Path) -> str:
+    """A digest of everything tracking depends on: mistool's version, the sequence's
+    path, every frame file's name, size and modification time, and mistool.toml."""
+    from mistool import __version__
+    from mistool.sequence import list_frames
+
+    h = hashlib.sha256(f"{__version__}\n{seq_path.resolve()}\n".encode())
+    files = list_frames(seq_path) if seq_path.is_dir() else [seq_path]
+    for f in files:
+        st = f.stat()
+        h.update(f"{f.name}\t{st.st_size}\t{st.st_mtime_ns}\n".encode())
+    toml = (seq_path if seq_path.is_dir() else seq_path.parent) / "mistool.toml"
+    if toml.is_file():
+        h.update(toml.read_bytes())
+    return h.hexdigest()[:32]
+
+
 def load_sequence(path: str | Path | None, *, poses: str | Path | None = None,
-                  progress: bool = False, table: TrackTable | None = None) -> LoadedSequence:
+                  progress: bool = False, table: TrackTable | None = None,
+                  cache: bool = False) -> LoadedSequence:
     """Open a sequence for the viewer: track it (or load its motion table) and index its
     frames. Every problem is raised here, before any server starts.
 
@@ -52,11 +79,14 @@ def load_sequence(path: str | Path | None, *, poses: str | Path | None = None,
         poses: a motion table CSV to show instead of tracking the sequence.
         progress: show a tracking progress bar on stderr.
         table: an in-memory motion table to show instead of tracking.
+        cache: reuse the table tracked by an earlier call for the same, unchanged
+            sequence (see :func:`cache_dir`), and store it after tracking. The sequence's
+            folder is never written to.
 
     Raises:
         MistoolError: bad path, masks, ``mistool.toml`` or table (one-line message).
     """
-    from mistool.export import read_csv
+    from mistool.export import read_csv, write_csv
     from mistool.resources import sample_masks_dir
     from mistool.sequence import list_frames, resolve
 
@@ -74,12 +104,21 @@ def load_sequence(path: str | Path | None, *, poses: str | Path | None = None,
         if seq_path.is_dir() and not list_frames(seq_path):
             raise InputPathError(f"{seq_path}: no label images in this folder; pass a folder "
                                  "of masks, a mask video, or --poses with a motion table")
-        from mistool import api  # tracking only when no table is given
+        cached = cache_dir() / f"{_cache_key(seq_path)}.csv" if cache else None
+        if cached is not None and cached.is_file():
+            with contextlib.suppress(MistoolError):  # a bad cache entry: track again
+                table = read_csv(cached)
+        if table is None:
+            from mistool import api  # tracking only when no table is given
 
-        result = api.run(seq_path, config, progress=progress)
-        table, num_frames, config = result.table, result.num_frames, result.config
-        if result.shape is not None:
-            shape = result.shape
+            result = api.run(seq_path, config, progress=progress)
+            table, num_frames, config = result.table, result.num_frames, result.config
+            if result.shape is not None:
+                shape = result.shape
+            if cached is not None:
+                with contextlib.suppress(OSError, MistoolError):  # caching is optional
+                    cached.parent.mkdir(parents=True, exist_ok=True)
+                    write_csv(table, cached)
     image_wh = (shape[1], shape[0]) if shape is not None else None
     replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
     return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
