@@ -26,6 +26,15 @@ def test_synth_writes_a_sequence_folder(tmp_path, capsys):
     assert "mistool synth: 4 frames" in capsys.readouterr().err
 
 
+def test_leave_view_removes_the_tool_from_the_truth_for_a_while(tmp_path):
+    out = tmp_path / "s"
+    assert main(["synth", str(out), "--frames", "150", "--instruments", "1", "--seed", "1",
+                 "--leave-view", "--no-enter", "-q"]) == 0
+    frames = sorted(set(read_csv(out / "truth.csv")["frame"].tolist()))
+    gaps = [b - a for a, b in zip(frames[:-1], frames[1:], strict=True)]
+    assert frames[0] == 0 and frames[-1] == 149 and max(gaps) > 5
+
+
 def test_synth_refuses_to_overwrite_without_force(tmp_path, capsys):
     out = tmp_path / "s"
     assert main(["synth", str(out), "--frames", "1", "-q"]) == 0

@@ -51,8 +51,10 @@ Corruptions (all off by default, seeded, they change the masks and never truth.c
   --video CODEC      also write masks.avi with a lossy codec (mjpg, xvid, mp4v; values
                      smeared by up to ~20 grey levels at edges with mjpg, ~40 with xvid);
                      the toml then gives value ranges wide enough for the smeared values
-Motion options: --leave-view (each tool retracts out of view once and comes back),
---no-enter (tools present from the first frame), --no-cross.
+The tool leaving the view is a motion, not a mask corruption, so the truth follows it
+(no rows while a tool is out of view): --leave-view (each tool retracts out of the view
+once and comes back). Other motion options: --no-enter (tools present from the first
+frame), --no-cross (tools keep to their side).
 
 examples:
   mistool synth /tmp/s --frames 60 --instruments 2
