@@ -43,7 +43,7 @@ from mistool.pose.cylinder import (
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask
 from mistool.pose.silhouette import boundary_points, fit_line_robust, make_canvas
 
-__all__ = ["AUX_KEYS", "POSE_KEYS", "SENSITIVITY_MAX_MM_PER_PX", "measure_instance"]
+__all__ = ["AUX_KEYS", "MAX_SIGMA_DEG", "MAX_SIGMA_MM", "POSE_KEYS", "measure_instance"]
 
 #: The metric columns :func:`measure_instance` fills for each part.
 POSE_KEYS: tuple[str, ...] = (
@@ -53,17 +53,24 @@ POSE_KEYS: tuple[str, ...] = (
 #: Per-frame auxiliary values (extra columns) that :func:`refine_sequence` uses to
 #: re-solve frames with the trocar constraint, then drops. Limb lines are image lines
 #: ``a u + b v + c = 0`` (px, unit normal, shaft inside positive); ``aux_u_px, aux_v_px``
-#: is the joint's pixel (shaft row) or the tip's pixel (clasper row); ``aux_sens_mm_px``
-#: the joint's sensitivity to a limb line moving by one pixel (mm/px);
-#: ``aux_distal`` 1 when the distal direction was seen in this frame, else 0.
+#: is the joint's pixel (shaft row) or the tip's pixel (clasper row); ``aux_sigma_mm``,
+#: ``aux_sigma_deg`` the 1-sigma errors of J (mm) and of the axis direction (degrees)
+#: propagated from the limb lines' fits; ``aux_distal`` 1 when the distal direction was
+#: seen in this frame, else 0; ``aux_su_px, aux_sv_px`` the pixel where the shaft leaves
+#: the view (its proximal end).
 AUX_KEYS: tuple[str, ...] = (
     "aux_l1a", "aux_l1b", "aux_l1c", "aux_l2a", "aux_l2b", "aux_l2c",
-    "aux_u_px", "aux_v_px", "aux_sens_mm_px", "aux_distal",
+    "aux_u_px", "aux_v_px", "aux_su_px", "aux_sv_px", "aux_sigma_mm", "aux_sigma_deg",
+    "aux_distal",
 )
 
-#: Above this joint sensitivity (mm per px of limb-line error) the shaft pose is left
-#: empty: the view is too close to end-on (or the lines too short) to trust the depth.
-SENSITIVITY_MAX_MM_PER_PX = 25.0
+#: Above this 1-sigma joint error (mm) the shaft pose is left empty: the view is too close
+#: to end-on, or the limb lines too short, to trust the depth.
+MAX_SIGMA_MM = 4.0
+#: Above this 1-sigma axis-direction error (degrees) the axis is left empty (J is kept).
+MAX_SIGMA_DEG = 3.0
+_PX_NOISE = 0.3
+_PX_BIAS = 0.1
 _MIN_LINE_POINTS = 10
 _MIN_LINE_SPAN_PX = 12.0
 _SEED = 12345
@@ -131,6 +138,85 @@ def _joint_t(pts: np.ndarray, is_other: np.ndarray, p0: np.ndarray, a: np.ndarra
     if np.count_nonzero(bg) >= 5:
         return float(np.median(np.minimum(t_in, t_out)[bg]))
     return float(np.median(np.where(is_other, t_in, np.minimum(t_in, t_out))))
+
+
+class _LineStats:
+    """A fitted limb line's support: centre (2,) px, span (px), inliers, RMS (px)."""
+
+    __slots__ = ("centre", "n", "sigma", "span")
+
+    def __init__(self, centre: np.ndarray, span: float, n: int, sigma: float) -> None:
+        self.centre, self.span, self.n, self.sigma = centre, span, n, sigma
+
+
+def _fit_limbs(pts: np.ndarray, s: np.ndarray, q: np.ndarray, keep: np.ndarray,
+               centre: np.ndarray, rng: np.random.Generator
+               ) -> tuple[list[np.ndarray | None], list[_LineStats | None]]:
+    """One robust line per side of the axis; interior (the centre) on the positive side."""
+    lines: list[np.ndarray | None] = []
+    stats: list[_LineStats | None] = []
+    for side in (q < 0, q > 0):
+        sel = keep & side
+        fit = fit_line_robust(pts[sel], s[sel], rng) if sel.sum() >= _MIN_LINE_POINTS else None
+        if fit is not None:
+            line, inl, sig = fit
+            n_in = int(inl.sum())
+            span = float(np.ptp(s[sel][inl])) if n_in else 0.0
+            if n_in >= _MIN_LINE_POINTS and span >= _MIN_LINE_SPAN_PX:
+                if line[:2] @ centre + line[2] < 0:
+                    line = -line
+                lines.append(line)
+                stats.append(_LineStats(pts[sel][inl].mean(axis=0), span, n_in, sig))
+                continue
+        lines.append(None)
+        stats.append(None)
+    if lines[0] is not None and lines[1] is not None and float(lines[0][:2] @ lines[1][:2]) > 0:
+        # both fits found the same limb (e.g. the other one is out of the view and the
+        # visible part's centroid is off-axis): keep the better one
+        worse = 0 if stats[0].sigma > stats[1].sigma else 1  # type: ignore[union-attr]
+        lines[worse] = None
+        stats[worse] = None
+    return lines, stats
+
+
+def _rotated(line: np.ndarray, about: np.ndarray, angle: float) -> np.ndarray:
+    c, s_ = math.cos(angle), math.sin(angle)
+    n = np.array([c * line[0] - s_ * line[1], s_ * line[0] + c * line[1]])
+    return np.array([n[0], n[1], -float(n @ about)])
+
+
+def _uncertainty(lines: list[np.ndarray], stats: list[_LineStats], K: np.ndarray,
+                 radius: float, ref: np.ndarray, a: np.ndarray) -> tuple[float, float]:
+    """1-sigma error of a reference axis point (mm) and of the axis direction (deg),
+    propagated by finite differences from each line's offset and angle uncertainty.
+
+    Each line's errors come from its fit: residual RMS (at least ``_PX_NOISE``, the
+    quantisation floor) over ``n_eff`` independent points (boundary errors are correlated
+    over a few pixels: ``n_eff <= span / 2``), plus ``_PX_BIAS`` of unknown systematic
+    offset (e.g. segmentation bias).
+    """
+    rref = ref / np.linalg.norm(ref)
+    var_p = var_a = 0.0
+    for k in range(2):
+        st = stats[k]
+        n_eff = max(2.0, min(float(st.n), st.span / 2.0))
+        sig = max(st.sigma, _PX_NOISE)
+        d_off = math.hypot(sig / math.sqrt(n_eff), _PX_BIAS)
+        d_ang = sig * math.sqrt(12.0 / n_eff) / max(st.span, 1.0)
+        for kind, amount in (("off", d_off), ("ang", d_ang)):
+            moved = [lines[0].copy(), lines[1].copy()]
+            if kind == "off":
+                moved[k][2] -= amount
+            else:
+                moved[k] = _rotated(moved[k], st.centre, amount)
+            sol = axis_from_lines(tangent_plane(moved[0], K), tangent_plane(moved[1], K),
+                                  radius)
+            if sol is None:
+                return math.inf, math.inf
+            tk = float(closest_on_axis(rref[None], sol[0], sol[1])[0])
+            var_p += float(np.sum((sol[0] + tk * sol[1] - ref) ** 2))
+            var_a += math.degrees(math.acos(min(1.0, abs(float(sol[1] @ a))))) ** 2
+    return math.sqrt(var_p), math.sqrt(var_a)
 
 
 def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
@@ -225,35 +311,18 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     zone = min(0.6 * width + 2.0, max(3.0, 0.15 * (s_max - s_min)))
     pts = bnd.bg
     s = (pts - centre) @ e
-    keep = s < s_max - zone
+    keep_base = np.ones(len(pts), dtype=bool)
     if not prox_at_border:
-        keep &= s > s_min + zone
+        keep_base &= s > s_min + zone
     if len(bnd.other):  # leave out points within 2 px of another part
         lo, hi = bnd.other.min(axis=0) - 2.0, bnd.other.max(axis=0) + 2.0
-        box = np.flatnonzero(keep & np.all((pts >= lo) & (pts <= hi), axis=1))
+        box = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
         if len(box):
             d2 = ((pts[box, None, :] - bnd.other[None, ::2, :]) ** 2).sum(axis=2)
-            keep[box[d2.min(axis=1) < 4.0]] = False
+            keep_base[box[d2.min(axis=1) < 4.0]] = False
+    keep = keep_base & (s < s_max - zone)
     q = (pts - centre) @ eperp
-    lines: list[np.ndarray | None] = []
-    sigmas: list[float] = []
-    for side in (q < 0, q > 0):
-        sel = keep & side
-        fit = fit_line_robust(pts[sel], s[sel], rng) if sel.sum() >= _MIN_LINE_POINTS else None
-        if fit is not None:
-            line, inl, sig = fit
-            span = np.ptp(s[sel][inl]) if inl.any() else 0.0
-            if inl.sum() < _MIN_LINE_POINTS or span < _MIN_LINE_SPAN_PX:
-                fit = None
-        if fit is None:
-            lines.append(None)
-            sigmas.append(math.inf)
-            continue
-        line = fit[0]
-        if line[:2] @ centre + line[2] < 0:
-            line = -line
-        lines.append(line)
-        sigmas.append(fit[2])
+    lines, stats = _fit_limbs(pts, s, q, keep, centre, rng)
     for k, line in enumerate(lines):
         if line is not None:
             for j, c in enumerate("abc"):
@@ -270,76 +339,91 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     if lines[0] is None or lines[1] is None:
         return out  # one limb line: refine_sequence may solve it with the trocar
 
-    n1, n2 = tangent_plane(lines[0], K), tangent_plane(lines[1], K)
-    sol = axis_from_lines(n1, n2, radius)
-    if sol is None:
-        return out
-    p0, a = sol
-    cray = pixel_rays(centre[None], K)
-    tc = float(closest_on_axis(cray, p0, a)[0])
-    xc = p0 + tc * a
-    if xc[2] <= 0:
-        return out
-    step = project(np.stack([xc, xc + a]), K)
-    if float((step[1] - step[0]) @ e) < 0:
-        a = -a
-        tc = -tc
-        p0 = p0.copy()
-    if distal == 0 and a[2] < 0:  # no distal cue: by convention, into the scene
-        a = -a
-    # sanity: apparent width at the centroid vs the mask's
-    wc = float(lines[0][:2] @ centre + lines[0][2] + lines[1][:2] @ centre + lines[1][2])
-    if not 0.5 * width <= wc <= 1.6 * width + 2.0:
-        return out
+    def solve(lines: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        sol = axis_from_lines(tangent_plane(lines[0], K), tangent_plane(lines[1], K), radius)
+        if sol is None:
+            return None
+        p0, a = sol
+        tc = float(closest_on_axis(pixel_rays(centre[None], K), p0, a)[0])
+        xc = p0 + tc * a
+        if xc[2] <= 0:
+            return None
+        step = project(np.stack([xc, xc + a]), K)
+        if float((step[1] - step[0]) @ e) < 0:
+            a = -a
+        if distal == 0 and a[2] < 0:  # no distal cue: by convention, into the scene
+            a = -a
+        # sanity: apparent width at the centroid vs the mask's
+        wc = float(lines[0][:2] @ centre + lines[0][2] + lines[1][:2] @ centre + lines[1][2])
+        if not 0.5 * width <= wc <= 1.6 * width + 2.0:
+            return None
+        return p0, a, xc
 
-    # joint J
-    joint = None
-    if distal != 0 and not (dist_at_border and len(bnd.other) < 3):
-        near_end = (s >= s_max - zone)
+    def joint_of(p0: np.ndarray, a: np.ndarray, lines: list[np.ndarray],
+                 stats: list[_LineStats]) -> np.ndarray | None:
+        if distal == 0 or (dist_at_border and len(bnd.other) < 3):
+            return None
+        near_end = s >= s_max - zone
         d1 = np.abs(pts @ lines[0][:2] + lines[0][2])
         d2 = np.abs(pts @ lines[1][:2] + lines[1][2])
-        tol = max(1.0, 2.5 * max(sigmas))
+        tol = max(1.0, 2.5 * max(st.sigma for st in stats))
         cap = near_end & (d1 > tol) & (d2 > tol)
         end_pts = np.concatenate([bnd.other, pts[cap]])
         is_other = np.zeros(len(end_pts), dtype=bool)
         is_other[:len(bnd.other)] = True
-        if len(end_pts) >= 3:
-            tj = _joint_t(end_pts, is_other, p0, a, radius, K)
-            joint = p0 + tj * a
-            if joint[2] <= 0:
-                joint = None
+        if len(end_pts) < 3:
+            return None
+        joint = p0 + _joint_t(end_pts, is_other, p0, a, radius, K) * a
+        return joint if joint[2] > 0 else None
 
-    # sensitivity of the joint (or the centroid's axis point) to a 0.5 px line shift
-    ref = joint if joint is not None else xc
-    rref = ref / np.linalg.norm(ref)
-    sens = 0.0
-    for k in range(2):
-        moved = [lines[0].copy(), lines[1].copy()]
-        moved[k][2] -= 0.5
-        solk = axis_from_lines(tangent_plane(moved[0], K), tangent_plane(moved[1], K), radius)
-        if solk is None:
-            sens = math.inf
-            break
-        tk = float(closest_on_axis(rref[None], solk[0], solk[1])[0])
-        sens += float(np.sum((solk[0] + tk * solk[1] - ref) ** 2))
-    sens = math.sqrt(sens) / 0.5
-    row["aux_sens_mm_px"] = sens
-    if not sens <= SENSITIVITY_MAX_MM_PER_PX:
+    res = solve(lines)  # type: ignore[arg-type]
+    if res is None:
         return out
+    p0, a, xc = res
+    joint = joint_of(p0, a, lines, stats)  # type: ignore[arg-type]
+    if joint is not None and zone < 0.6 * width + 2.0:
+        # short visible stretch: the end-zone cut was small, so the joint's cap may
+        # have leaked into the lines; refit with the points the first solution puts
+        # proximal of J (the limb lines exist only there) and solve again
+        t_pts = closest_on_axis(pixel_rays(pts, K), p0, a)
+        keep2 = keep_base & (t_pts < float((joint - p0) @ a) - 0.5)
+        lines2, stats2 = _fit_limbs(pts, s, q, keep2, centre, rng)
+        if lines2[0] is not None and lines2[1] is not None:
+            res2 = solve(lines2)  # type: ignore[arg-type]
+            if res2 is not None:
+                joint2 = joint_of(res2[0], res2[1], lines2, stats2)  # type: ignore[arg-type]
+                if joint2 is not None:
+                    lines, stats, (p0, a, xc), joint = lines2, stats2, res2, joint2
+                    for k, line in enumerate(lines):
+                        for j, c in enumerate("abc"):
+                            row[f"aux_l{k + 1}{c}"] = float(line[j])  # type: ignore[index]
 
-    # proximal end: where the shaft leaves the view (or its proximal end)
     prox = pix[s_pix <= s_min + 1.0].mean(axis=0)
-    t_start = float(closest_on_axis(pixel_rays(prox[None], K), p0, a)[0])
-    start = p0 + t_start * a
-    t_far = float(closest_on_axis(pixel_rays(pix[s_pix >= s_max - 1.0].mean(axis=0)[None], K),
-                                  p0, a)[0])
-    t_end = float((joint - p0) @ a) if joint is not None else t_far
-    if start[2] <= 0 or t_end <= t_start:
-        start = None
-    _fill_pose(row, joint, a, start)
-    if start is not None:
-        poly = hull_of_cylinder(start, p0 + t_end * a, radius, radius, K)
-        row["quality"] = iou_polygon_mask(poly, shaft.mask, shaft.offset, image_shape)
+    row["aux_su_px"], row["aux_sv_px"] = float(prox[0]), float(prox[1])
+    # uncertainty of the joint (or the centroid's axis point) and of the direction
+    ref = joint if joint is not None else xc
+    sig_p, sig_a = _uncertainty(lines, stats, K, radius, ref, a)  # type: ignore[arg-type]
+    row["aux_sigma_mm"], row["aux_sigma_deg"] = sig_p, sig_a
+    if not sig_p <= MAX_SIGMA_MM:
+        return out
+    if sig_a <= MAX_SIGMA_DEG:
+        # proximal end: where the shaft leaves the view (or its proximal end)
+        t_start = float(closest_on_axis(pixel_rays(prox[None], K), p0, a)[0])
+        start = p0 + t_start * a
+        far = pix[s_pix >= s_max - 1.0].mean(axis=0)
+        t_far = float(closest_on_axis(pixel_rays(far[None], K), p0, a)[0])
+        t_end = float((joint - p0) @ a) if joint is not None else t_far
+        if start[2] <= 0 or t_end <= t_start:
+            start = None
+        _fill_pose(row, joint, a, start)
+        if start is not None:
+            poly = hull_of_cylinder(start, p0 + t_end * a, radius, radius, K)
+            row["quality"] = iou_polygon_mask(poly, shaft.mask, shaft.offset, image_shape)
+    else:
+        # the position is known but not the direction: J only (refine_sequence restores
+        # the direction from the trocar when it can); the clasper still uses the
+        # measured direction as its (weak) bend prior
+        _fill_pose(row, joint, None, None)
 
     # clasper / wrist
     if joint is None:

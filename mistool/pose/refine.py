@@ -33,7 +33,7 @@ from mistool.pose.cylinder import (
     tangent_plane,
 )
 from mistool.pose.filtering import MODES, filter_series
-from mistool.pose.measure import AUX_KEYS
+from mistool.pose.measure import AUX_KEYS, MAX_SIGMA_DEG
 from mistool.pose.trocar import Trocar, intersect_lines
 
 __all__ = ["ACCEL_MM_S2", "refine_sequence"]
@@ -41,10 +41,6 @@ __all__ = ["ACCEL_MM_S2", "refine_sequence"]
 #: White-acceleration scale of the Kalman filter for positions (mm/s^2) and axes (1/s^2).
 ACCEL_MM_S2 = 100.0
 _ACCEL_AXIS = 1.0
-#: Assumed limb-line error (px, 1 sigma) behind the per-frame depth uncertainty.
-_LINE_SIGMA_PX = 0.3
-#: Assumed axis-direction error (rad, 1 sigma) behind the trocar-based joint.
-_DIR_SIGMA_RAD = math.radians(0.4)
 
 _END = ("end_x_mm", "end_y_mm", "end_z_mm")
 _START = ("start_x_mm", "start_y_mm", "start_z_mm")
@@ -63,55 +59,79 @@ def _set3(cols: dict[str, np.ndarray], names: tuple[str, ...], idx: np.ndarray,
         cols[n][idx] = values[:, j]
 
 
+def _ray(K: np.ndarray, u: float, v: float) -> np.ndarray:
+    r = np.linalg.solve(K, np.array([u, v, 1.0]))
+    return r / np.linalg.norm(r)
+
+
 def _trocar_fusion(cols: dict[str, np.ndarray], idx: np.ndarray, trocar: Trocar,
                    K: np.ndarray, radius: float) -> None:
-    """Re-solve the shaft rows ``idx`` (one instrument) with the trocar constraint."""
+    """Re-solve the shaft rows ``idx`` (one instrument) with the trocar constraint.
+
+    Two limb lines: (1) a second joint estimate, the line through the trocar with the
+    measured direction met with the joint's viewing ray, fused with the measured joint
+    by inverse variances; (2) the direction fused with ``unit(J - T)``, whose error is
+    the joint's and the trocar's over their distance (small: the trocar is far).
+    One limb line: the closed-form solve through the trocar.
+    """
     T = trocar.point
     for i in idx:
         lines = [np.array([cols[f"aux_l{k}{c}"][i] for c in "abc"]) for k in (1, 2)]
         have = [bool(np.all(np.isfinite(line))) for line in lines]
-        jpx = np.array([cols["aux_u_px"][i], cols["aux_v_px"][i]])
-        if not np.all(np.isfinite(jpx)):
-            continue
-        ray = np.linalg.solve(K, np.array([jpx[0], jpx[1], 1.0]))
-        ray /= np.linalg.norm(ray)
         J = np.array([cols[n][i] for n in _END])
         a = np.array([cols[n][i] for n in _AXIS])
-        if have[0] and have[1] and np.all(np.isfinite(J)) and np.all(np.isfinite(a)):
-            # second joint estimate: line through the trocar with the measured direction,
-            # met with the joint's ray (closest points of two lines)
-            t = float(closest_on_axis(ray[None], T, a)[0])
-            jt = T + t * a
-            s_r = float(ray @ jt)
-            sin_ang = math.sqrt(max(1.0 - float(ray @ a) ** 2, 1e-6))
-            sig_t = (float(np.linalg.norm(J - T)) * _DIR_SIGMA_RAD + trocar.rms_mm) / sin_ang
-            sens = cols["aux_sens_mm_px"][i]
-            sig_m = (sens if np.isfinite(sens) else 5.0) * _LINE_SIGMA_PX
-            if s_r <= 0 or not np.isfinite(sig_t):
+        sig_j = float(cols["aux_sigma_mm"][i])
+        sig_a = math.radians(float(cols["aux_sigma_deg"][i]))
+        have_j = bool(np.all(np.isfinite(J))) and math.isfinite(sig_j)
+        have_a = bool(np.all(np.isfinite(a))) and math.isfinite(sig_a)
+        sray = None
+        if np.isfinite(cols["aux_su_px"][i]) and np.isfinite(cols["aux_sv_px"][i]):
+            sray = _ray(K, cols["aux_su_px"][i], cols["aux_sv_px"][i])
+        if have[0] and have[1] and have_j:
+            sig_j = max(sig_j, 0.05)
+            if have_a:
+                jray = J / np.linalg.norm(J)
+                t = float(closest_on_axis(jray[None], T, a)[0])
+                s_r = float(jray @ (T + t * a))
+                sin_ang = math.sqrt(max(1.0 - float(jray @ a) ** 2, 1e-6))
+                sig_t = (float(np.linalg.norm(J - T)) * max(sig_a, 1e-4)
+                         + trocar.rms_mm) / sin_ang
+                if s_r > 0:
+                    w_t, w_m = 1.0 / sig_t**2, 1.0 / sig_j**2
+                    J = (w_t * s_r * jray + w_m * J) / (w_t + w_m)
+                    sig_j = 1.0 / math.sqrt(w_t + w_m)
+            dist = float(np.linalg.norm(J - T))
+            a_t = (J - T) / dist
+            sig_at = (sig_j + trocar.rms_mm) / dist
+            if have_a and float(a_t @ a) > 0:
+                a = a / sig_a**2 + a_t / sig_at**2
+                a /= np.linalg.norm(a)
+            elif not have_a and math.degrees(sig_at) <= MAX_SIGMA_DEG:
+                a = a_t
+            else:
                 continue
-            jt = s_r * ray  # on the joint's viewing ray
-            w_t, w_m = 1.0 / sig_t**2, 1.0 / sig_m**2
-            Jf = (w_t * jt + w_m * J) / (w_t + w_m)
-            shift = Jf - J
-            for names in (_END, _START):
-                v = np.array([cols[n][i] for n in names])
-                if np.all(np.isfinite(v)):
-                    for j, n in enumerate(names):
-                        cols[n][i] = v[j] + shift[j]
-        elif have[0] != have[1]:
+            _set_row(cols, i, J, a, sray)
+        elif have[0] != have[1] and np.isfinite(cols["aux_u_px"][i]):
             line = lines[0] if have[0] else lines[1]
-            sol = axis_through_point(tangent_plane(line, K), radius, T, ray)
+            jray = _ray(K, cols["aux_u_px"][i], cols["aux_v_px"][i])
+            sol = axis_through_point(tangent_plane(line, K), radius, T, jray)
             if sol is None:
                 continue
             p, a = sol
-            t = float(closest_on_axis(ray[None], p, a)[0])
-            J = p + t * a
-            for j, n in enumerate(_END):
-                cols[n][i] = J[j]
-            for j, n in enumerate(_AXIS):
-                cols[n][i] = a[j]
-            for j, n in enumerate(_START):
-                cols[n][i] = p[j]
+            J = p + float(closest_on_axis(jray[None], p, a)[0]) * a
+            _set_row(cols, i, J, a, sray)
+
+
+def _set_row(cols: dict[str, np.ndarray], i: int, J: np.ndarray, a: np.ndarray,
+             sray: np.ndarray | None) -> None:
+    for j, n in enumerate(_END):
+        cols[n][i] = J[j]
+    for j, n in enumerate(_AXIS):
+        cols[n][i] = a[j]
+    if sray is not None:
+        start = J + float(closest_on_axis(sray[None], J, a)[0]) * a
+        for j, n in enumerate(_START):
+            cols[n][i] = start[j]
 
 
 def _realign_clasper(cols: dict[str, np.ndarray], shaft_idx: np.ndarray,
