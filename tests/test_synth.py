@@ -350,9 +350,14 @@ def test_refuses_a_non_empty_folder_and_leaves_nothing_on_failure(tmp_path):
     (out / "keep.txt").write_text("mine")
     with pytest.raises(InputPathError, match="not empty"):
         synthesize(out, frames=1)
+    with pytest.raises(InputPathError, match="only replaces a folder written by"):
+        synthesize(out, frames=1, force=True)  # never wipes a folder it did not write
     assert (out / "keep.txt").read_text() == "mine"
-    synthesize(out, frames=1, force=True)
-    assert not (out / "keep.txt").exists() and (out / "000000.png").exists()
+    (out / "keep.txt").unlink()
+    synthesize(out, frames=1)
+    (out / "extra.txt").write_text("x")
+    synthesize(out, frames=2, force=True)  # an earlier synth output is replaced whole
+    assert not (out / "extra.txt").exists() and (out / "000001.png").exists()
     with pytest.raises(ConfigError):
         synthesize(tmp_path / "bad", frames=0)
     with pytest.raises(ConfigError):

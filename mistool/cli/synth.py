@@ -21,7 +21,8 @@ and open and close their jaws (grasping) at depths of 50-150 mm; two tools cross
 Masks are ray cast: each pixel is labelled by the first 3D surface its ray hits (exact
 projection of the model at pixel centres, nearer surfaces hide farther ones).
 
-Written into OUT (created; it must be absent or empty unless --force; written to a
+Written into OUT (created; it must be absent or empty; --force replaces an earlier
+mistool synth output, recognised by its synth.json, never any other folder; written to a
 temporary folder and renamed, so a failure leaves nothing behind):
   000000.png ...   8-bit label images (the masks, corrupted if asked)
   mistool.toml     fps, labels preset, [camera], shaft_diameter_mm, clasper_length_mm
@@ -111,7 +112,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="fraction of frames with the clasper hidden")
     c.add_argument("--video", choices=("mjpg", "xvid", "mp4v"), metavar="CODEC",
                    help="also write masks.avi (mjpg, xvid, mp4v)")
-    p.add_argument("--force", action="store_true", help="replace a non-empty OUT")
+    p.add_argument("--force", action="store_true", help="replace an earlier synth output in OUT")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress, no summary")
     p.set_defaults(func=run)
 

@@ -37,7 +37,7 @@ from mistool.config import PRESETS, Camera, Config, load_config
 from mistool.errors import ConfigError, InputPathError
 from mistool.export import atomic_write, write_csv
 from mistool.geometry import min_area_box
-from mistool.model import TrackTable
+from mistool.model import RotatedBox, TrackTable
 from mistool.paper import paper_motion
 from mistool.synth.corrupt import Corruptions, Corruptor
 from mistool.synth.motion import MotionOptions, generate_motion
@@ -111,7 +111,7 @@ def _label_part(preset: str, part3d: str) -> str:
     return part3d
 
 
-def _part_box(mask: np.ndarray) -> tuple[object, np.ndarray, int] | None:
+def _part_box(mask: np.ndarray) -> tuple[RotatedBox, np.ndarray, int] | None:
     """min_area_box over every pixel of a mask (via its outer contours: same hull)."""
     area = int(np.count_nonzero(mask))
     if area == 0:
@@ -213,11 +213,19 @@ def _prepare_out(out: Path, force: bool) -> None:
     if out.exists():
         if not out.is_dir():
             raise InputPathError(f"{out}: exists and is not a folder")
-        if any(out.iterdir()) and not force:
-            raise InputPathError(f"{out}: folder is not empty; choose another folder or "
-                                 "pass --force to replace it")
-    if not out.parent.exists():
+        if any(out.iterdir()):
+            if not force:
+                raise InputPathError(f"{out}: folder is not empty; choose another folder or "
+                                     "pass --force to replace it")
+            if not (out / "synth.json").is_file():
+                # --force replaces an earlier synth output, never an arbitrary folder
+                raise InputPathError(f"{out}: --force only replaces a folder written by "
+                                     "mistool synth (with synth.json); this one is not")
+    try:
         out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputPathError(f"{out.parent}: cannot create folder: "
+                             f"{exc.strerror or exc}") from None
 
 
 def _swap_in(tmp: Path, out: Path) -> None:
@@ -300,7 +308,11 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
         for part3d, code in PART_CODES.items():
             lut[i + 1, code] = values[i][_label_part(preset, part3d)]
 
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp.", dir=out.parent))
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp.", dir=out.parent))
+    except OSError as exc:
+        raise InputPathError(f"{out.parent}: cannot write here: {exc.strerror or exc}") \
+            from None
     writer = None
     try:
         if video is not None:
