@@ -204,16 +204,21 @@ _ZLIB = _inflate_module()
 def decode_grey_png_fast(data: bytes) -> np.ndarray | None:
     """Decode a typical 8-bit grey label PNG about 5x faster than OpenCV, else None.
 
-    Label masks are long runs of equal values; encoders (OpenCV's among them) store them
-    with PNG's "Sub" row filter, so the filtered bytes are zero except where a run starts.
+    Label masks are long runs of equal values; OpenCV stores them with PNG's "Sub" row
+    filter, so the filtered bytes are zero except where a run starts.
     This decoder inflates the image data (zlib-ng when installed) and undoes the Sub
     filter sparsely: only the non-zero filtered bytes are visited (``cv2.findNonZero``),
     and each run is written with one ``np.repeat``.
 
-    It handles only 8-bit greyscale, non-interlaced PNGs whose rows all use the Sub
-    filter (or the None filter on an all-zero row), with every chunk's CRC correct and an
-    ``IEND`` chunk; anything else returns None, and the caller uses OpenCV (which also
-    reports corrupt files). ``tests/test_sequence.py`` checks it against OpenCV.
+    None rows are copied, runs of Up rows with zero bytes repeat the row above, and a few
+    other Up rows are one vector addition each.
+
+    It handles only 8-bit greyscale, non-interlaced PNGs whose rows use the None, Sub and
+    Up filters, with every chunk's CRC correct and an ``IEND`` chunk. Anything else
+    returns None and the caller uses OpenCV (which also reports corrupt files): in
+    particular files written with libpng's adaptive filtering (Paeth and Average rows:
+    e.g. OpenCV with an explicit compression level), where OpenCV is as fast or faster.
+    ``tests/test_sequence.py`` checks this decoder against OpenCV.
 
     Args:
         data: the PNG file's bytes.
@@ -250,11 +255,19 @@ def decode_grey_png_fast(data: bytes) -> np.ndarray | None:
     if len(raw) != h * (w + 1):
         return None
     rows = np.frombuffer(raw, dtype=np.uint8).reshape(h, w + 1)
-    delta = rows[:, 1:]
-    other = rows[:, 0] != 1
-    if other.any() and (np.any(rows[other, 0] != 0) or np.any(delta[other])):
-        return None
-    pts = cv2.findNonZero(delta)
+    return _unfilter(rows[:, 0], rows[:, 1:])
+
+
+#: Give up on the fast path (OpenCV decodes instead, faster then) beyond this many
+#: Up-filtered rows that differ from the row above (each costs a Python-level step).
+_MAX_STEPS = 32
+
+
+def _sub_rows(delta: np.ndarray) -> np.ndarray:
+    """Undo the Sub filter on every row: row-wise prefix sums mod 256, visiting only the
+    non-zero filtered bytes. (N, W) uint8 -> (N, W) uint8."""
+    h, w = delta.shape
+    pts = cv2.findNonZero(delta) if h else None
     if pts is None:
         return np.zeros((h, w), dtype=np.uint8)
     pts = pts.reshape(-1, 2)  # row-major order: y, then x
@@ -276,7 +289,70 @@ def decode_grey_png_fast(data: bytes) -> np.ndarray | None:
     return np.repeat(values, lengths).reshape(h, w)
 
 
-def read_label_image(path: Path, *, colour: bool = False) -> np.ndarray:
+def _unfilter(filters: np.ndarray, delta: np.ndarray) -> np.ndarray | None:
+    """Undo PNG row filters None (0), Sub (1) and Up (2) of an 8-bit grey image; None
+    when a row uses Average (3) or Paeth (4), or many Up rows change (OpenCV is faster
+    on such files, written with libpng's adaptive filtering)."""
+    h, w = delta.shape
+    if np.any(filters > 2):
+        return None
+    sub = filters == 1
+    if sub.all():
+        return _sub_rows(delta)
+    out = np.empty((h, w), dtype=np.uint8)
+    plain = filters == 0
+    out[plain] = delta[plain]
+    if sub.any():
+        out[sub] = _sub_rows(np.ascontiguousarray(delta[sub]))
+    # Up rows depend on the row above: resolve them in order. An Up row whose filtered
+    # bytes are all zero repeats the row above; a run of them is one copy.
+    ups = np.flatnonzero(filters == 2)
+    if len(ups) == 0:
+        return out
+    busy = np.zeros(h, dtype=bool)
+    busy[ups] = cv2.reduce(np.ascontiguousarray(delta[ups]), 1, cv2.REDUCE_MAX).ravel() > 0
+    if int(busy.sum()) > _MAX_STEPS:
+        return None
+    zero = np.zeros(w, dtype=np.uint8)
+    r, n_up = 0, len(ups)
+    while r < n_up:
+        y = int(ups[r])
+        above = out[y - 1] if y else zero
+        if busy[y]:
+            np.add(above, delta[y], out=out[y])  # uint8 addition wraps mod 256
+            r += 1
+            continue
+        k = r
+        while k + 1 < n_up and ups[k + 1] == ups[k] + 1 and not busy[ups[k + 1]]:
+            k += 1
+        out[y:int(ups[k]) + 1] = above
+        r = k + 1
+    return out
+
+
+class FastPathGate:
+    """Stops trying :func:`decode_grey_png_fast` on a sequence whose files it keeps
+    declining (one encoder wrote them all), so they cost no wasted inflate. Counters are
+    updated from worker threads; a lost update only delays the decision."""
+
+    def __init__(self, patience: int = 8) -> None:
+        self.tried = 0
+        self.declined = 0
+        self.patience = patience
+
+    @property
+    def open(self) -> bool:
+        """Whether the fast path is still worth trying."""
+        return self.declined < self.patience or 4 * self.declined < self.tried
+
+    def record(self, decoded: bool) -> None:
+        """Count one attempt."""
+        self.tried += 1
+        self.declined += not decoded
+
+
+def read_label_image(path: Path, *, colour: bool = False,
+                     gate: FastPathGate | None = None) -> np.ndarray:
     """Decode one label image file into an ``(H, W)`` label image (see module docs).
 
     Raises:
@@ -286,9 +362,12 @@ def read_label_image(path: Path, *, colour: bool = False) -> np.ndarray:
         data = path.read_bytes()
     except OSError as exc:
         raise InputPathError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    img = decode_grey_png_fast(data)
-    if img is not None:
-        return to_labels(img, str(path), colour=colour)
+    if gate is None or gate.open:
+        img = decode_grey_png_fast(data)
+        if gate is not None:
+            gate.record(img is not None)
+        if img is not None:
+            return to_labels(img, str(path), colour=colour)
     img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) \
         if data else None
     if img is None:
@@ -442,17 +521,18 @@ def _open_folder(folder: Path, config: Config) -> MaskSequence:
         raise InputPathError(f"{folder}: no label images "
                              f"({', '.join(sorted(IMAGE_EXTENSIONS))}) in this folder{hint}")
     colour = config.colour_masks
+    gate = FastPathGate()
 
     def frames() -> Iterator[Frame]:
         for i, f in enumerate(files):
-            yield Frame(i, f.name, _loader(f, colour))
+            yield Frame(i, f.name, _loader(f, colour, gate))
 
     return MaskSequence("folder", folder.resolve().name or str(folder), config, frames,
                         len(files), folder)
 
 
-def _loader(path: Path, colour: bool) -> Callable[[], np.ndarray]:
-    return lambda: read_label_image(path, colour=colour)
+def _loader(path: Path, colour: bool, gate: FastPathGate) -> Callable[[], np.ndarray]:
+    return lambda: read_label_image(path, colour=colour, gate=gate)
 
 
 def widen_for_video(config: Config, tolerance: int = VIDEO_TOLERANCE) -> Config:

@@ -268,21 +268,82 @@ def test_fast_png_decoder_matches_opencv(tmp_path: Path, img: np.ndarray) -> Non
     np.testing.assert_array_equal(read_label_image(tmp_path / "pil.png"), img)
 
 
+def _filter_rows(img: np.ndarray, filters: list[int]) -> np.ndarray:
+    """PNG-filter each row of an 8-bit grey image (the encoder's side, by the spec)."""
+    out = np.zeros_like(img)
+    a16 = img.astype(np.int16)
+    for y, f in enumerate(filters):
+        x = a16[y]
+        up = a16[y - 1] if y else np.zeros_like(x)
+        left = np.concatenate([[0], x[:-1]])
+        ul = np.concatenate([[0], up[:-1]])
+        if f == 0:
+            pred = np.zeros_like(x)
+        elif f == 1:
+            pred = left
+        elif f == 2:
+            pred = up
+        elif f == 3:
+            pred = (left + up) // 2
+        else:
+            p = left + up - ul
+            pa, pb, pc = np.abs(p - left), np.abs(p - up), np.abs(p - ul)
+            pred = np.where((pa <= pb) & (pa <= pc), left, np.where(pb <= pc, up, ul))
+        out[y] = ((x - pred) % 256).astype(np.uint8)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fast_png_decoder_every_filter_mix(seed: int) -> None:
+    from mistool.sequence import decode_grey_png_fast
+
+    rng = np.random.default_rng(seed)
+    img = _fast_cases()[8 + seed % 6]
+    if seed == 5:
+        img = rng.integers(0, 256, (20, 30)).astype(np.uint8)  # noise: every byte changes
+    filters = rng.choice([0, 1, 2], size=img.shape[0]).tolist()
+    got = decode_grey_png_fast(_png(_filter_rows(img, filters), filters))
+    if seed < 5:  # noise changes every Up row: left to OpenCV
+        assert got is not None
+    if got is not None:
+        np.testing.assert_array_equal(got, img)
+    for other in (3, 4):  # Average and Paeth: left to OpenCV
+        filters[len(filters) // 2] = other
+        data = _png(_filter_rows(img, filters), filters)
+        assert decode_grey_png_fast(data) is None
+        ref = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        np.testing.assert_array_equal(ref, img)  # (the test's encoder is right)
+        np.testing.assert_array_equal(read_label_image_bytes(data), img)
+
+
+def read_label_image_bytes(data: bytes) -> np.ndarray:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "x.png"
+        path.write_bytes(data)
+        return read_label_image(path)
+
+
+@pytest.mark.parametrize("level", [0, 1, 6, 9])
+def test_libpng_adaptive_filters_decode(level: int) -> None:
+    """With an explicit compression level OpenCV lets libpng pick filters per row."""
+    img = np.zeros((120, 150), np.uint8)
+    pts = np.array([[10, 100], [140, 20], [148, 35], [20, 115]], np.int32)
+    cv2.fillPoly(img, [pts], 160)
+    cv2.circle(img, (120, 40), 15, 70, -1)
+    data = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, level])[1].tobytes()
+    np.testing.assert_array_equal(read_label_image_bytes(data), img)
+
+
 def test_fast_png_decoder_declines_what_it_does_not_handle(tmp_path: Path) -> None:
     from mistool.sequence import decode_grey_png_fast
 
     img = np.zeros((4, 6), np.uint8)
     img[1:3, 2:5] = 160
-    sub = np.diff(img.astype(np.int16), axis=1, prepend=0).astype(np.uint8)
-    mixed = sub.copy()
-    mixed[0] = 0  # an all-zero row stored with the None filter is fine
-    np.testing.assert_array_equal(decode_grey_png_fast(_png(mixed, [0, 1, 1, 1])), img)
-    up = _png(img, [0, 0, 0, 0])  # None filter on non-zero rows: OpenCV's job
-    assert decode_grey_png_fast(up) is None
-    (tmp_path / "none.png").write_bytes(up)
-    np.testing.assert_array_equal(read_label_image(tmp_path / "none.png"), img)
-    assert decode_grey_png_fast(_png(sub, [1, 2, 1, 1])) is None  # Up filter
+    sub = _filter_rows(img, [1, 1, 1, 1])
     assert decode_grey_png_fast(_png(np.zeros((4, 12), np.uint8), [1] * 4, depth=16)) is None
+    assert decode_grey_png_fast(_png(sub, [1, 5, 1, 1])) is None  # no such filter
     good = _png(sub, [1, 1, 1, 1])
     np.testing.assert_array_equal(decode_grey_png_fast(good), img)
     bad_crc = bytearray(good)
@@ -292,3 +353,23 @@ def test_fast_png_decoder_declines_what_it_does_not_handle(tmp_path: Path) -> No
     with pytest.raises(MaskFormatError, match=r"crc\.png: cannot decode"):
         read_label_image(tmp_path / "crc.png")
     assert decode_grey_png_fast(good[:-12]) is None  # no IEND: truncated
+
+
+def test_fast_path_gate_closes_on_a_sequence_it_keeps_declining(tmp_path: Path) -> None:
+    from mistool.sequence import FastPathGate
+
+    img = _labels()
+    rng = np.random.default_rng(1)
+    noisy = rng.integers(0, 256, img.shape).astype(np.uint8)
+    # level 9: libpng's adaptive filters (Paeth rows on noise): the fast path declines
+    path = tmp_path / "a.png"
+    path.write_bytes(cv2.imencode(".png", noisy, [cv2.IMWRITE_PNG_COMPRESSION, 9])[1])
+    gate = FastPathGate(patience=3)
+    for _ in range(5):
+        np.testing.assert_array_equal(read_label_image(path, gate=gate), noisy)
+    assert (gate.tried, gate.declined, gate.open) == (3, 3, False)
+    ok = FastPathGate(patience=3)
+    _write(tmp_path / "b.png", img)
+    for _ in range(5):
+        read_label_image(tmp_path / "b.png", gate=ok)
+    assert (ok.tried, ok.declined, ok.open) == (5, 0, True)
