@@ -28,6 +28,7 @@ Usage::
 
     python scripts/bench_track.py                 # 300 frames, 5 runs
     python scripts/bench_track.py --frames 300 --runs 7 --memory
+    python scripts/bench_track.py --png-level 6   # PNGs as libpng's adaptive filters write
 """
 
 from __future__ import annotations
@@ -50,8 +51,9 @@ import numpy as np
 W, H = 720, 576
 
 
-def make_frames(folder: Path, n: int) -> list[Path]:
-    """Write ``n`` label PNGs of one moving instrument into ``folder``."""
+def make_frames(folder: Path, n: int, png_level: int | None = None) -> list[Path]:
+    """Write ``n`` label PNGs of one moving instrument into ``folder`` (``png_level``:
+    an explicit zlib level, which makes libpng choose row filters adaptively)."""
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
     for i in range(n):
@@ -68,7 +70,8 @@ def make_frames(folder: Path, n: int) -> list[Path]:
             box = cv2.boxPoints(((float(centre[0]), float(centre[1])), size, angle))
             cv2.fillPoly(img, [np.round(box).astype(np.int32)], value)
         path = folder / f"{i:06d}.png"
-        cv2.imwrite(str(path), img)
+        params = [] if png_level is None else [cv2.IMWRITE_PNG_COMPRESSION, png_level]
+        cv2.imwrite(str(path), img, params)
         paths.append(path)
     return paths
 
@@ -101,6 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--workers", type=int, default=None,
                         help="mistool worker threads (default: CPU count)")
+    parser.add_argument("--png-level", type=int, default=None, metavar="L",
+                        help="write the PNGs with this zlib level (libpng's adaptive row "
+                        "filters, as many tools write them) instead of OpenCV's default")
     parser.add_argument("--memory", action="store_true",
                         help="also measure peak memory for N and 4N frames")
     parser.add_argument("--child-memory", metavar="DIR", help=argparse.SUPPRESS)
@@ -114,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
 
     with tempfile.TemporaryDirectory(prefix="mistool-bench-") as tmp:
         folder = Path(tmp) / "seq"
-        paths = make_frames(folder, args.frames)
+        paths = make_frames(folder, args.frames, args.png_level)
         out = Path(tmp) / "out.csv"
         names = [str(p) for p in paths]
 
@@ -152,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mistool track benchmark: {args.frames} frames {W}x{H} 8-bit PNG, one "
               f"instrument, {args.runs} runs (median), {os.cpu_count()} CPUs, "
               f"workers={args.workers or 'auto'}, OpenCV {cv2.__version__}, PNG inflate: "
-              f"{sequence._ZLIB.__name__}")
+              f"{sequence._ZLIB.__name__}, PNG level "
+              f"{'default' if args.png_level is None else args.png_level}")
         for name, t in med.items():
             spread = f"{min(times[name]):.3f}-{max(times[name]):.3f}"
             print(f"  {name:18s} {t:7.3f} s  ({args.frames / t:7.1f} frames/s, "
@@ -165,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
 
         if args.memory:
             big = Path(tmp) / "seq4"
-            make_frames(big, 4 * args.frames)
+            make_frames(big, 4 * args.frames, args.png_level)
             for seq in (folder, big):
                 cmd = [sys.executable, __file__, "--child-memory", str(seq)]
                 if args.workers:
