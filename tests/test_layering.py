@@ -15,10 +15,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mistool"
 LAYERS: list[tuple[str, ...]] = [
     ("errors",),
     ("model",),
-    ("config", "resources"),
+    # export (CSV and atomic writes) needs only errors and model; synth writes truth.csv
+    ("config", "resources", "export"),
     ("geometry",),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
-    ("export",),
     ("api",),
     ("viewer",),
     ("cli",),
