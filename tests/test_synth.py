@@ -393,3 +393,22 @@ def test_corruption_strengths_do_what_they_say():
     assert not (out == 70).any() and (out == 160).sum() == (labels == 160).sum()
     _, occ = run(occluders=2)
     assert np.count_nonzero(occ) < area and set(np.unique(occ)) <= {0, 70, 160}
+
+
+def test_bundled_sample_is_a_small_endovis15_sequence_with_truth():
+    from mistool.resources import sample_masks_dir
+
+    root = sample_masks_dir()
+    pngs = sorted(root.glob("*.png"))
+    assert len(pngs) == 250
+    assert sum(p.stat().st_size for p in root.iterdir()) < 5_000_000
+    cfg = load_config(root)
+    assert cfg.labels == "endovis15" and cfg.camera is not None and cfg.fps == 25.0
+    for p in pngs[::50]:
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        assert img.shape == (576, 720) and img.dtype == np.uint8
+        assert set(np.unique(img)) <= {0, 70, 160}
+    truth = read_csv(root / "truth.csv")
+    assert set(truth["instrument"]) == {"1", "2"}
+    assert truth["frame"].min() > 0  # the tools enter after the first frame
+    assert np.ptp(truth["jaw_open_deg"]) > 20  # and grasp
