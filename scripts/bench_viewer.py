@@ -7,9 +7,13 @@ Measures, each over several runs (median reported):
    screenshot of the 3D view that is not blank, in headless chromium with software WebGL,
    with viser's HDR environment map off (mistool's default) and on (``--environment-map``);
    the process's own time to print its URL is reported too.
-2. **per-frame server update**: ``ReplayViewer`` drawing every frame (cylinders, trails,
-   overlay JPEG on the frustum and in the panel, plot cursor) with one browser connected;
-   baseline in the same run: decoding the same frame's mask PNG with ``cv2.imread``.
+2. **per-frame server update**: ``ReplayViewer`` drawing every frame in random order
+   (scrubbing) with one browser connected: the update itself (cylinders, trails, plot
+   cursor; wall and thread CPU time) and the time until the frame's overlay (mask decoded,
+   drawn, JPEG-encoded by the overlay worker) is sent too; baseline in the same run:
+   decoding the same frame's mask PNG with ``cv2.imread``. During playback the overlays of
+   the next frames are prepared ahead, so the update sends them with the scene; the update
+   time during playback is reported too.
 3. **playback**: frames drawn per second while playing at 1x (the sequence's fps, 25) and
    at 4x, with one browser connected.
 4. **memory**: peak resident memory (VmHWM) of a ``mistool serve`` process showing a
@@ -127,29 +131,45 @@ def bench_updates(browser, seq: Path, poses: Path | None, passes: int) -> dict[s
         n = viewer.replay.num_frames
         files = list_frames(seq) if seq.is_dir() else []
         upd: list[float] = []
+        cpu: list[float] = []
+        full: list[float] = []
         dec: list[float] = []
+        order = np.random.default_rng(0).permutation(n)  # scrubbing: no prefetch helps
         for _ in range(passes):
-            for k in range(n):
-                upd.append(viewer.draw_now(k))
+            for k in order:
+                c0 = time.thread_time()
+                t0 = time.perf_counter()
+                upd.append(viewer.draw_now(int(k)))
+                cpu.append(time.thread_time() - c0)
+                assert viewer.wait_overlay(int(k), 10.0)
+                full.append(time.perf_counter() - t0)
                 if k < len(files):
                     t = time.perf_counter()
                     cv2.imread(str(files[k]), cv2.IMREAD_UNCHANGED)
                     dec.append(time.perf_counter() - t)
         out = {"update_median_ms": 1e3 * statistics.median(upd),
                "update_p90_ms": 1e3 * float(np.percentile(upd, 90)),
+               "update_cpu_median_ms": 1e3 * statistics.median(cpu),
+               "overlay_median_ms": 1e3 * statistics.median(full),
+               "overlay_p90_ms": 1e3 * float(np.percentile(full, 90)),
                "frames": float(n)}
         if dec:
             out["decode_median_ms"] = 1e3 * statistics.median(dec)
             out["ratio_update_to_decode"] = statistics.median(upd) / statistics.median(dec)
+            out["ratio_overlay_to_decode"] = statistics.median(full) / statistics.median(dec)
         for speed in ("1x", "4x"):
             viewer.timeline.speed.value = speed
             viewer.timeline.seek(0)
+            viewer.timeline.wait_shown(0)
+            viewer.update_seconds.clear()
             drawn0, t0 = viewer.timeline.frames_drawn, time.perf_counter()
             viewer.timeline.set_playing(True)
             time.sleep(4.0)
             viewer.timeline.set_playing(False)
             fps = (viewer.timeline.frames_drawn - drawn0) / (time.perf_counter() - t0)
             out[f"playback_{speed}_fps"] = fps
+            out[f"playback_{speed}_update_median_ms"] = \
+                1e3 * statistics.median(list(viewer.update_seconds))
         out["target_fps"] = viewer.replay.fps
         assert not viewer.timeline.draw_errors, viewer.timeline.draw_errors
         return out
@@ -226,6 +246,7 @@ def main() -> int:
     parser.add_argument("--poses", help="motion table CSV instead of tracking")
     parser.add_argument("--runs", type=int, default=3, help="runs of the launch benchmark")
     parser.add_argument("--skip-memory", action="store_true")
+    parser.add_argument("--skip-launch", action="store_true")
     args = parser.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -234,7 +255,7 @@ def main() -> int:
         seq, poses = _sequence(args, tmp)
         print(f"sequence: {seq} (poses: {poses or 'tracked'})")
         browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        for env_map in (False, True):
+        for env_map in () if args.skip_launch else (False, True):
             runs = [bench_launch(browser, seq, poses, env_map) for _ in range(args.runs)]
             url_s = statistics.median(r[0] for r in runs)
             first = statistics.median(r[1] for r in runs)
@@ -242,13 +263,19 @@ def main() -> int:
                   f"{url_s:.2f} s, first non-blank render after {first:.2f} s "
                   f"(median of {args.runs}: {', '.join(f'{r[1]:.2f}' for r in runs)})")
         res = bench_updates(browser, seq, poses, passes=2)
-        print(f"per-frame update ({res['frames']:.0f} frames x 2): median "
-              f"{res['update_median_ms']:.2f} ms, p90 {res['update_p90_ms']:.2f} ms"
+        print(f"per-frame update, scrubbing ({res['frames']:.0f} frames x 2, random order): "
+              f"median {res['update_median_ms']:.2f} ms wall "
+              f"({res['update_cpu_median_ms']:.2f} ms CPU), p90 {res['update_p90_ms']:.2f} ms; "
+              f"until its overlay is sent too: median {res['overlay_median_ms']:.2f} ms, "
+              f"p90 {res['overlay_p90_ms']:.2f} ms"
               + (f"; cv2.imread of the mask: median {res['decode_median_ms']:.2f} ms, "
                  f"ratio {res['ratio_update_to_decode']:.2f}" if "decode_median_ms" in res
                  else ""))
         print(f"playback: {res['playback_1x_fps']:.1f} frames/s at 1x (target "
-              f"{res['target_fps']:.0f}), {res['playback_4x_fps']:.1f} frames/s at 4x")
+              f"{res['target_fps']:.0f}; update median "
+              f"{res['playback_1x_update_median_ms']:.2f} ms with prefetch), "
+              f"{res['playback_4x_fps']:.1f} frames/s at 4x (target {4 * res['target_fps']:.0f}; "
+              f"update median {res['playback_4x_update_median_ms']:.2f} ms)")
         if not args.skip_memory:
             mem = bench_memory(browser, seq, poses, tmp)
             print(f"memory, {mem['frames']:.0f}-frame sequence: peak RSS "

@@ -250,6 +250,7 @@ def test_viewer_draws_frames_and_timeline_coalesces_scrubbing(sequence) -> None:
         k = _busy_frame(sequence.replay)
         tl.seek(k)
         assert tl.wait_shown(k)
+        assert viewer.wait_overlay(k), "the overlay of the frame shown never arrived"
         cyl = viewer.scene.cylinders[0, 0]
         assert cyl.visible == bool(viewer.replay.modes[viewer.scene.mode].visible[k, 0, 0])
     finally:

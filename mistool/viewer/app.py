@@ -25,7 +25,7 @@ import viser
 
 from mistool.errors import InputPathError, MistoolError
 from mistool.model import TrackTable
-from mistool.viewer.overlay import FrameStore, OverlayRenderer, encode_jpeg
+from mistool.viewer.overlay import FrameStore, OverlayCache, OverlayRenderer
 from mistool.viewer.plots import PlotPanel
 from mistool.viewer.replay import Replay, build_replay
 from mistool.viewer.scene import PRESETS, SceneView
@@ -151,6 +151,12 @@ class ReplayViewer:
         self.sequence = sequence
         replay = self.replay = sequence.replay
         self.update_seconds: collections.deque[float] = collections.deque(maxlen=2000)
+        """Seconds of each frame update (scene, trails, plot cursor, ready overlay)."""
+        self.overlay_latency: collections.deque[float] = collections.deque(maxlen=2000)
+        """Seconds from a frame update to its overlay being sent, when not prepared ahead."""
+        self.overlay_frame = -1
+        """The frame whose overlay is on screen."""
+        self._current = -1
         self._lock = threading.Lock()
         self.server = server = quiet_server(host, port)
         server.gui.configure_theme(control_width="large", show_logo=False,
@@ -159,7 +165,8 @@ class ReplayViewer:
             server.scene.configure_environment_map(None)
         self.renderer = OverlayRenderer(replay, sequence.frames) \
             if sequence.frames.has_masks or sequence.frames.has_source else None
-        first = self.renderer.render(0, opacity) if self.renderer else None
+        self.overlays = OverlayCache(self.renderer) if self.renderer else None
+        first = self.overlays.get(0, opacity, True)[0] if self.overlays else None
         mode = replay.default_mode
         self.scene = SceneView(server, replay, mode, overlay=first, trail_frames=trail_frames)
         gui = server.gui
@@ -198,6 +205,7 @@ class ReplayViewer:
         server.initial_camera.look_at = tuple(look_at)
         server.initial_camera.up = tuple(up)
         server.initial_camera.fov = fov
+        self.timeline.start()
         self.timeline.request(0)
 
     # -- public -------------------------------------------------------------------------
@@ -220,6 +228,8 @@ class ReplayViewer:
     def close(self) -> None:
         """Stop playback and the server."""
         self.timeline.stop()
+        if self.overlays is not None:
+            self.overlays.close()
         with contextlib.redirect_stdout(io.StringIO()):  # viser prints "Server stopped"
             self.server.stop()
         self.sequence.frames.close()
@@ -232,25 +242,58 @@ class ReplayViewer:
             rows.append(f"<span style='color:rgb({r},{g},{b})'>■</span> {name}")
         return "Instruments: " + " &nbsp; ".join(rows)
 
-    def _overlay(self, frame: int) -> np.ndarray | None:
-        if self.renderer is None:
-            return None
-        return self.renderer.render(frame, float(self.opacity.value), bool(self.boxes.value))
-
     def _draw(self, frame: int) -> float:
-        """Show ``frame`` everywhere; returns the seconds it took (also recorded)."""
+        """Show ``frame`` everywhere; returns the seconds it took (also recorded).
+
+        The scene, trails and plot cursor are updated at once. The overlay goes with them
+        when it is ready (prepared ahead during playback); otherwise (scrubbing) it is
+        rendered by the overlay worker and sent right after, unless the frame has changed
+        again by then (rapid scrubbing never queues stale overlays).
+        """
         t0 = time.perf_counter()
         with self._lock:
-            overlay = self._overlay(frame)
+            self._current = frame
+            opacity, boxes = float(self.opacity.value), bool(self.boxes.value)
+            overlay = self.overlays.peek(frame, opacity, boxes) if self.overlays else None
             with self.server.atomic():
                 self.scene.show(frame)
                 if overlay is not None:
-                    jpeg = encode_jpeg(overlay, 80)
-                    self._set_jpeg(overlay, jpeg)
+                    self._set_jpeg(*overlay)
+                    self.overlay_frame = frame
                 self.plots.set_frame(frame)
         dt = time.perf_counter() - t0
         self.update_seconds.append(dt)
+        if self.overlays is not None:
+            if overlay is None:
+                self.overlays.submit(self._overlay_job, frame, opacity, boxes, t0)
+            if self.timeline.playing:
+                n = self.replay.num_frames
+                ahead = [frame + d for d in (1, 2, 3)]
+                ahead = [k % n for k in ahead] if self.timeline.loop.value else \
+                    [k for k in ahead if k < n]
+                self.overlays.prefetch(ahead, opacity, boxes)
         return dt
+
+    def _overlay_job(self, frame: int, opacity: float, boxes: bool, t0: float) -> None:
+        """Worker: render ``frame``'s overlay and send it if it is still the one shown."""
+        if frame != self._current or self.overlays is None:
+            return  # scrubbed past it
+        rgb, jpeg = self.overlays.get(frame, opacity, boxes)
+        with self._lock:
+            if frame == self._current:
+                with self.server.atomic():
+                    self._set_jpeg(rgb, jpeg)
+                self.overlay_frame = frame
+                self.overlay_latency.append(time.perf_counter() - t0)
+
+    def wait_overlay(self, frame: int, timeout: float = 5.0) -> bool:
+        """Block until ``frame``'s overlay is on screen (tests and benchmarks)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.overlay_frame == frame:
+                return True
+            time.sleep(0.002)
+        return False
 
     def _set_jpeg(self, rgb: np.ndarray, jpeg: bytes) -> None:
         """Send one encoded JPEG to both the GUI image and the frustum's image plane."""

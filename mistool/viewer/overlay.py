@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -28,7 +29,7 @@ from mistool.sequence import (
 from mistool.viewer.replay import Replay
 
 #: Longest side (px) of the overlay image sent to the browser.
-MAX_OVERLAY_SIDE = 480
+MAX_OVERLAY_SIDE = 400
 #: Colour (RGB) of mask pixels whose label is a part value but that no box explains.
 UNASSIGNED_RGB = (200, 200, 200)
 #: Background (RGB) where there is no source video.
@@ -124,22 +125,26 @@ class FrameStore:
         while len(self._cache) > self._cache_frames:
             self._cache.popitem(last=False)
 
+    # Files are decoded outside the lock (two threads can decode two frames at once);
+    # videos are read under it (one capture, sequential state).
     def labels(self, index: int) -> np.ndarray | None:
         """The ``(H, W)`` label image of frame ``index`` (None when there is none)."""
         with self._lock:
             hit, value = self._cached(("mask", index))
             if hit:
                 return value
-            value = None
-            if 0 <= index < len(self._mask_files):
-                value = read_label_image(self._mask_files[index],
-                                         colour=self.config.colour_masks)
-            elif self._mask_video is not None:
+            if self._mask_video is not None:
                 img = self._mask_video.read(index)
-                if img is not None:
-                    value = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+                value = None if img is None else (
+                    cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img)
+                self._store(("mask", index), value)
+                return value
+        value = None
+        if 0 <= index < len(self._mask_files):
+            value = read_label_image(self._mask_files[index], colour=self.config.colour_masks)
+        with self._lock:
             self._store(("mask", index), value)
-            return value
+        return value
 
     def source(self, index: int) -> np.ndarray | None:
         """The RGB source frame ``index`` (None when there is none)."""
@@ -148,16 +153,17 @@ class FrameStore:
             if hit:
                 return value
             img = None
-            if 0 <= index < len(self._source_files):
-                img = cv2.imread(str(self._source_files[index]), cv2.IMREAD_COLOR)
-            elif self._source_video is not None:
+            if self._source_video is not None:
                 img = self._source_video.read(index)
-            value = None
-            if img is not None:
-                value = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB if img.ndim == 2
-                                     else cv2.COLOR_BGR2RGB)
+        if img is None and 0 <= index < len(self._source_files):
+            img = cv2.imread(str(self._source_files[index]), cv2.IMREAD_COLOR)
+        value = None
+        if img is not None:
+            value = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB if img.ndim == 2
+                                 else cv2.COLOR_BGR2RGB)
+        with self._lock:
             self._store(("source", index), value)
-            return value
+        return value
 
     def close(self) -> None:
         """Release open videos."""
@@ -209,6 +215,8 @@ class OverlayRenderer:
         self._colours[n_i, 1:] = UNASSIGNED_RGB
         if (n_i + 1) * (n_p + 1) > 256:
             raise ValueError(f"overlay: too many instruments ({n_i}) to colour")
+        self._background = np.empty((self.size_wh[1], self.size_wh[0], 3), dtype=np.uint8)
+        self._background[:] = BACKGROUND_RGB
         self._lut_rgb = np.zeros((1, 256, 3), dtype=np.uint8)
         self._lut_rgb[0, :(n_i + 1) * (n_p + 1)] = self._colours.reshape(-1, 3)
 
@@ -230,6 +238,9 @@ class OverlayRenderer:
                     if name in self.replay.instruments:
                         inst[m] = self.replay.instruments.index(name)
             return part, inst if cfg.instruments else None
+        if small.dtype == np.uint8:  # the common case: OpenCV's table lookup
+            part = cv2.LUT(small, self._lut_part[:256])
+            return part, (cv2.LUT(small, self._lut_inst[:256]) if self._own_values else None)
         idx = small.astype(np.intp, copy=False)
         part = self._lut_part[idx]
         return part, (self._lut_inst[idx] if self._own_values else None)
@@ -248,8 +259,7 @@ class OverlayRenderer:
         if src is not None:
             base = cv2.resize(src, (w, h), interpolation=cv2.INTER_AREA)
         else:
-            base = np.empty((h, w, 3), dtype=np.uint8)
-            base[:] = BACKGROUND_RGB
+            base = self._background.copy()
         labels = self.frames.labels(frame)
         corners = replay.corners[frame] * self._scale if 0 <= frame < replay.num_frames \
             else None
@@ -307,3 +317,88 @@ def encode_jpeg(rgb: np.ndarray, quality: int = 80) -> bytes:
     if not ok:  # pragma: no cover - OpenCV always encodes uint8 RGB
         raise RuntimeError("JPEG encoding failed")
     return buf.tobytes()
+
+
+class OverlayCache:
+    """Rendered and JPEG-encoded overlays of recent and upcoming frames.
+
+    During playback the viewer asks for the next frames ahead of time; one worker thread
+    renders them while the current frame is on screen (OpenCV releases the GIL), so the
+    frame update itself only sends bytes. Bounded: at most ``max_items`` frames.
+    """
+
+    def __init__(self, renderer: OverlayRenderer, max_items: int = 16, quality: int = 80) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.renderer = renderer
+        self.quality = quality
+        self._max = max_items
+        self._lock = threading.Lock()
+        self._items: OrderedDict[tuple[int, float, bool], tuple[np.ndarray, bytes]] = \
+            OrderedDict()
+        self._pending: set[tuple[int, float, bool]] = set()
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mistool-overlay")
+        self.hits = 0
+        self.misses = 0
+
+    def _make(self, key: tuple[int, float, bool]) -> tuple[np.ndarray, bytes]:
+        rgb = self.renderer.render(key[0], key[1], key[2])
+        return rgb, encode_jpeg(rgb, self.quality)
+
+    def get(self, frame: int, opacity: float, boxes: bool) -> tuple[np.ndarray, bytes]:
+        """The overlay (RGB) and its JPEG bytes, from the cache or rendered now."""
+        key = (int(frame), round(float(opacity), 3), bool(boxes))
+        with self._lock:
+            item = self._items.get(key)
+            if item is not None:
+                self._items.move_to_end(key)
+                self.hits += 1
+                return item
+        self.misses += 1
+        item = self._make(key)
+        self._put(key, item)
+        return item
+
+    def peek(self, frame: int, opacity: float, boxes: bool) -> tuple[np.ndarray, bytes] | None:
+        """The cached overlay, or None (never renders)."""
+        key = (int(frame), round(float(opacity), 3), bool(boxes))
+        with self._lock:
+            item = self._items.get(key)
+            if item is not None:
+                self._items.move_to_end(key)
+                self.hits += 1
+        return item
+
+    def submit(self, fn: Callable[..., None], *args: object) -> None:
+        """Run ``fn(*args)`` on the overlay worker (after the jobs already queued)."""
+        self._pool.submit(fn, *args)
+
+    def _put(self, key: tuple[int, float, bool], item: tuple[np.ndarray, bytes]) -> None:
+        with self._lock:
+            self._items[key] = item
+            self._items.move_to_end(key)
+            while len(self._items) > self._max:
+                self._items.popitem(last=False)
+
+    def prefetch(self, frames: list[int], opacity: float, boxes: bool) -> None:
+        """Render these frames in the background (skipping cached or pending ones)."""
+        for frame in frames:
+            key = (int(frame), round(float(opacity), 3), bool(boxes))
+            with self._lock:
+                if key in self._items or key in self._pending:
+                    continue
+                self._pending.add(key)
+            self._pool.submit(self._background, key)
+
+    def _background(self, key: tuple[int, float, bool]) -> None:
+        try:
+            self._put(key, self._make(key))
+        except Exception:  # noqa: BLE001 - the frame is rendered again on demand
+            pass
+        finally:
+            with self._lock:
+                self._pending.discard(key)
+
+    def close(self) -> None:
+        """Stop the worker."""
+        self._pool.shutdown(wait=True, cancel_futures=True)

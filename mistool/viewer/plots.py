@@ -49,6 +49,7 @@ class PlotPanel:
                                            initial_value=replay.instruments[0])
         self.part = gui.add_dropdown("Part", replay.parts, initial_value=replay.parts[-1])
         self._frame = 0
+        self._cache: dict[tuple[str, ...], tuple[np.ndarray, dict[str, tuple]]] = {}
         self.charts: dict[str, viser.GuiUplotHandle] = {}
         for kind in ("position", "rotation"):
             data, ranges = self._data(kind, 0)
@@ -83,11 +84,21 @@ class PlotPanel:
         p = self.replay.parts.index(self.part.value)
         return self.replay.series[f"{self.mode}/{kind}"][:, i, p]
 
+    def _values(self, kind: str) -> tuple[np.ndarray, dict[str, tuple]]:
+        """Downsampled (M, 3) values of the selection and their y ranges (cached)."""
+        key = (self.mode, kind, self.instrument.value, self.part.value)
+        hit = self._cache.get(key)
+        if hit is None:
+            values = np.ascontiguousarray(self._selected(kind)[self._idx])
+            split = self.mode == "paper" and kind == "position"
+            y = _range(values[:, :2] if split else values)
+            hit = values, {"y": y, "z": _range(values[:, 2]) if split else y}
+            self._cache[key] = hit
+        return hit
+
     def _data(self, kind: str, frame: int) -> tuple[tuple[np.ndarray, ...], dict[str, tuple]]:
-        values = self._selected(kind)[self._idx]  # (M, 3)
-        split = self.mode == "paper" and kind == "position"
-        y_lo, y_hi = _range(values[:, :2] if split else values)
-        ranges = {"y": (y_lo, y_hi), "z": _range(values[:, 2]) if split else (y_lo, y_hi)}
+        values, ranges = self._values(kind)
+        y_lo, y_hi = ranges["y"]
         t_now = frame / self.replay.fps
         j = int(np.searchsorted(self._t, t_now))
         x = np.concatenate([self._t[:j], [t_now, t_now], self._t[j:]])

@@ -21,7 +21,8 @@ SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
 
 
 class Timeline:
-    """Playback state and its GUI; calls ``draw(frame)`` from its own thread."""
+    """Playback state and its GUI; calls ``draw(frame)`` from its own thread (started by
+    :meth:`start`)."""
 
     def __init__(self, server: viser.ViserServer, num_frames: int, fps: float,
                  draw: Callable[[int], None]) -> None:
@@ -72,6 +73,9 @@ class Timeline:
         self.commands[4].on_trigger(lambda _: self.seek(0))
         self._thread = threading.Thread(target=self._run, name="mistool-timeline",
                                         daemon=True)
+
+    def start(self) -> None:
+        """Start the render thread (once everything ``draw`` uses exists)."""
         self._thread.start()
 
     # -- control ------------------------------------------------------------------------
@@ -129,7 +133,8 @@ class Timeline:
         """Stop the render thread (the GUI stays)."""
         self._stop.set()
         self._wake.set()
-        self._thread.join(timeout=5.0)
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)
 
     def wait_shown(self, frame: int, timeout: float = 5.0) -> bool:
         """Block until ``frame`` has been drawn (tests and benchmarks)."""
