@@ -269,8 +269,9 @@ def main() -> int:
               f"until its overlay is sent too: median {res['overlay_median_ms']:.2f} ms, "
               f"p90 {res['overlay_p90_ms']:.2f} ms"
               + (f"; cv2.imread of the mask: median {res['decode_median_ms']:.2f} ms, "
-                 f"ratio {res['ratio_update_to_decode']:.2f}" if "decode_median_ms" in res
-                 else ""))
+                 f"ratios to it {res['ratio_update_to_decode']:.2f} (update) and "
+                 f"{res['ratio_overlay_to_decode']:.2f} (with overlay)"
+                 if "decode_median_ms" in res else ""))
         print(f"playback: {res['playback_1x_fps']:.1f} frames/s at 1x (target "
               f"{res['target_fps']:.0f}; update median "
               f"{res['playback_1x_update_median_ms']:.2f} ms with prefetch), "

@@ -164,9 +164,12 @@ class Timeline:
                     if time.monotonic() < next_tick:  # woken by a scrub: draw it now
                         self._draw_target()
                         continue
-                # Hold the frame rate: schedule from the previous tick, but do not try to
-                # catch up more than one period after a stall.
-                next_tick = max(next_tick + period, time.monotonic())
+                # Hold the frame rate: schedule from the previous tick (a late frame is
+                # made up by the next ones), but after a stall of more than three periods
+                # start afresh instead of rushing through frames.
+                next_tick += period
+                if time.monotonic() - next_tick > 3 * period:
+                    next_tick = time.monotonic()
                 frame = self._target + 1
                 if frame >= self.num_frames:
                     if self.loop.value:
