@@ -100,7 +100,6 @@ def default_output(source: Path) -> Path:
 def run_track(args: argparse.Namespace) -> int:
     """Run ``mistool track``; returns the exit code."""
     from mistool import api, sequence
-    from mistool.config import PRESETS
     from mistool.export import write_csv, write_table_csv
 
     if args.fps is not None and not args.fps > 0:
