@@ -42,6 +42,10 @@ from mistool.errors import ConfigError
 from mistool.model import COLUMN_NAMES, PARTS, TrackTable
 from mistool.sequence import VIDEO_TOLERANCE, Frame, MaskSequence, open_sequence, to_labels
 
+#: Default worker threads: the CPU count, at most this (the GIL-bound parts of a frame's
+#: work keep more threads from helping).
+MAX_DEFAULT_WORKERS = 8
+
 #: Allowed values of ``smoothing``.
 SMOOTHING = ("none", "offline", "online")
 
@@ -255,7 +259,7 @@ def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise ConfigError(f"workers = {workers!r}: must be an integer >= 1")
-    n_workers = workers or max(1, os.cpu_count() or 1)
+    n_workers = workers or min(MAX_DEFAULT_WORKERS, max(1, os.cpu_count() or 1))
     start = time.perf_counter()
     seq = source if isinstance(source, MaskSequence) else open_sequence(
         source, _resolve_config(config))
@@ -312,7 +316,8 @@ def track(source: str | Path | Iterable[np.ndarray],
         config: a :class:`Config`, a path to a ``mistool.toml``, or None to read
             ``mistool.toml`` beside the frames (EndoVis'15 defaults without one).
         progress: show a tqdm progress bar on stderr.
-        workers: worker threads for decoding and per-frame work (default: CPU count).
+        workers: worker threads for decoding and per-frame work (default: the CPU count,
+            at most :data:`MAX_DEFAULT_WORKERS`).
         metric: compute the metric 3D pose when the config has a ``[camera]``.
         smoothing: temporal filtering of the metric pose: ``"none"``, ``"offline"``
             (uses past and future frames) or ``"online"`` (causal).

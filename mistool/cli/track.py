@@ -81,7 +81,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--smoothing", choices=("none", "offline", "online"), default="offline",
                    help="temporal filtering of the metric pose (default: offline)")
     p.add_argument("--workers", type=int, metavar="N",
-                   help="worker threads (default: number of CPUs)")
+                   help="worker threads (default: number of CPUs, at most 8)")
     p.set_defaults(func=run_track)
 
 
