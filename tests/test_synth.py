@@ -412,3 +412,27 @@ def test_bundled_sample_is_a_small_endovis15_sequence_with_truth():
     assert set(truth["instrument"]) == {"1", "2"}
     assert truth["frame"].min() > 0  # the tools enter after the first frame
     assert np.ptp(truth["jaw_open_deg"]) > 20  # and grasp
+
+
+@pytest.mark.parametrize("preset,parts", [("endovis15", ["shaft", "clasper"]),
+                                          ("endovis17", ["shaft", "wrist", "clasper"])])
+def test_truth_parts_are_linked_segments_along_their_axes(tmp_path, preset, parts):
+    res = synthesize(tmp_path / "s", frames=3, instruments=1, preset=preset, seed=3,
+                     scene=SceneOptions(motion=MotionOptions(enter=False)))
+    t = read_csv(res.path / "truth.csv")
+    for f in range(3):
+        rows = {p: np.flatnonzero((t["frame"] == f) & (t["part"] == p))[0] for p in parts}
+
+        def vec(prefix: str, r: int, t=t) -> np.ndarray:
+            return np.array([t[f"{prefix}_{a}" + ("_mm" if prefix != "axis" else "")][r]
+                             for a in "xyz"])
+        for k, p in enumerate(parts):
+            r = rows[p]
+            seg = vec("end", r) - vec("start", r)
+            assert np.allclose(seg / np.linalg.norm(seg), vec("axis", r), atol=1e-5)
+            if k:  # each part starts where the previous one ends
+                assert np.allclose(vec("start", r), vec("end", rows[parts[k - 1]]), atol=1e-5)
+    # the head's length: joint to tip at most the clasper length of the config
+    clasper, shaft = rows["clasper"], rows["shaft"]
+    joint_to_tip = np.linalg.norm(vec("end", clasper) - vec("end", shaft))
+    assert joint_to_tip <= res.config.clasper_length_mm + 1e-6

@@ -25,6 +25,9 @@ Part frames (``R_camera_part``, columns x, y, z; +z along the part's distal axis
 
 Ground-truth points: the shaft's distal end is ``J``; the wrist's is ``W``; the clasper's is
 the tip, the mid-point of the two jaw tips, ``W + jaw_length * cos(jaw_open / 2) * b``.
+Parts are linked: shaft ``T -> J``, wrist ``J -> W``, clasper ``W -> tip`` (axis ``b``);
+with labels that have no wrist (EndoVis'15) the head is one clasper part ``J -> tip``
+with axis ``normalize(tip - J)`` (:func:`merged_head`).
 The clasper length written to ``mistool.toml`` is ``wrist_length + jaw_length`` (joint to
 tip, wrist straight and jaws closed).
 """
@@ -253,3 +256,15 @@ def instrument_parts(pose: InstrumentPose, geom: InstrumentGeometry) -> list[Par
     clasper = PartGeometry("clasper", tuple(Cylinder(w, d, geom.jaw_length_mm, rj)
                                             for d in jaws), w, tip, r_j)
     return [shaft, wrist, clasper]
+
+
+def merged_head(wrist: PartGeometry, clasper: PartGeometry) -> PartGeometry:
+    """The instrument's head as one part (labels without a wrist, e.g. EndoVis'15, paint the
+    wrist as clasper): from the joint ``J`` to the tip, axis ``normalize(tip - J)``, the x
+    axis the jaw frame's x made orthogonal to it."""
+    start, end = wrist.start_mm, clasper.end_mm
+    z = (end - start) / np.linalg.norm(end - start)
+    x = clasper.rotation[:, 0] - (clasper.rotation[:, 0] @ z) * z
+    x /= np.linalg.norm(x)
+    return PartGeometry("clasper", wrist.primitives + clasper.primitives, start, end,
+                        np.column_stack([x, np.cross(z, x), z]))

@@ -49,6 +49,7 @@ from mistool.synth.scene import (
     PartGeometry,
     instrument_parts,
     matrix_to_wxyz,
+    merged_head,
 )
 
 #: Lossy codecs this OpenCV build can write into ``masks.avi`` (checked with OpenCV 5.0).
@@ -138,6 +139,8 @@ def truth_rows(frame: int, fps: float, labels_clean: np.ndarray, instance: np.nd
     rows: list[dict] = []
     for i, (pgs, pose) in enumerate(zip(parts, poses, strict=True)):
         by_name = {pg.part: pg for pg in pgs}
+        if "wrist" not in values[i]:  # the wrist is painted as clasper: one head part
+            by_name["clasper"] = merged_head(by_name["wrist"], by_name["clasper"])
         mine = instance == i + 1
         for lpart, value in values[i].items():
             found = _part_box(mine & (labels_clean == value))
