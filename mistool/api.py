@@ -277,7 +277,7 @@ def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
     num_frames = 0
     try:
         for frame, result in _ordered_results(seq.frames(), cfg, pose, n_workers,
-                                              lossy=seq.kind == "video"):
+                                              lossy=seq.lossy):
             seq.check_shape(frame, result.shape)
             names = tracker.assign(frame.index, result.instances)
             rows.add_frame(frame.index, list(names), result)

@@ -28,15 +28,15 @@ Pixel formats, each turned into one integer *label image* of shape ``(H, W)``:
   Numpy arrays given by the caller are taken as **RGB**; files are decoded as BGR and
   packed accordingly.
 
-Mask videos: the lossy codec smears label values around each part's edges (the reason the
-paper masks by *intensity range*). For video input every part given as a single value
-``v`` is widened to ``[v - t, v + t]`` with ``t =`` :data:`VIDEO_TOLERANCE` (15), narrowed
-where needed so that the ranges of different values never overlap; parts given as
-``[lo, hi]`` ranges are used as given. Colour-masked videos are packed exactly (no
-tolerance), so they only work with a lossless codec. Grey videos are converted to one
-channel with OpenCV's BGR-to-grey conversion. The smear is not reported as unknown label
-values: in videos a value must cover ``min_area_px`` pixels of a frame to count, and
-values up to the tolerance are background.
+Mask videos (and folders of JPEG masks, treated the same): the lossy codec smears label
+values around each part's edges (the reason the paper masks by *intensity range*). For such
+input every part given as a single value ``v`` is widened to ``[v - t, v + t]`` with
+``t =`` :data:`VIDEO_TOLERANCE` (15), narrowed where needed so that the ranges of different
+values never overlap; parts given as ``[lo, hi]`` ranges are used as given. Colour masks
+are packed exactly (no tolerance), so they only work with a lossless codec. Grey videos
+are converted to one channel with OpenCV's BGR-to-grey conversion. The smear is not
+reported as unknown label values: there a value must cover ``min_area_px`` pixels of a
+frame to count, and values up to the tolerance are background.
 
 OpenCV's own warnings about corrupt files are silenced (log level ERROR) while mistool
 reads a sequence: mistool reports them itself as one-line :class:`MistoolError`.
@@ -64,6 +64,7 @@ VIDEO_EXTENSIONS: frozenset[str] = frozenset(
     {".avi", ".mp4", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv"})
 #: Half-width (label units) of the range a single label value is widened to in mask videos.
 VIDEO_TOLERANCE: int = 15
+_LOSSY_EXTENSIONS = frozenset({".jpg", ".jpeg"})
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -402,7 +403,7 @@ class MaskSequence:
 
     def __init__(self, kind: str, name: str, config: Config,
                  frames: Callable[[], Iterator[Frame]], num_frames: int | None,
-                 path: Path | None = None) -> None:
+                 path: Path | None = None, lossy: bool = False) -> None:
         self.kind = kind
         """``"folder"``, ``"video"`` or ``"arrays"``."""
         self.name = name
@@ -413,6 +414,8 @@ class MaskSequence:
         """Number of frames, or None when unknown (iterables; videos are approximate)."""
         self.path = path
         """The folder or video file, or None for arrays."""
+        self.lossy = lossy
+        """Frames from a lossy codec (videos, JPEG folders): label values are smeared."""
         self.shape: tuple[int, int] | None = None
         """``(H, W)`` of the frames, once the first frame was checked."""
         self._frames = frames
@@ -527,8 +530,10 @@ def _open_folder(folder: Path, config: Config) -> MaskSequence:
         for i, f in enumerate(files):
             yield Frame(i, f.name, _loader(f, colour, gate))
 
-    return MaskSequence("folder", folder.resolve().name or str(folder), config, frames,
-                        len(files), folder)
+    lossy = all(f.suffix.lower() in _LOSSY_EXTENSIONS for f in files)
+    return MaskSequence("folder", folder.resolve().name or str(folder),
+                        widen_for_video(config) if lossy else config, frames, len(files),
+                        folder, lossy=lossy)
 
 
 def _loader(path: Path, colour: bool, gate: FastPathGate) -> Callable[[], np.ndarray]:
@@ -606,7 +611,7 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
             vc.release()
 
     return MaskSequence("video", stem, widen_for_video(config), frames,
-                        count if count > 0 else None, path)
+                        count if count > 0 else None, path, lossy=True)
 
 
 def _constant(labels: np.ndarray) -> Callable[[], np.ndarray]:

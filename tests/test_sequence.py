@@ -373,3 +373,14 @@ def test_fast_path_gate_closes_on_a_sequence_it_keeps_declining(tmp_path: Path) 
     for _ in range(5):
         read_label_image(tmp_path / "b.png", gate=ok)
     assert (ok.tried, ok.declined, ok.open) == (5, 0, True)
+
+
+def test_jpeg_folder_is_lossy_like_a_video(tmp_path: Path) -> None:
+    img = np.zeros((48, 64), np.uint8)
+    img[10:30, 5:40] = 160
+    cv2.imwrite(str(tmp_path / "0.jpg"), img)
+    seq = open_sequence(tmp_path)
+    assert seq.lossy and seq.config.parts["shaft"] == (145, 175)
+    _write(tmp_path / "1.png", img)  # a lossless frame: values are exact again
+    seq = open_sequence(tmp_path)
+    assert not seq.lossy and seq.config.parts["shaft"] == (160, 160)
