@@ -28,9 +28,12 @@ temporary folder and renamed, so a failure leaves nothing behind):
   mistool.toml     fps, labels preset, [camera], shaft_diameter_mm, clasper_length_mm
                    (and [[instrument]] tables with --distinct-labels)
   truth.csv        the motion table of the truth: boxes of the clean masks (per instrument,
-                   its own visible pixels), end_*_mm (shaft: joint J, wrist: jaw pivot,
+                   its own visible pixels), end_*_mm (shaft: joint J, wrist: jaw pivot W,
                    clasper: tip = middle of the jaw tips) and axis_* exactly from the 3D
-                   model, start_*_mm, qw..qz, trocar_*_mm, the paper's motion of the clean
+                   model; parts are linked segments start_*_mm -> end_*_mm (shaft from the
+                   trocar; without a wrist label the clasper runs J -> tip), qw..qz
+                   (part frame, z distal), trocar_*_mm, visible_frac (share of the part
+                   not hidden by another tool), the paper's motion of the clean
                    boxes, and extras roll_deg, wrist_deg, jaw_yaw_deg, jaw_open_deg,
                    insertion_mm. A row exists where the part has >= 1 clean pixel.
   synth.json       the options and seed
