@@ -18,8 +18,9 @@ metric 3D pose in millimetres.
 
 A sequence is a folder of label images (PNG first; 8/16-bit grey, palette, grey saved as
 RGB, or colour masks) whose names sort naturally into frame order (frame2.png before
-frame10.png), or a mask video file (.avi/.mp4; single label values are widened by +-15 to
-absorb the codec's smearing). Other files in the folder are ignored.
+frame10.png), or a mask video file (.avi/.mp4). For videos and JPEG frames, single label
+values are widened by +-15 to absorb the lossy codec's smearing. Other files in the
+folder are ignored.
 
 An optional mistool.toml beside the frames (or beside the video) says what the pixels
 mean; without one, EndoVis'15 defaults apply (shaft 160, clasper 70, 25 fps):
