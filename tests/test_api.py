@@ -245,3 +245,11 @@ def test_metric_columns_with_a_camera(tmp_path: Path) -> None:
     plain = run(tmp_path, metric=False)
     assert not plain.metric and np.isnan(plain.table["end_x_mm"]).all()
     np.testing.assert_array_equal(plain.table["cx_px"], result.table["cx_px"])
+
+
+def test_benchmark_script_runs() -> None:
+    """scripts/bench_track.py works (smoke test on a few frames; no timing asserted)."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "bench_track.py"
+    proc = subprocess.run([sys.executable, str(script), "--frames", "4", "--runs", "1"],
+                          capture_output=True, text=True, timeout=300, check=True)
+    assert "ratio imread-unchanged / api:" in proc.stdout
