@@ -218,6 +218,8 @@ BAD_INPUTS: list[tuple[str, Callable[[Path], list[str]], str]] = [
      "--min-area must be >= 0"),
     ("missing output folder", lambda r: [str(_bad_folder(r, {"0.png": _OK})), "-o",
                                          str(r / "no" / "x.csv")], "does not exist"),
+    ("output is a folder", lambda r: [str(_bad_folder(r, {"0.png": _OK})), "-o",
+                                      str(r / "bad seq")], "is a folder"),
 ]
 
 

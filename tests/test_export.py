@@ -81,9 +81,13 @@ def test_atomic_write_leaves_nothing_on_error(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
 
 
-def test_atomic_write_missing_folder(tmp_path: Path) -> None:
+def test_atomic_write_missing_folder_or_folder_target(tmp_path: Path) -> None:
     with pytest.raises(InputPathError, match="does not exist"):
         write_csv(_table(), tmp_path / "nope" / "m.csv")
+    (tmp_path / "dir").mkdir()
+    with pytest.raises(InputPathError, match="is a folder"):
+        write_csv(_table(), tmp_path / "dir")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dir"]
 
 
 @pytest.mark.parametrize("text, message", [

@@ -118,6 +118,8 @@ def run_track(args: argparse.Namespace) -> int:
     out = None if args.output == "-" else Path(args.output or default_output(path))
     if out is not None and not (out.parent if str(out.parent) else Path(".")).is_dir():
         raise InputPathError(f"{out}: output folder {out.parent} does not exist")
+    if out is not None and out.is_dir():
+        raise InputPathError(f"{out}: is a folder; expected an output file name (-o OUT.csv)")
     show_progress = not args.quiet and sys.stderr.isatty()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", api.MistoolWarning)
