@@ -163,6 +163,8 @@ class ReplayViewer:
                                    titlebar_content=None)
         if not environment_map:
             server.scene.configure_environment_map(None)
+        # Shadow maps cost extra render passes and shader variants in software WebGL.
+        server.scene.configure_default_lights(enabled=True, cast_shadow=False)
         self.renderer = OverlayRenderer(replay, sequence.frames) \
             if sequence.frames.has_masks or sequence.frames.has_source else None
         self.overlays = OverlayCache(self.renderer) if self.renderer else None
