@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import math
+import os
 import socket
 import threading
 import time
@@ -318,3 +319,39 @@ def test_export_html_is_standalone(sequence, tmp_path: Path) -> None:
     with pytest.raises(MistoolError, match="--mode"):
         export_html(sequence, tmp_path / "y.html", mode="nonsense")
     assert not (tmp_path / "y.html").exists()
+
+
+def test_serve_reuses_the_tracked_table_until_the_sequence_changes(
+        synth_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import shutil
+
+    from mistool import api
+    from mistool.export import read_csv
+
+    seq = tmp_path / "seq"
+    shutil.copytree(synth_dir, seq)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    truth = read_csv(seq / "truth.csv")
+    calls: list[Path] = []
+
+    class _Result:  # what api.run returns, with the truth as the tracked table
+        def __init__(self, path: Path) -> None:
+            calls.append(path)
+            self.table, self.num_frames, self.shape = truth, 40, (576, 720)
+            self.config = load_sequence(seq, poses=seq / "truth.csv").replay.config
+
+    monkeypatch.setattr(api, "run", lambda path, config, progress=False: _Result(path))
+    first = load_sequence(seq, cache=True)
+    again = load_sequence(seq, cache=True)
+    assert len(calls) == 1, "the unchanged sequence was tracked twice"
+    np.testing.assert_allclose(again.replay.modes["metric"].centre,
+                               first.replay.modes["metric"].centre, atol=1e-5)
+    assert not (seq / ".mistool").exists() and len(list(seq.iterdir())) == \
+        len(list(synth_dir.iterdir())), "the sequence folder was written to"
+    frame = sorted(seq.glob("*.png"))[3]
+    frame.write_bytes(frame.read_bytes())  # same content, new modification time
+    os.utime(frame, ns=(time.time_ns(), time.time_ns() + 10**9))
+    load_sequence(seq, cache=True)
+    assert len(calls) == 2, "a changed sequence must be tracked again"
+    load_sequence(seq, cache=False)
+    assert len(calls) == 3
