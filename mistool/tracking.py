@@ -21,7 +21,7 @@ pixels in the instance, after dropping specks smaller than ``config.min_area_px`
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -286,6 +286,8 @@ class _Track:
     merged: bool = False  # inside a blob shared with another instrument: coasting
     hidden: bool = False  # ... and that blob carries another instrument's name
     size: float = 0.0  # largest sqrt(area) seen, px: the instrument's scale
+    boxes: dict[str, RotatedBox] | None = None  # last part boxes seen apart from others
+    boxes_frame: int = 0  # ... and their frame
     seen: int = 1
 
 
@@ -356,12 +358,37 @@ class IdentityTracker:
             instances: :func:`observe_frame`'s result for that frame.
 
         Returns:
-            One instrument name per instance, same order, all different.
+            One instrument name per instance, same order, all different. An instance that
+            holds two crossing instruments gets one name (see :meth:`resolve`).
         """
+        return self._step(frame_index, instances, split=False)[1]
+
+    def resolve(self, frame_index: int, instances: list[InstanceObservation]
+                ) -> tuple[list[InstanceObservation], list[str]]:
+        """Like :meth:`assign`, but an instance holding several known instruments (two
+        crossing or grasping each other in merged masks) is split between them.
+
+        The split (:func:`split_instance`) assigns the blob's pixels to the instruments'
+        expected part boxes (their last boxes seen apart, moved by their velocity), the
+        shaft axes refined on the blob's own pixels; it is used only when it is well
+        supported, else the blob keeps one name as in :meth:`assign`.
+
+        Args:
+            frame_index: the frame's 0-based index; increasing between calls.
+            instances: :func:`observe_frame`'s result for that frame.
+
+        Returns:
+            ``(instances, names)``: the instances (split ones replaced by their pieces,
+            which have ``label`` None and new part boxes) and one name per instance.
+        """
+        return self._step(frame_index, instances, split=True)
+
+    def _step(self, frame_index: int, instances: list[InstanceObservation], *, split: bool
+              ) -> tuple[list[InstanceObservation], list[str]]:
         if self._config.instruments and all(i.label is not None for i in instances):
-            return [str(i.label) for i in instances]
+            return list(instances), [str(i.label) for i in instances]
         if self._last_frame is not None and frame_index <= self._last_frame:
-            raise ValueError(f"IdentityTracker.assign: frame {frame_index} after frame "
+            raise ValueError(f"IdentityTracker: frame {frame_index} after frame "
                              f"{self._last_frame}; frames must come in increasing order")
         self._last_frame = frame_index
         live = [t for t in self._tracks if frame_index - t.last_frame <= self._max_gap]
@@ -370,15 +397,11 @@ class IdentityTracker:
             for b, inst in enumerate(instances):
                 cost[a, b] = self._cost(t, inst, frame_index)
         pairs = _assignment(cost, self.MAX_COST)
-        names: list[str | None] = [None] * len(instances)
-        matched_tracks = set()
-        for a, b in pairs:
-            names[b] = live[a].name
-            matched_tracks.add(a)
-        # instruments hidden inside a matched instance (crossing): keep them coasting
+        owner = {b: a for a, b in pairs}
+        # instruments hidden inside a matched instance (crossing): blob -> hidden tracks
         blob_of: dict[int, list[int]] = {}
         for a, t in enumerate(live):
-            if a in matched_tracks or frame_index - t.last_frame > max(3, self._max_gap // 4):
+            if a in owner.values() or frame_index - t.last_frame > max(3, self._max_gap // 4):
                 continue
             pred = self._predict(t, frame_index)
             for a2, b in pairs:
@@ -388,22 +411,68 @@ class IdentityTracker:
                 if grown and _inside(pred, instances[b].bbox_xywh, margin=0.15):
                     blob_of.setdefault(b, []).append(a)
                     break
-        merged_blobs = set(blob_of)
-        for a, b in pairs:
-            self._update(live[a], instances[b], frame_index, merged=b in merged_blobs)
-        for hidden in blob_of.values():
-            for a in hidden:
+        pieces: dict[int, list[InstanceObservation]] = {}
+        if split:
+            for b, hidden in blob_of.items():
+                group = [live[owner[b]]] + [live[a] for a in hidden]
+                best: tuple[float, list[InstanceObservation]] | None = None
+                # two motion hypotheses: slowing to a stop when they met, or keeping on
+                for steps in (5, None):
+                    expected = [self._expected_boxes(t, frame_index, steps) for t in group]
+                    if not all(e is not None for e in expected):
+                        break
+                    got = _split(instances[b], expected,  # type: ignore[arg-type]
+                                 max(self._config.min_area_px, 1))
+                    if got is not None and (best is None or got[0] < best[0]):
+                        best = got
+                if best is not None:
+                    pieces[b] = best[1]
+        out_instances: list[InstanceObservation] = []
+        names: list[str] = []
+        for b, inst in enumerate(instances):
+            if b in pieces:
+                group = [live[owner[b]]] + [live[a] for a in blob_of[b]]
+                for t, piece in zip(group, pieces[b], strict=True):
+                    self._update(t, piece, frame_index, merged=False, apart=False)
+                    out_instances.append(piece)
+                    names.append(t.name)
+            elif b in owner:
+                t = live[owner[b]]
+                self._update(t, inst, frame_index, merged=b in blob_of)
+                out_instances.append(inst)
+                names.append(t.name)
+            else:
+                out_instances.append(inst)
+                names.append(self._new_track(inst, frame_index).name)
+        for b, hidden in blob_of.items():
+            if b in pieces:
+                continue
+            for a in hidden:  # keep them coasting on their predicted motion
                 t = live[a]
                 t.centroid = self._predict(t, frame_index)
                 t.last_frame = frame_index
                 t.merged = t.hidden = True
-        for b, inst in enumerate(instances):
-            if names[b] is None:
-                track = self._new_track(inst, frame_index)
-                names[b] = track.name
-        return [str(n) for n in names]
+        return out_instances, names
 
     # internals ------------------------------------------------------------------------
+    def _expected_boxes(self, t: _Track, frame: int, steps: int | None
+                        ) -> dict[str, RotatedBox] | None:
+        """The track's last part boxes seen apart from others, moved to ``frame`` by at
+        most ``steps`` frames of its velocity (None: all the way); the shaft is lengthened
+        by what the rest of the constant-velocity motion would add along it."""
+        if t.boxes is None:
+            return None
+        gap = frame - t.boxes_frame
+        move = gap if steps is None else min(gap, steps)
+        dx, dy = t.velocity * move
+        out = {p: replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy))
+               for p, b in t.boxes.items()}
+        s = out["shaft"]
+        u = _unit(s.angle_deg)
+        extra = 2.0 * abs(float(t.velocity @ u)) * (gap - move)
+        out["shaft"] = replace(s, length=s.length + extra)
+        return out
+
     def _predict(self, t: _Track, frame: int) -> np.ndarray:
         gap = frame - t.last_frame
         steps = gap if t.merged or gap <= 5 else 5  # lost: look near where it was last
@@ -428,7 +497,7 @@ class IdentityTracker:
         return cost
 
     def _update(self, t: _Track, inst: InstanceObservation, frame: int, *,
-                merged: bool) -> None:
+                merged: bool, apart: bool = True) -> None:
         gap = frame - t.last_frame
         c = np.asarray(inst.centroid_px, dtype=np.float64)
         if merged:  # the blob's centroid is not this instrument's: coast
@@ -445,6 +514,9 @@ class IdentityTracker:
             t.size = max(t.size, math.sqrt(t.area))
             angle, elong = _appearance(inst)
             t.angle, t.elongation = angle, elong
+            if apart and "shaft" in inst.parts:  # a split piece is no reference shape
+                t.boxes = {p: o.box for p, o in inst.parts.items()}
+                t.boxes_frame = frame
             t.merged = False
         t.hidden = False
         t.last_frame = frame
@@ -456,9 +528,155 @@ class IdentityTracker:
                    centroid=np.asarray(inst.centroid_px, dtype=np.float64),
                    velocity=np.zeros(2), area=float(inst.area_px), angle=angle,
                    elongation=elong, size=math.sqrt(inst.area_px))
+        if "shaft" in inst.parts:
+            t.boxes = {p: o.box for p, o in inst.parts.items()}
+            t.boxes_frame = frame
         self._next += 1
         self._tracks.append(t)
         return t
+
+
+#: A split is kept only if each piece's pixels spread across its line by at most this
+#: fraction of the shaft's width (RMS; a full rectangle of width w gives 0.29 w).
+SPLIT_MAX_SPREAD = 0.45
+#: ... and its lines differ in direction by at least this much (deg).
+SPLIT_MIN_ANGLE_DEG = 8.0
+
+
+def _segment_distance(p: np.ndarray, ends: np.ndarray, dirs: np.ndarray,
+                      back: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """(N, K) distances from points (N, 2) to K segments, in units of each segment's
+    ``radius`` (half the part's width). Segment k runs from ``ends[k]`` backwards along
+    ``-dirs[k]`` for ``back[k]`` px (``inf``: a half-line, a shaft coming from the
+    image border)."""
+    rel = p[:, None, :] - ends[None]
+    along = np.einsum("nkd,kd->nk", rel, dirs)  # <= 0 behind the end
+    perp = rel[..., 1] * dirs[None, :, 0] - rel[..., 0] * dirs[None, :, 1]
+    excess = np.maximum(along, 0.0) + np.maximum(-along - back[None], 0.0)
+    return np.hypot(perp, excess) / radius[None]
+
+
+def _unit(angle_deg: float) -> np.ndarray:
+    t = math.radians(angle_deg)
+    return np.array([math.cos(t), math.sin(t)])
+
+
+def _distal_axis(boxes: dict[str, RotatedBox]) -> tuple[np.ndarray, np.ndarray, float]:
+    """The shaft's (distal end, distal unit direction, back length) from part boxes: the
+    distal side is the one towards the other parts (unknown without them: a segment)."""
+    sb = boxes["shaft"]
+    u = _unit(sb.angle_deg)
+    c = np.array([sb.cx, sb.cy])
+    others = [b for p, b in boxes.items() if p != "shaft"]
+    if others:
+        o = np.mean([[b.cx, b.cy] for b in others], axis=0)
+        if (o - c) @ u < 0:
+            u = -u
+        back = math.inf
+    else:
+        back = sb.length
+    return c + 0.5 * sb.length * u, u, back
+
+
+def split_instance(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
+                   min_area_px: int = 1) -> list[InstanceObservation] | None:
+    """Split one instance holding several instruments between them.
+
+    Each instrument's shaft is a half-line from the image border to its distal end (from
+    its expected boxes); the blob's shaft pixels go to the nearest one (distances in
+    units of each shaft's half-width), each line is refitted to its pixels (direction,
+    distal end; a few rounds), and the split is kept only if every instrument's pixels
+    hug its axis like a shaft of its width (RMS distance at most
+    :data:`SPLIT_MAX_SPREAD` x width) and no two axes are parallel. Wrist and clasper
+    pixels go to the nearest expected box of that part, moved with its shaft's refitted
+    distal end.
+
+    Args:
+        inst: the merged instance (parts with pixel crops).
+        expected: per instrument, part -> expected box this frame (from its last frames
+            apart from the others, moved by its velocity); each needs a ``"shaft"``.
+        min_area_px: each instrument needs at least this many shaft pixels.
+
+    Returns:
+        One instance per instrument, same order, or None when the split is not
+        trustworthy.
+    """
+    got = _split(inst, expected, min_area_px)
+    return None if got is None else got[1]
+
+
+def _split(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
+           min_area_px: int) -> tuple[float, list[InstanceObservation]] | None:
+    """:func:`split_instance` and its score (the worst RMS distance of a shaft's pixels
+    to its axis, in half-widths; lower is better)."""
+    shaft = inst.parts.get("shaft")
+    k = len(expected)
+    if shaft is None or k < 2 or any("shaft" not in e for e in expected):
+        return None
+    ys, xs = np.nonzero(shaft.mask)
+    pts = np.stack([xs + shaft.offset[0], ys + shaft.offset[1]], 1).astype(np.float64)
+    step = max(1, len(pts) // 4000)  # the fits need no more points than this
+    fit_pts = pts[::step]
+    axes = [_distal_axis(e) for e in expected]
+    ends = np.array([a[0] for a in axes])
+    dirs = np.array([a[1] for a in axes])
+    back = np.array([a[2] for a in axes])
+    ends0 = ends.copy()
+    margin = np.array([0.1 * e["shaft"].length for e in expected])
+    ends = ends + margin[:, None] * dirs
+    radius = np.array([max(e["shaft"].width / 2.0, 1.0) for e in expected])
+    for _ in range(6):  # nearest axis, then refit each axis to its pixels
+        lab = _segment_distance(fit_pts, ends, dirs, back, radius).argmin(1)
+        for j in range(k):
+            q = fit_pts[lab == j]
+            if len(q) < 3 or len(q) * step < min_area_px:
+                return None
+            c = q.mean(0)
+            _, v = np.linalg.eigh(np.cov((q - c).T))
+            d = v[:, 1]  # largest spread: along the shaft
+            dirs[j] = d if d @ dirs[j] >= 0 else -d
+            # the distal end: the pixels' reach, never beyond the expected end + margin
+            limit = float((ends0[j] + margin[j] * dirs[j] - c) @ dirs[j])
+            ends[j] = c + min(float(((q - c) @ dirs[j]).max()), limit) * dirs[j]
+    d = _segment_distance(fit_pts, ends, dirs, back, radius)
+    lab = d.argmin(1)
+    score = 0.0
+    for j in range(k):  # in units of the half-width: a full rectangle gives 0.58
+        rms = math.sqrt(float((d[lab == j, j] ** 2).mean()))
+        if rms > 2.0 * SPLIT_MAX_SPREAD + 0.5 / radius[j]:
+            return None
+        score = max(score, rms)
+    for i in range(k):
+        for j in range(i + 1, k):
+            cosang = min(1.0, abs(float(dirs[i] @ dirs[j])))
+            if math.degrees(math.acos(cosang)) < SPLIT_MIN_ANGLE_DEG:
+                return None
+    shift = ends - ends0  # the other parts move with their shaft's distal end
+    pieces: list[dict[str, PartObservation]] = [{} for _ in range(k)]
+    for name, part in inst.parts.items():
+        ys, xs = np.nonzero(part.mask)
+        p = np.stack([xs + part.offset[0], ys + part.offset[1]], 1).astype(np.float64)
+        if name == "shaft" or not all(name in e for e in expected):
+            dist = _segment_distance(p, ends, dirs, back, radius)
+        else:
+            u = np.array([_unit(e[name].angle_deg) for e in expected])
+            h = np.array([0.5 * e[name].length for e in expected])
+            c = np.array([[e[name].cx, e[name].cy] for e in expected]) + shift
+            r = np.array([max(e[name].width / 2.0, 1.0) for e in expected])
+            dist = _segment_distance(p, c + h[:, None] * u, u, 2 * h, r)
+        owner = dist.argmin(1)
+        for j in range(k):
+            sel = owner == j
+            if not sel.any():
+                continue
+            m = np.zeros(part.mask.shape, np.uint8)
+            m[ys[sel], xs[sel]] = 255
+            obs = _part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
+            if obs is not None:
+                pieces[j][name] = obs
+    if any("shaft" not in parts for parts in pieces):
+        return None
+    return score, [_instance(None, parts) for parts in pieces]
 
 
 def _inside(p: np.ndarray, bbox: tuple[int, int, int, int], margin: float) -> bool:

@@ -10,7 +10,7 @@ import pytest
 from mistool.config import Config, config_from_dict
 from mistool.errors import MaskFormatError
 from mistool.model import RotatedBox
-from mistool.tracking import IdentityTracker, observe_frame, unknown_values
+from mistool.tracking import IdentityTracker, observe_frame, split_instance, unknown_values
 
 H, W = 576, 720
 SHAFT, WRIST, CLASPER = 10, 20, 30  # endovis17 preset values
@@ -35,7 +35,8 @@ def fill_box(img: np.ndarray, box: RotatedBox, value: int) -> None:
 def draw_tool(img: np.ndarray, tip: tuple[float, float], angle_deg: float, *,
               shaft=SHAFT, clasper=CLASPER, shaft_len=260.0, width=22.0,
               clasper_len=40.0) -> None:
-    """A shaft coming from direction ``angle_deg + 180`` and a clasper ending at ``tip``.
+    """A shaft coming from direction ``angle_deg + 180`` (from beyond the image border, as
+    real shafts do) and a clasper ending at ``tip``.
     ``angle_deg`` is the distal direction, from +x towards +y."""
     t = math.radians(angle_deg)
     d = np.array([math.cos(t), math.sin(t)])
@@ -48,10 +49,10 @@ def draw_tool(img: np.ndarray, tip: tuple[float, float], angle_deg: float, *,
     fill_box(img, RotatedBox(cc[0], cc[1], clasper_len, width * 0.8, a), clasper)
 
 
-def frame(*tools: tuple[tuple[float, float], float]) -> np.ndarray:
+def frame(*tools: tuple[tuple[float, float], float], shaft_len: float = 260.0) -> np.ndarray:
     img = np.zeros((H, W), np.uint8)
     for tip, ang in tools:
-        draw_tool(img, tip, ang)
+        draw_tool(img, tip, ang, shaft_len=shaft_len)
     return img
 
 
@@ -276,3 +277,40 @@ def test_frames_must_increase():
     tracker.assign(3, [])
     with pytest.raises(ValueError, match="increasing"):
         tracker.assign(3, [])
+
+
+def test_resolve_splits_crossing_instruments():
+    """While the two shafts (coming from the image border) overlap in an X, resolve()
+    gives each its own instance whose shaft box follows that instrument's true shaft
+    (assign() would give one blob)."""
+    frames = crossing()
+    tracker = IdentityTracker(MERGED)
+    split_frames = 0
+    for k, tools in enumerate(frames):
+        img = frame(*[(tip, ang) for _, tip, ang in tools], shaft_len=700.0)
+        insts = observe_frame(img, MERGED)
+        out, names = tracker.resolve(k, insts)
+        assert len(out) == len(names) == 2  # always both instruments
+        if len(insts) == 1:
+            split_frames += 1
+        by_name = dict(zip(names, out, strict=True))
+        for name, (_, tip, ang) in zip(["1", "2"], tools, strict=True):
+            shaft = by_name[name].parts["shaft"].box
+            # the drawn shaft's axis passes through the joint, 40 px behind the tip
+            t = math.radians(ang)
+            joint = np.array(tip) - 40.0 * np.array([math.cos(t), math.sin(t)])
+            axis_dist = abs(-(shaft.cx - joint[0]) * math.sin(t)
+                            + (shaft.cy - joint[1]) * math.cos(t))
+            assert abs(((shaft.angle_deg - ang % 180.0) + 90) % 180 - 90) < 2.0, (k, name)
+            assert axis_dist < 3.0, (k, name)
+    assert split_frames >= 10
+
+
+def test_split_instance_refuses_parallel_shafts():
+    img = np.zeros((H, W), np.uint8)
+    img[200:230, 0:400] = SHAFT
+    img[231:260, 0:400] = SHAFT  # two parallel shafts touching: one blob
+    (inst,) = observe_frame(img, MERGED)
+    a = RotatedBox(200.0, 214.5, 400.0, 30.0, 0.0)
+    b = RotatedBox(200.0, 245.0, 400.0, 29.0, 0.0)
+    assert split_instance(inst, [{"shaft": a}, {"shaft": b}]) is None
