@@ -124,6 +124,10 @@ def as_cv_labels(labels: np.ndarray) -> np.ndarray:
         return labels
     if labels.dtype == np.bool_:
         return labels.view(np.uint8)
+    if labels.dtype == np.uint32:
+        # packed RGB (< 2**24) keeps its values; larger ones turn negative and so can
+        # match no part range (ranges are >= 0)
+        return labels.view(np.int32)
     if kind not in "iu":
         raise ValueError(f"expected an integer label image, got dtype {labels.dtype}")
     if labels.size and (int(labels.min()) < np.iinfo(np.int32).min

@@ -314,3 +314,29 @@ def test_split_instance_refuses_parallel_shafts():
     a = RotatedBox(200.0, 214.5, 400.0, 30.0, 0.0)
     b = RotatedBox(200.0, 245.0, 400.0, 29.0, 0.0)
     assert split_instance(inst, [{"shaft": a}, {"shaft": b}]) is None
+
+
+def test_colour_masks_packed_rgb():
+    cfg = config_from_dict({"parts": {"shaft": "#a0a0a0", "clasper": "#404080"}})
+    assert cfg.colour_masks
+    grey = frame(((400.0, 300.0), 20.0))
+    packed = np.zeros(grey.shape, np.uint32)
+    packed[grey == SHAFT] = 0xA0A0A0
+    packed[grey == CLASPER] = 0x404080
+    packed[0, 0] = 0xFFFFFFFF  # an unknown colour beyond int32
+    (inst,) = observe_frame(packed, cfg)
+    (ref,) = observe_frame(grey, MERGED)
+    assert inst.parts["shaft"].box == ref.parts["shaft"].box
+    assert inst.parts["clasper"].area_px == ref.parts["clasper"].area_px
+    assert unknown_values(packed, cfg).tolist() == [0xFFFFFFFF]
+
+
+def test_own_label_values_drop_specks_per_part():
+    cfg = config_from_dict({"instrument": [{"name": "a", "shaft": 160, "clasper": 70}]})
+    img = np.zeros((H, W), np.uint8)
+    draw_tool(img, (300.0, 300.0), 0.0, shaft=160, clasper=70)
+    clean = observe_frame(img, cfg)[0]
+    img[500:503, 600:603] = 70  # a 9-px clasper speck far away
+    (inst,) = observe_frame(img, cfg)
+    assert inst.parts["clasper"].box == clean.parts["clasper"].box
+    assert inst.area_px == clean.area_px
