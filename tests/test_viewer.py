@@ -355,3 +355,27 @@ def test_serve_reuses_the_tracked_table_until_the_sequence_changes(
     assert len(calls) == 2, "a changed sequence must be tracked again"
     load_sequence(seq, cache=False)
     assert len(calls) == 3
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_serve_stops_cleanly_on_ctrl_c(sig: str, synth_dir: Path) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from mistool.cli import main; "
+         "sys.exit(main(sys.argv[1:]))", "serve", str(synth_dir), "--poses",
+         str(synth_dir / "truth.csv"), "--port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        lines = [proc.stdout.readline() for _ in range(2)]
+        assert "http://" in lines[1], lines
+        proc.send_signal(getattr(signal, sig))
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "stopped" in err and "Traceback" not in err

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import threading
 
@@ -82,12 +83,19 @@ def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
     print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
     if ready is not None:
         ready.set()
+    waiter = stop or threading.Event()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        # SIGTERM (e.g. from a service manager) stops as cleanly as Ctrl+C.
+        previous = signal.signal(signal.SIGTERM, lambda *_: waiter.set())
     try:
-        waiter = stop or threading.Event()
         while not waiter.wait(0.5):
             pass
+        print("mistool serve: stopped", file=sys.stderr)
     except KeyboardInterrupt:
         print("mistool serve: stopped", file=sys.stderr)
     finally:
         viewer.close()
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
