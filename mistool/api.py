@@ -409,12 +409,12 @@ class Tracker:
             self._unknown |= new
             warnings.warn(unknown_values_message(new, self.config.colour_masks),
                           MistoolWarning, stacklevel=2)
+        focal = self.config.camera.fx if self.config.camera is not None else 1.0
         if raw.num_rows == 0:
-            return raw.sorted()
+            return paper.paper_motion(raw, focal_px=focal)
         keys = list(zip(raw["instrument"].tolist(), raw["part"].tolist(), strict=True))
         # z of Eq. (5) uses the scale change A^n / A^(n-1), so dz needs two earlier rows
         previous = [t for k in keys for t in self._last.get(k, ())]
-        focal = self.config.camera.fx if self.config.camera is not None else 1.0
         moved = paper.paper_motion(TrackTable.concat([*previous, raw]), focal_px=focal)
         current = moved[moved["frame"] == index]
         for i, k in enumerate(keys):

@@ -144,9 +144,12 @@ def test_tracker_matches_track() -> None:
     tracker = Tracker(cfg, smoothing="none")
     per_frame = [tracker.update(f) for f in frames]
     assert tracker.num_frames == 8
+    empty = tracker.update(np.zeros((H, W), np.uint8))  # nothing in view: same columns
+    assert empty.num_rows == 0 and empty.columns == per_frame[0].columns
+    frames.append(np.zeros((H, W), np.uint8))
     whole = track(frames, cfg, smoothing="none")
     _compare(tracker.table(), whole)
-    stitched = TrackTable.concat(per_frame).sorted()
+    stitched = TrackTable.concat([*per_frame, empty]).sorted()
     for col in ("frame", "cx_px", "angle_deg", "dx_px", "dy_px", "dz", "dyaw_deg"):
         np.testing.assert_array_equal(stitched[col], whole[col], err_msg=col)
     assert stitched["instrument"].tolist() == whole["instrument"].tolist()
