@@ -384,3 +384,15 @@ def test_jpeg_folder_is_lossy_like_a_video(tmp_path: Path) -> None:
     _write(tmp_path / "1.png", img)  # a lossless frame: values are exact again
     seq = open_sequence(tmp_path)
     assert not seq.lossy and seq.config.parts["shaft"] == (160, 160)
+
+
+def test_fast_png_decoder_without_zlib_ng(monkeypatch: pytest.MonkeyPatch) -> None:
+    """zlib-ng is optional: the standard library's zlib inflates the same bytes."""
+    import zlib
+
+    from mistool import sequence
+
+    monkeypatch.setattr(sequence, "_ZLIB", zlib)
+    img = _fast_cases()[9]
+    data = cv2.imencode(".png", img)[1].tobytes()
+    np.testing.assert_array_equal(sequence.decode_grey_png_fast(data), img)
