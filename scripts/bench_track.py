@@ -107,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--png-level", type=int, default=None, metavar="L",
                         help="write the PNGs with this zlib level (libpng's adaptive row "
                         "filters, as many tools write them) instead of OpenCV's default")
+    parser.add_argument("--stdlib-zlib", action="store_true",
+                        help="inflate PNGs with the standard library's zlib, not zlib-ng")
     parser.add_argument("--memory", action="store_true",
                         help="also measure peak memory for N and 4N frames")
     parser.add_argument("--child-memory", metavar="DIR", help=argparse.SUPPRESS)
@@ -117,6 +119,11 @@ def main(argv: list[str] | None = None) -> int:
 
     from mistool import api, sequence
     from mistool.cli import main as cli_main
+
+    if args.stdlib_zlib:
+        import zlib
+
+        sequence._ZLIB = zlib
 
     with tempfile.TemporaryDirectory(prefix="mistool-bench-") as tmp:
         folder = Path(tmp) / "seq"
