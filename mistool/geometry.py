@@ -272,24 +272,19 @@ def fit_part(mask: np.ndarray, min_area_px: int = 0, offset: tuple[int, int] = (
     Returns:
         The fit, or None when no pixel is left.
     """
-    x, y, w, h = cv2.boundingRect(mask)
-    if w == 0 or h == 0:
-        return None
-    crop = mask[y:y + h, x:x + w]
-    kept, area, contours = _clean(crop, min_area_px)
+    kept, area, contours = _clean(mask, min_area_px)
     if area == 0:
         return None
-    if kept is not crop:  # specks removed: tighten the crop
-        kx, ky, kw, kh = cv2.boundingRect(kept)
-        kept = kept[ky:ky + kh, kx:kx + kw]
-        x, y = x + kx, y + ky
-        contours = None
-    if contours is None:
+    if contours is None:  # specks removed by pixel counts: contours of what is left
         pts = mask_points(kept)
     else:
         pts = np.concatenate(contours, axis=0).reshape(-1, 2)
+    # the tight crop of the kept pixels: the bounds of their outer contours
+    x, y = (int(v) for v in pts.min(axis=0))
+    x1, y1 = (int(v) + 1 for v in pts.max(axis=0))
+    kept = kept[y:y1, x:x1]
     ox, oy = offset[0] + x, offset[1] + y
-    pts = pts + np.asarray((ox, oy), np.int32)
+    pts = pts + np.asarray(offset, np.int32)
     box, corners = grow_to_pixel_edges(pts) if pixel_edges else min_area_box(pts)
     return PartFit(box=box, corners=corners, area_px=area, mask=kept, offset=(ox, oy))
 
