@@ -6,11 +6,14 @@ contour points at once ("takes into account all the pixels belonging to either t
 or the metallic clasper"), then reads the corners with ``cv2.boxPoints``. mistool does the
 same, and also ignores connected specks smaller than ``min_area_px`` pixels.
 
-Conventions (see :mod:`mistool.model`): pixel centres are at integer coordinates, so a
-box is fitted to pixel *centres*; a part one pixel wide has width 0 and a single pixel
-gives a 0 x 0 box (its area is 0, which Algorithm 2 handles). The canonical box has
-``length >= width`` and ``angle_deg`` in ``[0, 180)``, the direction of the long side
-from +x towards +y.
+Conventions (see :mod:`mistool.model`): pixel centres are at integer coordinates. The
+paper's box is fitted to pixel *centres*, so it lies inside the drawn shape by up to a
+pixel row on each side (a W-pixel-wide axis-aligned bar measures W - 1; one pixel gives a
+0 x 0 box). mistool reports that box with each side moved half-way to the next row of
+pixel centres beyond it (:func:`grow_to_pixel_edges`; same centre line and angle, within
+half a row spacing, <= 0.5 px, of the drawn shape's sides; a single pixel is 1 x 1). The
+paper's own box is ``pixel_edges=False``. The canonical box has ``length >= width`` and
+``angle_deg`` in ``[0, 180)``, the direction of the long side from +x towards +y.
 
 OpenCV's ``minAreaRect`` angle convention changed across versions (``[-90, 0)`` before
 4.5.1, ``(0, 90]`` after; OpenCV 5.0 returns ``[-90, 0)`` again, measured). In every

@@ -12,7 +12,10 @@ Two ways to tell instruments apart, chosen by the config:
   a small component close to a much larger one (:data:`FRAGMENT_AREA_FRAC`,
   :data:`FRAGMENT_GAP_PX`) is a fragment of it (a jaw apart from its clasper at the image
   border, a piece cut off by an occluder).
-  :class:`IdentityTracker` then keeps each instance's name across frames.
+  :class:`IdentityTracker` then keeps each instance's name across frames, also through
+  crossings (instruments touching form one instance: ``assign`` keeps one name for it and
+  lets the other coast; ``resolve`` splits it between the instruments' shaft axes) and
+  when one leaves the view and comes back.
 
 Every part's box is Algorithm 1 (:mod:`mistool.geometry`) over all of that part's
 pixels in the instance, after dropping specks smaller than ``config.min_area_px``.
