@@ -297,3 +297,22 @@ def test_z_follows_visible_size_not_depth():
                      focal_px=500.0, area="shoelace")
     np.testing.assert_allclose(s["paper_z"], 500 / math.sqrt(2000.0), rtol=1e-5)
     np.testing.assert_allclose(s["dz"][1:], 0.0, atol=1e-6)
+
+
+def test_observed_translation_gives_dx_dy():
+    """Algorithm 1 then 2 on a drawn bar moving 3 px right and 2 px down per frame."""
+    from mistool.config import Config
+    from mistool.tracking import observe_frame
+
+    rows = []
+    for k in range(5):
+        img = np.zeros((200, 300), np.uint8)
+        img[50 + 2 * k:70 + 2 * k, 40 + 3 * k:160 + 3 * k] = 160  # 120 x 20 shaft
+        (inst,) = observe_frame(img, Config())
+        rows.append((k, "1", "shaft", inst.parts["shaft"].corners))
+    t = paper_motion(table(rows), focal_px=1.0, area="shoelace")
+    np.testing.assert_allclose(t["dx_px"][1:], 3.0, atol=1e-9)
+    np.testing.assert_allclose(t["dy_px"][1:], 2.0, atol=1e-9)
+    np.testing.assert_allclose(t["dz"][1:], 0.0, atol=1e-12)  # same area: S = 1
+    # A = 120 * 20 = 2400 px^2 (pixel-edge box): z = 1 / sqrt(2400) = 0.0204124
+    np.testing.assert_allclose(t["paper_z"], 0.0204124, atol=1e-7)
