@@ -8,9 +8,9 @@ Pipeline (one direction)::
                    ->  rows -> TrackTable -> paper motion (Algorithm 2)
                    ->  sequence-level metric refinement (trocar, smoothing) -> sorted table
 
-Decoding (OpenCV) and the per-frame work release the GIL, so worker threads use every core;
-at most a few frames per worker are in flight (memory stays flat in sequence length) and
-results are consumed in frame order.
+Decoding (zlib inflate, OpenCV) and most of the per-frame work release the GIL, so worker
+threads use every core; at most two frames per worker are in flight (memory stays flat in
+sequence length) and results are consumed in frame order.
 
 Two entry points:
 
