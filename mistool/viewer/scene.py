@@ -178,7 +178,7 @@ class SceneView:
             return (target + np.array([0.0, -0.01 * radius, 1.8 * radius]), target,
                     np.array([0.0, 1.0, 0.0]), math.radians(50))
         if preset == "Reset":
-            return (target + np.array([1.0 * radius, -1.1 * radius, 0.8 * radius]), target,
+            return (target + np.array([0.75 * radius, -0.85 * radius, 0.6 * radius]), target,
                     up, math.radians(50))
         raise ValueError(f"unknown camera preset {preset!r}; choose from {', '.join(PRESETS)}")
 
