@@ -298,3 +298,25 @@ def test_refine_rejects_unknown_smoothing():
 
     with pytest.raises(ConfigError, match="smoothing"):
         refine_sequence(TrackTable(), Config(), smoothing="kalman")
+
+
+def test_piece_cut_by_an_occluder_has_no_joint():
+    """An occluder cuts the tool in two; the proximal piece alone (as a merged-mask
+    tracker sees it) ends at the cut, which must not be taken for the joint."""
+    J, a = np.array([15.0, 5.0, 90.0]), unit([1.0, 0.25, 0.3])
+    labels, _ = render(J, a)
+    jx, jy = (K @ J)[:2] / J[2]
+    cv2.circle(labels, (int(jx - 150), int(jy - 38)), 45, 0, -1)
+    n, comp = cv2.connectedComponents((labels == 160).astype(np.uint8))
+    assert n == 3  # background + two shaft pieces
+    sizes = [(comp == k).sum() for k in (1, 2)]
+    # the piece that does not touch the clasper is the proximal one
+    near_clasper = cv2.dilate((labels == 70).astype(np.uint8), np.ones((3, 3), np.uint8))
+    prox = next(k for k in (1, 2) if not np.any(near_clasper[comp == k]))
+    assert sizes[prox - 1] > 500
+    obs = SimpleNamespace(label=None, parts={"shaft": part_obs(comp == prox)})
+    row = measure_instance(obs, SHAPE, CAM, 2 * R, 10.0)["shaft"]
+    assert math.isnan(row["end_x_mm"])
+    # its axis is still right
+    if np.isfinite(row["axis_x"]):
+        assert angle_deg(vec(row, "axis"), a) < 2.0

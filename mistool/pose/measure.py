@@ -70,6 +70,10 @@ MAX_SIGMA_MM = 4.0
 #: Above this 1-sigma axis-direction error (degrees) the axis is left empty (J is kept).
 MAX_SIGMA_DEG = 3.0
 _PX_NOISE = 0.3
+#: A free distal end (no clasper next to it) is taken as the joint only when its outline
+#: is the shaft's round end: its points' axial coordinates agree within this (mm, robust
+#: sigma); an occluder's cut across the shaft does not.
+_MAX_CAP_SPREAD_MM = 1.0
 _PX_BIAS = 0.1
 _MIN_LINE_POINTS = 10
 _MIN_LINE_SPAN_PX = 12.0
@@ -123,8 +127,9 @@ def _fill_pose(row: dict[str, float], end: np.ndarray | None, axis: np.ndarray |
 
 
 def _joint_t(pts: np.ndarray, is_other: np.ndarray, p0: np.ndarray, a: np.ndarray,
-             radius: float, K: np.ndarray) -> float:
-    """J's axial coordinate from the shaft's distal outline points.
+             radius: float, K: np.ndarray) -> tuple[float, float]:
+    """J's axial coordinate (mm) and the points' robust spread (mm) from the shaft's
+    distal outline points.
 
     Next to background the outline is exactly where the ray's chord through the infinite
     cylinder first reaches J's axial coordinate (``min(t_in, t_out) == t_J``); next to the
@@ -136,8 +141,11 @@ def _joint_t(pts: np.ndarray, is_other: np.ndarray, p0: np.ndarray, a: np.ndarra
     t_in, t_out, _ = ray_cylinder(rays, p0, a, radius)
     bg = ~is_other
     if np.count_nonzero(bg) >= 5:
-        return float(np.median(np.minimum(t_in, t_out)[bg]))
-    return float(np.median(np.where(is_other, t_in, np.minimum(t_in, t_out))))
+        v = np.minimum(t_in, t_out)[bg]
+    else:
+        v = np.where(is_other, t_in, np.minimum(t_in, t_out))
+    med = float(np.median(v))
+    return med, 1.4826 * float(np.median(np.abs(v - med)))
 
 
 class _LineStats:
@@ -373,7 +381,19 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         is_other[:len(bnd.other)] = True
         if len(end_pts) < 3:
             return None
-        joint = p0 + _joint_t(end_pts, is_other, p0, a, radius, K) * a
+        tj, spread = _joint_t(end_pts, is_other, p0, a, radius, K)
+        if len(bnd.other) < 3:
+            # a free end must be the shaft's round end (its outline bulges distally and
+            # sits at one axial coordinate), not an occluder's cut across the shaft
+            qc = (pts[cap] - centre) @ eperp
+            sc = s[cap]
+            if len(qc) < 5 or spread > _MAX_CAP_SPREAD_MM:
+                return None
+            x2 = (qc - 0.5 * (qc.max() + qc.min())) ** 2
+            x2c = x2 - x2.mean()
+            if float(x2c @ (sc - sc.mean())) >= 0:  # along-axis coordinate grows outward
+                return None
+        joint = p0 + tj * a
         return joint if joint[2] > 0 else None
 
     res = solve(lines)  # type: ignore[arg-type]
@@ -447,9 +467,9 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
 
 #: Tip depth prior: the joint-to-tip distance is the configured clasper length when the
 #: wrist is straight and the jaws closed; opening and bending shorten it by a few percent.
-_TIP_LENGTH_FACTOR = 0.98
-_TIP_LENGTH_SIGMA = 0.06  # relative
-_TIP_BEND_SIGMA_RAD = math.radians(30.0)
+_TIP_LENGTH_FACTOR = 1.0
+_TIP_LENGTH_SIGMA = 0.05  # relative
+_TIP_BEND_SIGMA_RAD = math.radians(45.0)
 
 
 def _jaw_tips(mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray,

@@ -1,9 +1,11 @@
 """Sequence-level refinement of the metric pose (:func:`refine_sequence`).
 
 1. **Trocar**: per instrument, the robust least-squares intersection of the shaft's 3D axis
-   lines (:mod:`mistool.pose.trocar`), written to ``trocar_*_mm`` on every row of that
-   instrument (NaN when the tool pivots too little for a point to be defined).
-2. **Trocar constraint**, per frame:
+   lines (:mod:`mistool.pose.trocar`), after zero-phase smoothing of the lines, written
+   to ``trocar_*_mm`` on every row of that instrument; NaN when the tool pivots too
+   little (directions' spread < twice their frame-to-frame noise) for it to be trusted.
+2. **Trocar constraint**, per frame (``"offline"`` and ``"none"``; ``"online"`` skips it,
+   since the trocar is estimated from the whole sequence, future frames included):
 
    - *one limb line* (the shaft along the image border): the axis lies at distance r from
      the visible line's tangent plane, passes through the trocar and meets the joint's
@@ -32,15 +34,15 @@ from mistool.pose.cylinder import (
     quat_from_z,
     tangent_plane,
 )
-from mistool.pose.filtering import MODES, filter_series
+from mistool.pose.filtering import MODES, filter_series, noise_scale
 from mistool.pose.measure import AUX_KEYS, MAX_SIGMA_DEG
 from mistool.pose.trocar import Trocar, intersect_lines
 
 __all__ = ["ACCEL_MM_S2", "refine_sequence"]
 
 #: White-acceleration scale of the Kalman filter for positions (mm/s^2) and axes (1/s^2).
-ACCEL_MM_S2 = 100.0
-_ACCEL_AXIS = 1.0
+ACCEL_MM_S2 = 50.0
+_ACCEL_AXIS = 0.5
 
 _END = ("end_x_mm", "end_y_mm", "end_z_mm")
 _START = ("start_x_mm", "start_y_mm", "start_z_mm")
@@ -95,14 +97,14 @@ def _trocar_fusion(cols: dict[str, np.ndarray], idx: np.ndarray, trocar: Trocar,
                 s_r = float(jray @ (T + t * a))
                 sin_ang = math.sqrt(max(1.0 - float(jray @ a) ** 2, 1e-6))
                 sig_t = (float(np.linalg.norm(J - T)) * max(sig_a, 1e-4)
-                         + trocar.rms_mm) / sin_ang
+                         + trocar.sigma_across(a)) / sin_ang
                 if s_r > 0:
                     w_t, w_m = 1.0 / sig_t**2, 1.0 / sig_j**2
                     J = (w_t * s_r * jray + w_m * J) / (w_t + w_m)
                     sig_j = 1.0 / math.sqrt(w_t + w_m)
             dist = float(np.linalg.norm(J - T))
             a_t = (J - T) / dist
-            sig_at = (sig_j + trocar.rms_mm) / dist
+            sig_at = math.hypot(sig_j, trocar.sigma_across(a_t)) / dist
             if have_a and float(a_t @ a) > 0:
                 a = a / sig_a**2 + a_t / sig_at**2
                 a /= np.linalg.norm(a)
@@ -155,6 +157,31 @@ def _realign_clasper(cols: dict[str, np.ndarray], shaft_idx: np.ndarray,
                 cols[n][i] = tip[j] + shift[j]
 
 
+def _reliable_trocar(cols: dict[str, np.ndarray], idx: np.ndarray, t: np.ndarray
+                     ) -> Trocar | None:
+    """The trocar of one instrument's shaft rows ``idx`` (time order), or None when the
+    pivoting is too small for it to be trusted.
+
+    Noisy per-frame directions make a bundle of nearly parallel lines look like it
+    pivots: its least-squares point then slides toward the scene. So the lines are
+    first smoothed (zero phase) and the trocar is kept only when the directions' spread
+    is at least twice their frame-to-frame noise (estimated from second differences).
+    """
+    J = _get3(cols, _END, idx)
+    a = _get3(cols, _AXIS, idx)
+    ok = np.all(np.isfinite(J), axis=1) & np.all(np.isfinite(a), axis=1)
+    if ok.sum() < 5:
+        return None
+    noise = max(noise_scale(a[ok, k], 1e-4) for k in range(3))  # ~ rad per frame
+    Js = filter_series(t[idx], np.where(ok[:, None], J, np.nan), "offline", ACCEL_MM_S2, 0.05)
+    As = filter_series(t[idx], np.where(ok[:, None], a, np.nan), "offline", _ACCEL_AXIS, 1e-4)
+    As /= np.linalg.norm(As, axis=1, keepdims=True)
+    trocar = intersect_lines(Js, As)
+    if trocar is None or math.radians(trocar.spread_deg) < 2.0 * noise:
+        return None
+    return trocar
+
+
 def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline"
                     ) -> TrackTable:
     """Sequence-level metric refinement: trocar, trocar constraint, temporal filtering.
@@ -189,9 +216,7 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
         rows = inst == name
         shaft_idx = np.flatnonzero(rows & (part == "shaft"))
         shaft_idx = shaft_idx[np.argsort(frames[shaft_idx], kind="stable")]
-        J = _get3(cols, _END, shaft_idx)
-        a = _get3(cols, _AXIS, shaft_idx)
-        trocar = intersect_lines(J, a)
+        trocar = _reliable_trocar(cols, shaft_idx, frames / fps)
         if trocar is None:
             continue
         for j, n in enumerate(_TROCAR):
@@ -199,7 +224,7 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
         diameter = None
         if hasattr(config, "shaft_diameter_for"):
             diameter = config.shaft_diameter_for(name)
-        if camera is not None and diameter:
+        if camera is not None and diameter and smoothing != "online":
             _trocar_fusion(cols, shaft_idx, trocar, np.asarray(camera.K, float), diameter / 2)
             _realign_clasper(cols, shaft_idx, np.flatnonzero(rows & (part != "shaft")), frames)
         # orient axes away from the trocar (distal) where the frame had no distal cue

@@ -30,6 +30,16 @@ class Trocar:
     """Root-mean-square distance of the inlier lines to the point (mm)."""
     spread_deg: float
     """Angular spread of the inlier lines' directions (degrees, RMS about their mean)."""
+    cov: np.ndarray
+    """(3, 3) covariance of ``point`` (mm^2): residual variance times the inverse normal
+    matrix. Nearly parallel lines leave the point poorly known along their mean
+    direction (large variance there) but well known across it."""
+
+    def sigma_across(self, direction: np.ndarray) -> float:
+        """1-sigma error of ``point`` perpendicular to a unit ``direction`` (mm, RMS of
+        the two perpendicular components)."""
+        p = np.eye(3) - np.outer(direction, direction)
+        return float(np.sqrt(max(np.trace(p @ self.cov @ p), 0.0) / 2.0))
 
 
 def distances_to_lines(point: np.ndarray, p: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -115,4 +125,9 @@ def intersect_lines(p: np.ndarray, a: np.ndarray, min_lines: int = 5,
         return None
     full = np.zeros(len(ok), dtype=bool)
     full[np.flatnonzero(ok)[inl]] = True
-    return Trocar(point, full, float(np.sqrt(np.mean(r[inl] ** 2))), spread)
+    m = np.eye(3)[None] - a[inl, :, None] * a[inl, None, :]
+    A = m.sum(axis=0)
+    dof = max(int(inl.sum()) * 2 - 3, 1)
+    var = float(np.sum(r[inl] ** 2)) / dof
+    cov = var * np.linalg.inv(A + 1e-9 * np.eye(3))
+    return Trocar(point, full, float(np.sqrt(np.mean(r[inl] ** 2))), spread, cov)
