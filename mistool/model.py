@@ -183,9 +183,17 @@ class TrackTable(Mapping[str, np.ndarray]):
 
     def with_columns(self, **updates: Any) -> TrackTable:
         """A new table with columns added or replaced (same number of rows)."""
-        cols = dict(self._cols)
-        cols.update(updates)
-        return TrackTable(cols)
+        cols = dict(self._cols)  # already validated: only the updates are checked
+        for name, values in updates.items():
+            arr = _as_column(name, values)
+            if len(arr) != self._n:
+                raise TableError(f"column {name!r} has {len(arr)} rows, expected {self._n}")
+            cols[name] = arr
+        out = TrackTable.__new__(TrackTable)
+        out._n = self._n
+        known = [c for c in COLUMN_NAMES if c in cols]
+        out._cols = {c: cols[c] for c in known + [c for c in cols if c not in COLUMN_DTYPES]}
+        return out
 
     def full(self) -> TrackTable:
         """A new table holding every known column (NaN where unknown), then the extras."""
