@@ -210,8 +210,77 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
                 parts[p] = obs
         if parts:
             found.append(_instance(None, parts))
+    found = _join_cut_shafts(found, min_area)
     found.sort(key=lambda inst: -inst.area_px)
     return found
+
+
+#: Merged masks: a shaft-only piece whose axis continues another instance's shaft (angles
+#: within this many degrees, centre within half a shaft width of that axis) is the
+#: same instrument, cut in two by an occluder.
+CUT_SHAFT_ANGLE_DEG = 6.0
+
+
+def _join_cut_shafts(found: list[InstanceObservation], min_area: int
+                     ) -> list[InstanceObservation]:
+    """Join shaft-only pieces to the instance whose shaft they continue."""
+    if len(found) < 2:
+        return found
+    found = sorted(found, key=lambda inst: inst.area_px)  # smallest pieces first
+    k = 0
+    while k < len(found):
+        piece = found[k]
+        if set(piece.parts) != {"shaft"}:
+            k += 1
+            continue
+        b = piece.parts["shaft"].box
+        host = None
+        for j, other in enumerate(found):
+            a = other.parts.get("shaft")
+            if j == k or a is None:
+                continue
+            a = a.box
+            if _angle_diff(a.angle_deg, b.angle_deg) > CUT_SHAFT_ANGLE_DEG:
+                continue
+            u = _unit(a.angle_deg)
+            off = abs((b.cx - a.cx) * u[1] - (b.cy - a.cy) * u[0])  # distance to a's axis
+            if off <= 0.5 * max(a.width, b.width):
+                host = j
+                break
+        if host is None:
+            k += 1
+            continue
+        joined = _merge_instances(found[host], piece, min_area)
+        found = [inst for i, inst in enumerate(found) if i not in (k, host)] + [joined]
+        found.sort(key=lambda inst: inst.area_px)
+        k = 0
+    return found
+
+
+def _merge_instances(a: InstanceObservation, b: InstanceObservation, min_area: int
+                     ) -> InstanceObservation:
+    """One instance from two: each part refitted on both instances' pixels."""
+    parts: dict[str, PartObservation] = {}
+    for name in PARTS:
+        obs = [inst.parts[name] for inst in (a, b) if name in inst.parts]
+        if not obs:
+            continue
+        if len(obs) == 1:
+            parts[name] = obs[0]
+            continue
+        x0 = min(o.offset[0] for o in obs)
+        y0 = min(o.offset[1] for o in obs)
+        x1 = max(o.offset[0] + o.mask.shape[1] for o in obs)
+        y1 = max(o.offset[1] + o.mask.shape[0] for o in obs)
+        m = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        for o in obs:
+            h, w = o.mask.shape
+            ox, oy = o.offset[0] - x0, o.offset[1] - y0
+            m[oy:oy + h, ox:ox + w][o.mask] = 255
+        joined = _part_observation(name, m, x0, y0, min_area)
+        if joined is not None:
+            parts[name] = joined
+    return _instance(None, parts)
 
 
 def _group_fragments(counts: np.ndarray, stats: np.ndarray, min_area: int) -> list[list[int]]:

@@ -386,3 +386,34 @@ def test_bundled_sample_identities_and_split():
     assert found >= 0.99 * truth.num_rows
     assert float(np.median(centre_err)) < 2.0
     assert float(np.mean(angle_err)) < 1.0
+
+
+@pytest.mark.parametrize("offset, expected", [(0.0, 1), (4.0, 1), (40.0, 2)])
+def test_shaft_cut_by_an_occluder_is_one_instrument(offset, expected):
+    """A band of tissue hides the middle of the shaft: the proximal shaft-only piece
+    continues the distal piece's axis and joins it; a parallel shaft 40 px aside does
+    not."""
+    img = np.zeros((H, W), np.uint8)
+    draw_tool(img, (500.0, 300.0), 20.0, shaft_len=500.0)
+    full = observe_frame(img, MERGED)[0].parts["shaft"].box
+    t = math.radians(20.0)
+    # hide a 40 px band across the shaft, 150 px behind the joint
+    yy, xx = np.mgrid[0:H, 0:W]
+    along = (xx - 500.0) * math.cos(t) + (yy - 300.0) * math.sin(t)
+    img[(along < -190) & (along > -230)] = 0
+    if offset:
+        # move the proximal piece sideways (a different, parallel shaft)
+        proximal = (along <= -230) & (img > 0)
+        shifted = np.zeros_like(img)
+        dy = int(round(offset / math.cos(t)))
+        ys, xs = np.nonzero(proximal)
+        keep = ys + dy < H
+        shifted[ys[keep] + dy, xs[keep]] = img[ys[keep], xs[keep]]
+        img[proximal] = 0
+        img |= shifted
+    insts = observe_frame(img, MERGED)
+    assert len(insts) == expected
+    if expected == 1 and offset == 0.0:
+        got = insts[0].parts["shaft"].box
+        assert got.length == pytest.approx(full.length, abs=1.0)
+        assert got.angle_deg == pytest.approx(full.angle_deg, abs=0.5)
