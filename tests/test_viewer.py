@@ -296,6 +296,10 @@ def test_cli_serve_prints_the_port_it_really_got(synth_dir: Path) -> None:
     (["serve", "{tmp}/nope"], "no such file"),
     (["serve", "{seq}", "--poses", "{tmp}/nope.csv"], "no such file"),
     (["serve", "{seq}", "--port", "70000"], "--port 70000"),
+    (["serve", "{seq}", "--poses", "{seq}/truth.csv", "--host", "no-such-host.invalid"],
+     "--host no-such-host.invalid"),
+    (["serve", "{seq}", "--poses", "{seq}/truth.csv", "--host", "192.0.2.1"],
+     "--host 192.0.2.1"),
     (["export-html", "{seq}", "--poses", "{seq}/truth.csv", "--stride", "0", "-o",
       "{tmp}/x.html"], "--stride 0"),
 ])

@@ -12,7 +12,8 @@ frame by frame, with viser's own play/pause and time slider. Share it by e-mail 
 from a USB stick in a lecture room. (The GUI panel of 'mistool serve' -- plots, mode
 switch, 2D overlay panel -- is not part of the file.)
 
-The sequence is tracked first unless --poses gives its motion table. The file is written
+The sequence is tracked first unless --poses gives its motion table (tracked tables are
+cached as for 'mistool serve'). The file is written
 atomically. Size grows with frames x image size: about 10-20 kB per frame with images;
 use --stride, --max-frames or --no-images for long sequences.
 
@@ -40,6 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-images", action="store_true",
                    help="no mask images on the frustum (much smaller file)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
+    p.add_argument("--no-cache", action="store_true",
+                   help="track again even if this unchanged sequence was tracked before")
     p.set_defaults(func=run)
 
 
@@ -48,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     from mistool.viewer import export_html, load_sequence  # viser only for this command
 
     progress = not args.quiet and sys.stderr.isatty()
-    sequence = load_sequence(args.sequence, poses=args.poses, progress=progress)
+    sequence = load_sequence(args.sequence, poses=args.poses, progress=progress,
+                             cache=not args.no_cache)
     summary = export_html(sequence, args.output, mode=args.mode, stride=args.stride,
                           max_frames=args.max_frames, images=not args.no_images)
     if not args.quiet:

@@ -72,22 +72,19 @@ def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
     progress = not args.quiet and sys.stderr.isatty()
     sequence = load_sequence(args.sequence, poses=args.poses, progress=progress,
                              cache=not args.no_cache)
-    try:
-        viewer = ReplayViewer(sequence, host=args.host, port=args.port,
-                              environment_map=args.environment_map)
-    except OSError as exc:
-        raise ConfigError(f"--host {args.host}: cannot listen: {exc.strerror or exc}") from None
+    viewer = ReplayViewer(sequence, host=args.host, port=args.port,
+                          environment_map=args.environment_map)
+    waiter = stop or threading.Event()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        # SIGTERM (e.g. from a service manager) stops as cleanly as Ctrl+C.
+        previous = signal.signal(signal.SIGTERM, lambda *_: waiter.set())
     replay = sequence.replay
     print(f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
           f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode", flush=True)
     print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
     if ready is not None:
         ready.set()
-    waiter = stop or threading.Event()
-    previous = None
-    if threading.current_thread() is threading.main_thread():
-        # SIGTERM (e.g. from a service manager) stops as cleanly as Ctrl+C.
-        previous = signal.signal(signal.SIGTERM, lambda *_: waiter.set())
     try:
         while not waiter.wait(0.5):
             pass

@@ -15,6 +15,7 @@ import contextlib
 import hashlib
 import io
 import os
+import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import viser
 
-from mistool.errors import InputPathError, MistoolError
+from mistool.errors import ConfigError, InputPathError, MistoolError
 from mistool.model import TrackTable
 from mistool.viewer.overlay import FrameStore, OverlayCache, OverlayRenderer
 from mistool.viewer.plots import PlotPanel
@@ -124,9 +125,25 @@ def load_sequence(path: str | Path | None, *, poses: str | Path | None = None,
     return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
 
 
+def check_host(host: str) -> None:
+    """Raise :class:`ConfigError` unless a server can listen on ``host`` (viser would
+    otherwise try port after port forever)."""
+    try:
+        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+        family, _, _, _, address = infos[0]
+        with socket.socket(family, socket.SOCK_STREAM) as s:
+            s.bind((address[0], 0))
+    except (OSError, IndexError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc) or "cannot bind"
+        raise ConfigError(f"--host {host}: cannot listen on this address: {reason}") from None
+
+
 def quiet_server(host: str, port: int) -> viser.ViserServer:
     """A viser server that prints nothing (viser 1.1.1 prints a banner even when not
     verbose; library code never prints, the command line prints the URL itself)."""
+    check_host(host)
+    if not 0 <= int(port) <= 65535:
+        raise ConfigError(f"--port {port}: must be in 0..65535")
     with contextlib.redirect_stdout(io.StringIO()):
         return viser.ViserServer(host=host, port=port, verbose=False, label="mistool")
 
@@ -310,12 +327,10 @@ class ReplayViewer:
             self.scene.frustum._image_data = jpeg
 
     def _redraw(self, trails: bool = False) -> None:
-        with self._lock:
-            if trails:
+        if trails:
+            with self._lock:
                 self.scene.set_trail_frames(int(self.trail.value))
-            frame = self.timeline.shown if self.timeline.shown >= 0 else 0
-        self.timeline._shown = -1  # force the render thread to redraw this frame
-        self.timeline.request(frame)
+        self.timeline.redraw()
 
     def _set_mode(self, mode: str) -> None:
         with self._lock:

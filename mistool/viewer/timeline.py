@@ -42,6 +42,7 @@ class Timeline:
         self._stop = threading.Event()
         self._target = 0
         self._shown = -1
+        self._dirty = False
         self.playing = False
         self.frames_drawn = 0
         self.draw_errors: list[BaseException] = []
@@ -98,6 +99,11 @@ class Timeline:
         frame = min(max(int(frame), 0), self.num_frames - 1)
         with self._lock:
             self._target = frame
+        self._wake.set()
+
+    def redraw(self) -> None:
+        """Draw the current frame again (display options changed)."""
+        self._dirty = True
         self._wake.set()
 
     def seek(self, frame: int) -> None:
@@ -189,8 +195,9 @@ class Timeline:
 
     def _draw_target(self) -> None:
         frame = self._target
-        if frame == self._shown:
+        if frame == self._shown and not self._dirty:
             return
+        self._dirty = False  # a redraw asked for while drawing draws again
         try:
             self._draw(frame)
             self.info.content = self._info_text(frame)
