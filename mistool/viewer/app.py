@@ -166,7 +166,7 @@ class ReplayViewer:
             opacity: initial mask opacity of the overlay, [0, 1].
         """
         self.sequence = sequence
-        replay = self.replay = sequence.replay
+        self.replay = sequence.replay
         self.update_seconds: collections.deque[float] = collections.deque(maxlen=2000)
         """Seconds of each frame update (scene, trails, plot cursor, ready overlay)."""
         self.overlay_latency: collections.deque[float] = collections.deque(maxlen=2000)
@@ -175,7 +175,16 @@ class ReplayViewer:
         """The frame whose overlay is on screen."""
         self._current = -1
         self._lock = threading.Lock()
-        self.server = server = quiet_server(host, port)
+        self.server = quiet_server(host, port)
+        try:
+            self._build(environment_map, trail_frames, opacity)
+        except BaseException:
+            with contextlib.redirect_stdout(io.StringIO()):
+                self.server.stop()
+            raise
+
+    def _build(self, environment_map: bool, trail_frames: int, opacity: float) -> None:
+        server, replay, sequence = self.server, self.replay, self.sequence
         server.gui.configure_theme(control_width="large", show_logo=False,
                                    titlebar_content=None)
         if not environment_map:
