@@ -9,9 +9,10 @@ Two ways to tell instruments apart, chosen by the config:
   instrument (shaft + wrist + clasper pixels together), bridged over gaps of up to
   :data:`MERGE_GAP_PX` pixels so a clasper one pixel away from its shaft stays one
   instrument. Components smaller than ``config.min_area_px`` are specks and are dropped;
-  a small component close to a much larger one (:data:`FRAGMENT_AREA_FRAC`,
-  :data:`FRAGMENT_GAP_PX`) is a fragment of it (a jaw apart from its clasper at the image
-  border, a piece cut off by an occluder).
+  a component without shaft pixels (open jaws, a clasper cut by an occluder) joins a
+  nearby component with a shaft (:data:`HEAD_GAP_FRAC`), a small shaft piece close to a
+  much larger one joins it (:data:`FRAGMENT_AREA_FRAC`, :data:`FRAGMENT_GAP_PX`), and a
+  shaft-only piece continuing another's shaft axis (cut by an occluder) joins it.
   :class:`IdentityTracker` then keeps each instance's name across frames, also through
   crossings (instruments touching form one instance: ``assign`` keeps one name for it and
   lets the other coast; ``resolve`` splits it between the instruments' shaft axes) and
@@ -42,6 +43,9 @@ MERGE_GAP_PX = 1
 #: :data:`FRAGMENT_GAP_PX` of it, is a fragment of that instrument (see observe_frame).
 FRAGMENT_AREA_FRAC = 0.25
 FRAGMENT_GAP_PX = 30.0
+#: Merged masks: a component without shaft pixels joins a shaft component this many
+#: sqrt(area) px away (see observe_frame).
+HEAD_GAP_FRAC = 0.5
 
 
 @dataclass(frozen=True)
@@ -194,8 +198,10 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
         return out
     n, cc, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
     counts = np.bincount(cc[union > 0], minlength=n)
+    shaft_counts = (np.bincount(cc[masks["shaft"] > 0], minlength=n) if "shaft" in masks
+                    else np.zeros(n, np.int64))
     found = []
-    for group in _group_fragments(counts, stats, max(min_area, 1)):
+    for group in _group_fragments(counts, shaft_counts, stats, max(min_area, 1)):
         x0 = min(int(stats[i, 0]) for i in group)
         y0 = min(int(stats[i, 1]) for i in group)
         x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
@@ -283,29 +289,50 @@ def _merge_instances(a: InstanceObservation, b: InstanceObservation, min_area: i
     return _instance(None, parts)
 
 
-def _group_fragments(counts: np.ndarray, stats: np.ndarray, min_area: int) -> list[list[int]]:
+def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.ndarray,
+                     min_area: int) -> list[list[int]]:
     """Components (labels 1..n-1) grouped into instruments.
 
-    A component smaller than ``min_area`` pixels is a speck and is dropped. A *fragment*
-    (less than :data:`FRAGMENT_AREA_FRAC` of a larger component's area, its bounding box
-    at most :data:`FRAGMENT_GAP_PX` from that component's) joins the largest such
-    neighbour: a jaw seen apart from its clasper at the image border, or a piece of an
-    instrument cut off by an occluder, is not a new instrument.
+    - A component smaller than ``min_area`` pixels is a speck and is dropped.
+    - A *head* (a component without shaft pixels: jaws, a wrist) joins the nearest
+      component with a shaft whose bounding box is at most ``max(FRAGMENT_GAP_PX,
+      HEAD_GAP_FRAC * sqrt(its area))`` px away: open jaws, or a clasper cut by an
+      occluder, are not new instruments. Heads with no such shaft near (an instrument
+      entering the view head first) join each other by the same distance.
+    - A *fragment* (less than :data:`FRAGMENT_AREA_FRAC` of a larger component's area,
+      at most :data:`FRAGMENT_GAP_PX` from it) joins it.
     """
     labels = [i for i in range(1, len(counts)) if counts[i] >= min_area]
     labels.sort(key=lambda i: -counts[i])
-    owner: dict[int, int] = {}
-    for k, i in enumerate(labels):
-        owner[i] = i
-        for j in labels[:k]:  # larger components first
-            if owner[j] != j or counts[i] >= FRAGMENT_AREA_FRAC * counts[j]:
-                continue
-            if _bbox_gap(stats[i], stats[j]) <= FRAGMENT_GAP_PX:
+    hosts = [i for i in labels if shaft_counts[i] >= min_area]
+    heads = [i for i in labels if shaft_counts[i] < min_area]
+
+    def reach(i: int) -> float:
+        return max(FRAGMENT_GAP_PX, HEAD_GAP_FRAC * math.sqrt(float(counts[i])))
+
+    owner: dict[int, int] = {i: i for i in labels}
+    for k, i in enumerate(hosts):  # small shaft pieces next to a much larger one
+        for j in hosts[:k]:
+            if owner[j] == j and counts[i] < FRAGMENT_AREA_FRAC * counts[j] \
+                    and _bbox_gap(stats[i], stats[j]) <= FRAGMENT_GAP_PX:
+                owner[i] = j
+                break
+    for k, i in enumerate(heads):
+        near = [(_bbox_gap(stats[i], stats[j]), j) for j in hosts if owner[j] == j]
+        near = [(g, j) for g, j in near if g <= reach(j)]
+        if near:
+            owner[i] = min(near)[1]
+            continue
+        for j in heads[:k]:  # larger heads first
+            if owner[j] == j and _bbox_gap(stats[i], stats[j]) <= reach(j):
                 owner[i] = j
                 break
     groups: dict[int, list[int]] = {}
     for i in labels:
-        groups.setdefault(owner[i], []).append(i)
+        root = owner[i]
+        while owner[root] != root:
+            root = owner[root]
+        groups.setdefault(root, []).append(i)
     return list(groups.values())
 
 

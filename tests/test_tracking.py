@@ -111,17 +111,20 @@ def test_clasper_across_one_pixel_gap_stays_one_instrument():
     assert len(observe_frame(img, MERGED)) == 2
 
 
-@pytest.mark.parametrize("second_area, gap, expected", [
-    (10 * 30, 25, 1),    # a small jaw 25 px from its instrument: a fragment of it
-    (10 * 30, 45, 2),    # too far: its own instrument
-    (40 * 100, 25, 2),   # a large neighbour is never a fragment
+@pytest.mark.parametrize("second_area, gap, value, expected", [
+    (10 * 30, 25, CLASPER, 1),  # a jaw 25 px from a shaft: part of that instrument
+    (10 * 30, 45, CLASPER, 1),  # heads reach 0.5 sqrt(11200) = 53 px
+    (10 * 30, 70, CLASPER, 2),  # too far: its own instrument
+    (10 * 30, 25, SHAFT, 1),    # a small shaft piece close by: a fragment
+    (10 * 30, 45, SHAFT, 2),    # ... but fragments reach only 30 px
+    (40 * 100, 25, SHAFT, 2),   # a large shaft nearby is never a fragment
 ])
-def test_fragments_join_their_instrument(second_area, gap, expected):
+def test_fragments_join_their_instrument(second_area, gap, value, expected):
     img = np.zeros((300, 400), np.uint8)
     img[100:140, 20:300] = SHAFT  # 11200 px
     h = 10 if second_area == 300 else 40
     w = second_area // h
-    img[140 + gap:140 + gap + h, 250:250 + w] = CLASPER
+    img[140 + gap:140 + gap + h, 250:250 + w] = value
     assert len(observe_frame(img, MERGED)) == expected
 
 
