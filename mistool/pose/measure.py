@@ -77,11 +77,13 @@ _MAX_CAP_SPREAD_MM = 1.0
 _PX_BIAS = 0.1
 _MIN_LINE_POINTS = 10
 _MIN_LINE_SPAN_PX = 12.0
-_SEED = 12345
+
+
+_NAN_ROW = {k: math.nan for k in POSE_KEYS + AUX_KEYS}
 
 
 def _nan_row() -> dict[str, float]:
-    return {k: math.nan for k in POSE_KEYS + AUX_KEYS}
+    return _NAN_ROW.copy()
 
 
 def _as_u8(mask: np.ndarray) -> np.ndarray:
@@ -158,7 +160,7 @@ class _LineStats:
 
 
 def _fit_limbs(pts: np.ndarray, s: np.ndarray, q: np.ndarray, keep: np.ndarray,
-               centre: np.ndarray, rng: np.random.Generator
+               centre: np.ndarray, rng: np.random.Generator | None
                ) -> tuple[list[np.ndarray | None], list[_LineStats | None]]:
     """One robust line per side of the axis; interior (the centre) on the positive side."""
     lines: list[np.ndarray | None] = []
@@ -232,7 +234,7 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
                      ) -> dict[str, dict[str, float]]:
     """Metric pose of one instrument in one frame.
 
-    Pure and thread-safe (no shared state; the RANSAC generator is seeded per call).
+    Pure and thread-safe (no shared state; RANSAC uses a fixed table of draws).
 
     Args:
         instance: an ``InstanceObservation`` (``.parts``: part name -> observation with
@@ -257,7 +259,7 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     K = np.asarray(camera.K, dtype=np.float64)
     radius = 0.5 * float(shaft_diameter_mm)
     row = out["shaft"]
-    rng = np.random.default_rng(_SEED)
+    rng = None  # fixed RANSAC draws: deterministic and thread-safe
 
     smask = _as_u8(shaft.mask)
     others = [(p.mask, p.offset) for n, p in parts.items() if n != "shaft"]
@@ -401,7 +403,7 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         return out
     p0, a, xc = res
     joint = joint_of(p0, a, lines, stats)  # type: ignore[arg-type]
-    if joint is not None and zone < 0.6 * width + 2.0:
+    if joint is not None and s_max - s_min < 2.5 * width:
         # short visible stretch: the end-zone cut was small, so the joint's cap may
         # have leaked into the lines; refit with the points the first solution puts
         # proximal of J (the limb lines exist only there) and solve again
@@ -573,7 +575,7 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
         return joint + l_nom * c, c, tip_px
     s_j = float(ray @ joint)
     span = 3.0 * (l_nom if l_nom is not None else 16.0)
-    s = np.linspace(max(s_j - span, 1.0), s_j + span, 241)
+    s = np.linspace(max(s_j - span, 1.0), s_j + span, 121)
     X = s[:, None] * ray
     d = X - joint
     ln = np.linalg.norm(d, axis=1)

@@ -133,8 +133,12 @@ def _median(v: np.ndarray) -> float:
     return float(np.partition(v, k)[k])
 
 
-def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator,
-                    thresh_px: float = 1.5, iters: int = 24, max_points: int = 256
+#: Fixed uniform draws for RANSAC: deterministic, thread-safe and free at call time.
+_DRAWS = np.random.default_rng(12345).random((2, 64))
+
+
+def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator | None = None,
+                    thresh_px: float = 1.5, iters: int = 20, max_points: int = 192
                     ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """Robust sub-pixel line: RANSAC on long baselines, then Tukey-weighted TLS.
 
@@ -142,7 +146,8 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
         pts: (N, 2) candidate points (px).
         along: (N,) coordinate of each point along the expected line direction (px), used
             to draw well-separated pairs.
-        rng: random generator (seeded by the caller: deterministic, thread-safe).
+        rng: random generator for the hypotheses; None uses a fixed table of draws
+            (deterministic and thread-safe).
         thresh_px: inlier threshold (px).
         iters: RANSAC hypotheses.
         max_points: larger inputs are regularly subsampled to this many points.
@@ -162,8 +167,12 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
     x, y = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
     order = np.argsort(along)
     half = n // 2
-    i = order[rng.integers(0, half, iters)]
-    j = order[rng.integers(n - half, n, iters)]
+    if rng is None:
+        u1, u2 = _DRAWS[0, :iters], _DRAWS[1, :iters]
+    else:
+        u1, u2 = rng.random(iters), rng.random(iters)
+    i = order[(u1 * half).astype(np.int64)]
+    j = order[n - half + (u2 * half).astype(np.int64)]
     nx, ny = y[i] - y[j], x[j] - x[i]
     ln = np.hypot(nx, ny)
     ok = ln > 1e-9
