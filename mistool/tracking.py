@@ -45,7 +45,10 @@ FRAGMENT_AREA_FRAC = 0.25
 FRAGMENT_GAP_PX = 30.0
 #: Merged masks: a component without shaft pixels joins a shaft component this many
 #: sqrt(area) px away (see observe_frame).
-HEAD_GAP_FRAC = 0.5
+HEAD_GAP_FRAC = 0.8
+#: ... and components without shaft pixels join each other this many px apart (the two
+#: jaws of an open clasper entering the view).
+HEAD_HEAD_GAP_PX = 60.0
 
 
 @dataclass(frozen=True)
@@ -324,7 +327,8 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
             owner[i] = min(near)[1]
             continue
         for j in heads[:k]:  # larger heads first
-            if owner[j] == j and _bbox_gap(stats[i], stats[j]) <= reach(j):
+            if owner[j] == j and _bbox_gap(stats[i], stats[j]) <= max(reach(j),
+                                                                    HEAD_HEAD_GAP_PX):
                 owner[i] = j
                 break
     groups: dict[int, list[int]] = {}

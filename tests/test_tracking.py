@@ -113,8 +113,8 @@ def test_clasper_across_one_pixel_gap_stays_one_instrument():
 
 @pytest.mark.parametrize("second_area, gap, value, expected", [
     (10 * 30, 25, CLASPER, 1),  # a jaw 25 px from a shaft: part of that instrument
-    (10 * 30, 45, CLASPER, 1),  # heads reach 0.5 sqrt(11200) = 53 px
-    (10 * 30, 70, CLASPER, 2),  # too far: its own instrument
+    (10 * 30, 80, CLASPER, 1),  # heads reach 0.8 sqrt(11200) = 85 px
+    (10 * 30, 100, CLASPER, 2),  # too far: its own instrument
     (10 * 30, 25, SHAFT, 1),    # a small shaft piece close by: a fragment
     (10 * 30, 45, SHAFT, 2),    # ... but fragments reach only 30 px
     (40 * 100, 25, SHAFT, 2),   # a large shaft nearby is never a fragment
