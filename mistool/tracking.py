@@ -11,8 +11,10 @@ Two ways to tell instruments apart, chosen by the config:
   instrument. Components smaller than ``config.min_area_px`` are specks and are dropped;
   a component without shaft pixels (open jaws, a clasper cut by an occluder) joins a
   nearby component with a shaft (:data:`HEAD_GAP_FRAC`), a small shaft piece close to a
-  much larger one joins it (:data:`FRAGMENT_AREA_FRAC`, :data:`FRAGMENT_GAP_PX`), and a
-  shaft-only piece continuing another's shaft axis (cut by an occluder) joins it.
+  much larger one joins it (:data:`FRAGMENT_AREA_FRAC`, :data:`FRAGMENT_GAP_PX`), and
+  pieces an occluder cut off join by shaft geometry: a shaft-only piece continuing
+  another's shaft axis, a head on the distal extension of a shaft's axis
+  (:data:`HEAD_AXIS_REACH`).
   :class:`IdentityTracker` then keeps each instance's name across frames, also through
   crossings (instruments touching form one instance: ``assign`` keeps one name for it and
   lets the other coast; ``resolve`` splits it between the instruments' shaft axes) and
@@ -219,7 +221,7 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
                 parts[p] = obs
         if parts:
             found.append(_instance(None, parts))
-    found = _join_cut_shafts(found, min_area)
+    found = _join_cut_shafts(found, min_area, (img.shape[0], img.shape[1]))
     found.sort(key=lambda inst: -inst.area_px)
     return found
 
@@ -228,38 +230,81 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
 #: within this many degrees, centre within half a shaft width of that axis) is the
 #: same instrument, cut in two by an occluder.
 CUT_SHAFT_ANGLE_DEG = 6.0
+#: Merged masks: a piece without a shaft whose centre lies on the distal extension of a
+#: shaft's axis (within one shaft width of the axis, at most this many shaft widths past
+#: its distal end) is that instrument's head, cut off by an occluder.
+HEAD_AXIS_REACH = 3.0
 
 
-def _join_cut_shafts(found: list[InstanceObservation], min_area: int
-                     ) -> list[InstanceObservation]:
-    """Join shaft-only pieces to the instance whose shaft they continue."""
-    if len(found) < 2:
-        return found
-    found = sorted(found, key=lambda inst: inst.area_px)  # smallest pieces first
-    k = 0
-    while k < len(found):
-        piece = found[k]
-        if set(piece.parts) != {"shaft"}:
-            k += 1
-            continue
+def _distal_sign(inst: InstanceObservation, shape: tuple[int, int]) -> float:
+    """+1 if the instance's distal end is along +u of its shaft box, else -1: towards its
+    other parts, or (shaft alone) away from the image border the shaft comes from."""
+    a = inst.parts["shaft"].box
+    u = _unit(a.angle_deg)
+    others = [o.box for p, o in inst.parts.items() if p != "shaft"]
+    if others:
+        o = np.mean([[b.cx, b.cy] for b in others], axis=0)
+        return 1.0 if (o[0] - a.cx) * u[0] + (o[1] - a.cy) * u[1] >= 0 else -1.0
+    h, w = shape
+
+    def inside(x: float, y: float) -> float:  # distance to the nearest border
+        return min(x, w - 1 - x, y, h - 1 - y)
+
+    plus = inside(a.cx + a.length / 2 * u[0], a.cy + a.length / 2 * u[1])
+    minus = inside(a.cx - a.length / 2 * u[0], a.cy - a.length / 2 * u[1])
+    return 1.0 if plus >= minus else -1.0
+
+
+def _host_for(piece: InstanceObservation, found: list[InstanceObservation], k: int,
+              shape: tuple[int, int]) -> int | None:
+    """The instance a piece belongs to by shaft geometry, or None."""
+    if set(piece.parts) == {"shaft"}:  # a shaft cut in two
         b = piece.parts["shaft"].box
-        host = None
         for j, other in enumerate(found):
-            a = other.parts.get("shaft")
-            if j == k or a is None:
+            if j == k or "shaft" not in other.parts:
                 continue
-            a = a.box
+            a = other.parts["shaft"].box
             if _angle_diff(a.angle_deg, b.angle_deg) > CUT_SHAFT_ANGLE_DEG:
                 continue
             u = _unit(a.angle_deg)
             off = abs((b.cx - a.cx) * u[1] - (b.cy - a.cy) * u[0])  # distance to a's axis
             if off <= 0.5 * max(a.width, b.width):
-                host = j
-                break
+                return j
+        return None
+    if "shaft" in piece.parts:
+        return None
+    best: tuple[float, int] | None = None  # a head cut off: on a shaft's distal extension
+    hx, hy = piece.centroid_px
+    for j, other in enumerate(found):
+        if j == k or "shaft" not in other.parts:
+            continue
+        # the host must not already show a head part of this piece's size
+        if any(p in other.parts and piece.parts[p].area_px >= FRAGMENT_AREA_FRAC
+               * other.parts[p].area_px for p in piece.parts):
+            continue
+        a = other.parts["shaft"].box
+        u = _unit(a.angle_deg) * _distal_sign(other, shape)
+        along = (hx - a.cx) * u[0] + (hy - a.cy) * u[1] - a.length / 2
+        off = abs((hx - a.cx) * u[1] - (hy - a.cy) * u[0])
+        if off <= a.width and -a.length / 2 <= along <= HEAD_AXIS_REACH * a.width:
+            if best is None or off < best[0]:
+                best = (off, j)
+    return None if best is None else best[1]
+
+
+def _join_cut_shafts(found: list[InstanceObservation], min_area: int,
+                     shape: tuple[int, int]) -> list[InstanceObservation]:
+    """Join pieces cut off by an occluder to their instrument (:func:`_host_for`)."""
+    if len(found) < 2:
+        return found
+    found = sorted(found, key=lambda inst: inst.area_px)  # smallest pieces first
+    k = 0
+    while k < len(found):
+        host = _host_for(found[k], found, k, shape)
         if host is None:
             k += 1
             continue
-        joined = _merge_instances(found[host], piece, min_area)
+        joined = _merge_instances(found[host], found[k], min_area)
         found = [inst for i, inst in enumerate(found) if i not in (k, host)] + [joined]
         found.sort(key=lambda inst: inst.area_px)
         k = 0

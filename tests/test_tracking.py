@@ -107,7 +107,13 @@ def test_clasper_across_one_pixel_gap_stays_one_instrument():
     (inst,) = observe_frame(img, MERGED)
     assert set(inst.parts) == {"shaft", "clasper"}
     img[:, 101:] = 0
-    img[42:58, 140:170] = CLASPER  # 40 px away: another instrument
+    img[42:58, 180:210] = CLASPER  # 80 px away, beyond 3 shaft widths: another one
+    assert len(observe_frame(img, MERGED)) == 2
+    img[:, 101:] = 0
+    img[42:58, 140:170] = CLASPER  # 40 px on from the shaft's end: its head, cut off
+    assert len(observe_frame(img, MERGED)) == 1
+    img[:, 101:] = 0
+    img[72:88, 140:170] = CLASPER  # as far, but 30 px off the axis: another one
     assert len(observe_frame(img, MERGED)) == 2
 
 
