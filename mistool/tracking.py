@@ -527,7 +527,9 @@ class IdentityTracker:
 
         Returns:
             ``(instances, names)``: the instances (split ones replaced by their pieces,
-            which have ``label`` None and new part boxes) and one name per instance.
+            which have ``label`` None and new part boxes) and one name per instance. When
+            nothing was split, ``instances`` is the very list passed in (so a caller can
+            test ``is`` and redo per-instance work only for split frames).
         """
         return self._step(frame_index, instances, split=True)
 
@@ -600,6 +602,8 @@ class IdentityTracker:
                 t.centroid = self._predict(t, frame_index)
                 t.last_frame = frame_index
                 t.merged = t.hidden = True
+        if not pieces:
+            return instances, names  # the caller's own list: nothing was split
         return out_instances, names
 
     # internals ------------------------------------------------------------------------
