@@ -10,8 +10,8 @@ Each coordinate is filtered independently with state (position, velocity), white
 acceleration of standard deviation ``accel`` (units/s^2) and a measurement noise
 estimated from the data itself: the robust (median absolute deviation) scale of the
 series' second differences divided by sqrt(6), which is the per-frame noise for white
-noise on smooth motion (offline: over the whole track; online: over the samples seen so
-far, so that the online output never depends on the future). NaN measurements are
+noise on smooth motion (offline: over the whole track; online: over the last 250 samples
+seen so far, so that the online output never depends on the future). NaN measurements are
 skipped (prediction only); gaps longer than ``max_gap_s`` start a new track so that a tool
 leaving and coming back is not smeared.
 """
@@ -103,7 +103,8 @@ def filter_series(t: np.ndarray, y: np.ndarray, mode: str, accel: float,
             ys = y[seg, d]
             if mode == "offline":
                 r = np.full(len(ys), noise_scale(ys, noise_floor))
-            else:  # causal: the noise scale from the samples seen so far
-                r = np.array([noise_scale(ys[:k + 1], noise_floor) for k in range(len(ys))])
+            else:  # causal: the noise scale from the (last 250) samples seen so far
+                r = np.array([noise_scale(ys[max(0, k - 249):k + 1], noise_floor)
+                              for k in range(len(ys))])
             out[seg, d] = _kalman_1d(ts, ys, r, accel, smooth=(mode == "offline"))
     return out

@@ -262,8 +262,22 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     rng = None  # fixed RANSAC draws: deterministic and thread-safe
 
     smask = _as_u8(shaft.mask)
+    shaft_mask = shaft.mask
+    # two shafts in one instance (two tools touching in a merged mask): measure the
+    # larger shaft only, and leave the clasper (whose jaws may be either tool's) empty
+    contours, _ = cv2.findContours(smask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    merged = False
+    if len(contours) > 1:
+        areas = np.array([cv2.contourArea(c) for c in contours])
+        big = int(np.argmax(areas))
+        if np.count_nonzero(areas >= 0.25 * areas[big]) > 1:
+            merged = True
+            keep_u8 = np.zeros_like(smask)
+            cv2.drawContours(keep_u8, contours, big, 1, thickness=-1)
+            smask = np.ascontiguousarray(keep_u8 & smask)
+            shaft_mask = smask.view(bool)
     others = [(p.mask, p.offset) for n, p in parts.items() if n != "shaft"]
-    canvas = make_canvas(shaft.mask, shaft.offset, others, image_shape)
+    canvas = make_canvas(shaft_mask, shaft.offset, others, image_shape)
 
     # principal axis of the shaft's region
     pix, mom = _outline(smask, shaft.offset)
@@ -440,7 +454,7 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         _fill_pose(row, joint, a, start)
         if start is not None:
             poly = hull_of_cylinder(start, p0 + t_end * a, radius, radius, K)
-            row["quality"] = iou_polygon_mask(poly, shaft.mask, shaft.offset, image_shape)
+            row["quality"] = iou_polygon_mask(poly, shaft_mask, shaft.offset, image_shape)
     else:
         # the position is known but not the direction: J only (refine_sequence restores
         # the direction from the trocar when it can); the clasper still uses the
@@ -448,7 +462,7 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         _fill_pose(row, joint, None, None)
 
     # clasper / wrist
-    if joint is None:
+    if joint is None or merged:
         return out
     clasper = parts.get("clasper")
     c_axis = None
