@@ -536,7 +536,7 @@ class IdentityTracker:
     def _step(self, frame_index: int, instances: list[InstanceObservation], *, split: bool
               ) -> tuple[list[InstanceObservation], list[str]]:
         if self._config.instruments and all(i.label is not None for i in instances):
-            return list(instances), [str(i.label) for i in instances]
+            return instances, [str(i.label) for i in instances]
         if self._last_frame is not None and frame_index <= self._last_frame:
             raise ValueError(f"IdentityTracker: frame {frame_index} after frame "
                              f"{self._last_frame}; frames must come in increasing order")
