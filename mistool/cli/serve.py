@@ -56,8 +56,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="track again even if this unchanged sequence was tracked before "
                         "(tables are cached in ~/.cache/mistool/tables)")
     p.add_argument("--environment-map", action="store_true",
-                   help="light the scene with viser's HDR environment map (slow to start "
-                        "without a GPU)")
+                   help="light the scene with viser's HDR environment map (off by "
+                        "default: about 1 s slower to first render without a GPU, "
+                        "scripts/bench_viewer.py)")
     p.set_defaults(func=run)
 
 
