@@ -89,9 +89,11 @@ def load_sequence(path: str | Path | None, *, poses: str | Path | None = None,
     """
     from mistool.export import read_csv, write_csv
     from mistool.resources import sample_masks_dir
-    from mistool.sequence import list_frames, resolve
+    from mistool.sequence import list_frames, resolve, widen_for_video
 
     seq_path, config = resolve(sample_masks_dir() if path is None else path)
+    if seq_path.is_file():  # a mask video: its codec smears label values (as tracking does)
+        config = widen_for_video(config)
     frames = FrameStore(seq_path, config)
     num_frames: int | None = frames.num_mask_frames or None
     shape: tuple[int, int] | None = None
