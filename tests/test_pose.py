@@ -320,3 +320,33 @@ def test_piece_cut_by_an_occluder_has_no_joint():
     # its axis is still right
     if np.isfinite(row["axis_x"]):
         assert angle_deg(vec(row, "axis"), a) < 2.0
+
+
+def test_two_tools_merged_into_one_instance():
+    """Two tools touching (merged masks): the larger shaft is measured, the clasper,
+    which could be either tool's, is left empty."""
+    Ja, aa = np.array([-5.0, 0.0, 80.0]), unit([-1.0, 0.2, 0.3])   # larger (nearer)
+    Jb, ab = np.array([12.0, 30.0, 120.0]), unit([1.0, 0.3, 0.4])
+    la, tipa = render(Ja, aa)
+    lb, tipb = render(Jb, ab)
+    labels = np.where(la > 0, la, lb)
+    pa = (K @ tipa)[:2] / tipa[2]
+    pb = (K @ tipb)[:2] / tipb[2]
+    cv2.line(labels, tuple(int(v) for v in pa), tuple(int(v) for v in pb), 70, 3)
+    obs = observe(labels)
+    n, _ = cv2.connectedComponents((labels > 0).astype(np.uint8))
+    assert n == 2  # one connected instrument region
+    out = measure_instance(obs, SHAPE, CAM, 2 * R, 10.0)
+    assert np.linalg.norm(vec(out["shaft"], "end") - Ja) < 0.5
+    assert angle_deg(vec(out["shaft"], "axis"), aa) < 0.5
+    assert math.isnan(out["clasper"]["end_x_mm"])
+
+
+def test_two_shafts_overlapping_are_not_a_cylinder():
+    """Two shafts crossing in one region (a V, not a cylinder): no confident answer."""
+    la, _ = render(np.array([-5.0, 0.0, 80.0]), unit([-1.0, 0.2, 0.3]))
+    lb, _ = render(np.array([12.0, 6.0, 120.0]), unit([1.0, 0.3, 0.4]))
+    labels = np.where(la > 0, la, lb)
+    assert cv2.connectedComponents((labels == 160).astype(np.uint8))[0] == 2
+    row = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 10.0)["shaft"]
+    assert math.isnan(row["end_x_mm"]) and math.isnan(row["axis_x"])
