@@ -396,3 +396,19 @@ def test_serve_stops_cleanly_on_ctrl_c(sig: str, synth_dir: Path) -> None:
             proc.kill()
     assert proc.returncode == 0, err
     assert "stopped" in err and "Traceback" not in err
+
+
+def test_mask_video_overlay_reads_frames_at_random(tmp_path: Path) -> None:
+    from mistool.synth import synthesize
+
+    out = tmp_path / "vid"
+    synthesize(out, frames=12, instruments=1, seed=5, video="mjpg")
+    seq = load_sequence(out / "masks.avi", poses=out / "truth.csv")
+    assert seq.frames.has_masks and seq.frames.num_mask_frames == 12
+    renderer = OverlayRenderer(seq.replay, seq.frames)
+    shaft = np.array(seq.replay.part_colour(0, "shaft"))
+    for k in (9, 2, 10):  # seeks backwards and forwards
+        img = renderer.render(k, opacity=1.0, boxes=False).reshape(-1, 3).astype(int)
+        visible = seq.replay.modes[seq.replay.default_mode].visible[k, 0, 0]
+        assert ((np.abs(img - shaft).sum(axis=1) == 0).sum() > 50) == bool(visible), k
+    seq.frames.close()
