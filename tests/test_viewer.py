@@ -412,3 +412,25 @@ def test_mask_video_overlay_reads_frames_at_random(tmp_path: Path) -> None:
         visible = seq.replay.modes[seq.replay.default_mode].visible[k, 0, 0]
         assert ((np.abs(img - shaft).sum(axis=1) == 0).sum() > 50) == bool(visible), k
     seq.frames.close()
+
+
+def test_single_frame_single_part_without_masks() -> None:
+    from mistool.viewer import LoadedSequence
+
+    table = _metric_table()
+    one = table[(np.asarray(table["frame"]) == 0) & (np.asarray(table["part"]) == "shaft")]
+    replay = build_replay(one, Config(camera=CAMERA))
+    assert replay.num_frames == 1 and replay.parts == ("shaft",)
+    viewer = ReplayViewer(LoadedSequence(replay=replay, frames=FrameStore(None, Config()),
+                                         name="one"), port=0)
+    try:
+        assert viewer.timeline.wait_shown(0)
+        viewer.timeline.step(1)  # loops onto itself
+        viewer.timeline.set_playing(True)
+        time.sleep(0.2)
+        viewer.timeline.set_playing(False)
+        viewer._set_mode("metric")
+        assert viewer.overlays is None and not viewer.timeline.draw_errors
+        assert viewer.scene.cylinders[0, 0].visible
+    finally:
+        viewer.close()
