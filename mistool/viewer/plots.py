@@ -15,8 +15,9 @@ import viser.uplot as uplot
 
 from mistool.viewer.replay import Replay
 
-#: Most points per plotted series.
-MAX_PLOT_POINTS = 600
+#: Most points per plotted series (about one per pixel of the panel; the whole series is
+#: sent with each cursor move).
+MAX_PLOT_POINTS = 300
 _AXIS_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")
 _LABELS = {
     "metric/position": (("x (mm)", "y (mm)", "z (mm)"), "Position, camera frame (mm)"),
