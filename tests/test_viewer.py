@@ -434,3 +434,27 @@ def test_single_frame_single_part_without_masks() -> None:
         assert viewer.scene.cylinders[0, 0].visible
     finally:
         viewer.close()
+
+
+def test_plot_cursor_marks_the_current_time(sequence) -> None:
+    viewer = ReplayViewer(sequence, port=0)
+    try:
+        replay = sequence.replay
+        k = _busy_frame(replay)
+        viewer.timeline.seek(k)
+        assert viewer.timeline.wait_shown(k)
+        for kind, chart in viewer.plots.charts.items():
+            x, *ys, cursor = chart.data
+            at = np.flatnonzero(np.isfinite(cursor))
+            assert len(at) == 2 and np.allclose(x[at], k / replay.fps), kind
+            assert np.all(np.diff(x) >= 0) and all(len(y) == len(x) for y in ys)
+            assert len(x) <= 300 + 2
+        # The position plot shows the selected part's series (metric: its end in mm).
+        i = replay.instruments.index(viewer.plots.instrument.value)
+        p = replay.parts.index(viewer.plots.part.value)
+        x, *ys, _ = viewer.plots.charts["position"].data
+        j = int(np.flatnonzero(np.isclose(x, k / replay.fps))[0])
+        np.testing.assert_allclose([y[j] for y in ys],
+                                   replay.series["metric/position"][k, i, p], rtol=1e-9)
+    finally:
+        viewer.close()

@@ -103,11 +103,11 @@ class PlotPanel:
         t_now = frame / self.replay.fps
         j = int(np.searchsorted(self._t, t_now))
         x = np.concatenate([self._t[:j], [t_now, t_now], self._t[j:]])
+        now = self._selected(kind)[min(max(frame, 0), self.replay.num_frames - 1)]
         cols = []
         for c in range(3):
             v = values[:, c]
-            at = v[min(j, len(v) - 1)] if len(v) else np.nan
-            cols.append(np.concatenate([v[:j], [at, at], v[j:]]))
+            cols.append(np.concatenate([v[:j], [now[c], now[c]], v[j:]]))
         cursor = np.full(len(x), np.nan)
         cursor[j], cursor[j + 1] = y_lo, y_hi
         return (x, *cols, cursor), ranges
