@@ -26,7 +26,7 @@ from mistool.sequence import (
     natural_key,
     read_label_image,
 )
-from mistool.viewer.replay import Replay
+from mistool.viewer.replay import PALETTE, Replay
 
 #: Longest side (px) of the overlay image sent to the browser.
 MAX_OVERLAY_SIDE = 400
@@ -206,19 +206,23 @@ class OverlayRenderer:
                     if part in parts:
                         self._lut_part[lo:hi + 1] = parts.index(part) + 1
                         self._lut_inst[lo:hi + 1] = i
-        # Colour table: [instrument, part] -> RGB; row I = unassigned.
+        # Colour table: [colour class, part] -> RGB. Instruments cycle through the palette
+        # (as in 3D), so there are at most len(PALETTE) classes, plus one for unassigned.
         n_i, n_p = len(replay.instruments), len(parts)
-        self._colours = np.zeros((n_i + 1, n_p + 1, 3), dtype=np.uint8)
-        for i in range(n_i):
+        n_c = min(n_i, len(PALETTE))
+        self._colours = np.zeros((n_c + 1, n_p + 1, 3), dtype=np.uint8)
+        for c in range(n_c):
             for p, part in enumerate(parts):
-                self._colours[i, p + 1] = replay.part_colour(i, part)
-        self._colours[n_i, 1:] = UNASSIGNED_RGB
-        if (n_i + 1) * (n_p + 1) > 256:
-            raise ValueError(f"overlay: too many instruments ({n_i}) to colour")
+                self._colours[c, p + 1] = replay.part_colour(c, part)
+        self._colours[n_c, 1:] = UNASSIGNED_RGB
+        # Instrument index (uint8; >= n_i means unassigned) -> colour class * (n_p + 1).
+        classes = np.full(256, n_c, dtype=np.int64)
+        classes[:min(n_i, 255)] = np.arange(min(n_i, 255)) % max(n_c, 1)
+        self._lut_class = (classes * (n_p + 1)).astype(np.uint8)
         self._background = np.empty((self.size_wh[1], self.size_wh[0], 3), dtype=np.uint8)
         self._background[:] = BACKGROUND_RGB
         self._lut_rgb = np.zeros((1, 256, 3), dtype=np.uint8)
-        self._lut_rgb[0, :(n_i + 1) * (n_p + 1)] = self._colours.reshape(-1, 3)
+        self._lut_rgb[0, :(n_c + 1) * (n_p + 1)] = self._colours.reshape(-1, 3)
 
     def _part_image(self, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Per display pixel: part index (0 = none) and, for own-value configs, instrument."""
@@ -268,7 +272,7 @@ class OverlayRenderer:
             if inst is None:
                 inst = self._instances_from_boxes(part, corners)
             # One code per pixel, (instrument, part) -> colour through a 256-entry LUT.
-            code = np.minimum(inst, len(replay.instruments)) * np.uint8(len(replay.parts) + 1)
+            code = cv2.LUT(inst, self._lut_class)
             code += part
             colour = cv2.LUT(cv2.merge([code, code, code]), self._lut_rgb)
             mask = (part > 0).view(np.uint8)
