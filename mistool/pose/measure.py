@@ -206,26 +206,34 @@ def _uncertainty(lines: list[np.ndarray], stats: list[_LineStats], K: np.ndarray
     offset (e.g. segmentation bias).
     """
     rref = ref / np.linalg.norm(ref)
-    var_p = var_a = 0.0
-    for k in range(2):
+    l1 = np.repeat(lines[0][None], 4, axis=0)
+    l2 = np.repeat(lines[1][None], 4, axis=0)
+    for k, ln in ((0, l1), (1, l2)):
         st = stats[k]
         n_eff = max(2.0, min(float(st.n), st.span / 2.0))
         sig = max(st.sigma, _PX_NOISE)
-        d_off = math.hypot(sig / math.sqrt(n_eff), _PX_BIAS)
-        d_ang = sig * math.sqrt(12.0 / n_eff) / max(st.span, 1.0)
-        for kind, amount in (("off", d_off), ("ang", d_ang)):
-            moved = [lines[0].copy(), lines[1].copy()]
-            if kind == "off":
-                moved[k][2] -= amount
-            else:
-                moved[k] = _rotated(moved[k], st.centre, amount)
-            sol = axis_from_lines(tangent_plane(moved[0], K), tangent_plane(moved[1], K),
-                                  radius)
-            if sol is None:
-                return math.inf, math.inf
-            tk = float(closest_on_axis(rref[None], sol[0], sol[1])[0])
-            var_p += float(np.sum((sol[0] + tk * sol[1] - ref) ** 2))
-            var_a += math.degrees(math.acos(min(1.0, abs(float(sol[1] @ a))))) ** 2
+        ln[2 * k, 2] -= math.hypot(sig / math.sqrt(n_eff), _PX_BIAS)  # offset
+        ln[2 * k + 1] = _rotated(ln[2 * k + 1], st.centre,  # angle
+                                 sig * math.sqrt(12.0 / n_eff) / max(st.span, 1.0))
+    # batched closed form (see cylinder.axis_from_lines)
+    n1 = l1 @ K
+    n2 = l2 @ K
+    n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
+    n2 /= np.linalg.norm(n2, axis=1, keepdims=True)
+    c = np.einsum("ij,ij->i", n1, n2)
+    ax = np.cross(n1, n2)
+    sn = np.linalg.norm(ax, axis=1)
+    if np.any(sn < 1e-9) or np.any(c <= -0.999999):
+        return math.inf, math.inf
+    ax /= sn[:, None]
+    p0 = radius * (n1 + n2) / (1.0 + c)[:, None]
+    # closest axis points to the reference ray
+    da = ax @ rref
+    dp = p0 @ rref
+    ap = np.einsum("ij,ij->i", ax, p0)
+    t = (da * dp - ap) / np.maximum(1.0 - da * da, 1e-12)
+    var_p = float(np.sum((p0 + t[:, None] * ax - ref) ** 2))
+    var_a = float(np.sum(np.degrees(np.arccos(np.minimum(1.0, np.abs(ax @ a)))) ** 2))
     return math.sqrt(var_p), math.sqrt(var_a)
 
 
