@@ -485,6 +485,9 @@ class IdentityTracker:
     GAP_WEIGHT = 0.02
     #: Extra cost for an instrument hidden in another's blob to take that blob's name.
     HIDDEN_PENALTY = 0.5
+    #: An instrument unseen for more than 5 frames is searched for within a distance
+    #: that grows by this many of its sizes per second unseen.
+    LOST_SEARCH_GROWTH = 0.25
 
     def __init__(self, config: Config, *, max_gap_s: float = 2.0) -> None:
         self._config = config
@@ -636,6 +639,8 @@ class IdentityTracker:
         c = np.asarray(inst.centroid_px)
         # scale: the instrument's full size, also when it was last seen only partly
         scale = max(t.size, math.sqrt(inst.area_px), 10.0)
+        if gap > 5 and not t.merged:  # unseen: the search area grows with time
+            scale *= 1.0 + self.LOST_SEARCH_GROWTH * (gap - 5) / self._config.fps
         cost = float(np.hypot(*(c - pred))) / scale
         angle, elong = _appearance(inst)
         if angle is not None and t.angle is not None:
