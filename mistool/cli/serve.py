@@ -96,4 +96,10 @@ def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
         viewer.close()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+    errors = viewer.timeline.draw_errors
+    if errors:  # a bug, not bad input: say so, with the last error
+        last = errors[-1]
+        print(f"mistool serve: {viewer.timeline.draw_error_count} frame(s) failed to draw; "
+              f"last: {type(last).__name__}: {last}", file=sys.stderr)
+        return 1
     return 0

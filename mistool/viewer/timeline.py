@@ -10,6 +10,7 @@ space or K plays/pauses, J / L step one frame back / forward, Home goes to the f
 
 from __future__ import annotations
 
+import collections
 import threading
 import time
 from collections.abc import Callable
@@ -45,7 +46,9 @@ class Timeline:
         self._dirty = False
         self.playing = False
         self.frames_drawn = 0
-        self.draw_errors: list[BaseException] = []
+        self.draw_errors: collections.deque[BaseException] = collections.deque(maxlen=20)
+        """The latest errors raised while drawing a frame (the replay keeps going)."""
+        self.draw_error_count = 0
         gui = server.gui
         last = max(self.num_frames - 1, 1)
         self.slider = gui.add_slider("Frame", min=0, max=last, step=1, initial_value=0,
@@ -201,7 +204,8 @@ class Timeline:
         try:
             self._draw(frame)
             self.info.content = self._info_text(frame)
-        except Exception as exc:  # keep the replay alive; surfaced by the viewer
+        except Exception as exc:  # keep the replay alive; `mistool serve` reports them
             self.draw_errors.append(exc)
+            self.draw_error_count += 1
         self._shown = frame
         self.frames_drawn += 1
