@@ -4,7 +4,7 @@ Pipeline (one direction)::
 
     open_sequence  ->  per frame, in worker threads (decode, Algorithm 1 observations,
                        metric pose when a camera is known)
-                   ->  in frame order: instrument identities (IdentityTracker.assign)
+                   ->  in frame order: instrument identities (IdentityTracker.resolve)
                    ->  rows -> TrackTable -> paper motion (Algorithm 2)
                    ->  sequence-level metric refinement (trocar, smoothing) -> sorted table
 
@@ -133,18 +133,22 @@ def _process(labels: np.ndarray, config: Config, pose: ModuleType | None,
     """The per-frame work (thread-safe): observations, metric pose, unknown values
     (``lossy``: a mask video, see :func:`_unknown_values`)."""
     instances = tracking.observe_frame(labels, config)
-    metrics: list[dict[str, dict[str, float]] | None] = []
-    for inst in instances:
-        if pose is None or config.camera is None:
-            metrics.append(None)
-            continue
-        name = inst.label
-        metrics.append(pose.measure_instance(
-            inst, (labels.shape[0], labels.shape[1]), config.camera,
-            config.shaft_diameter_for(name) if name else config.shaft_diameter_mm,
-            config.clasper_length_for(name) if name else config.clasper_length_mm))
+    shape = (int(labels.shape[0]), int(labels.shape[1]))
+    metrics = [_measure(inst, shape, config, pose) for inst in instances]
     unknown = _unknown_values(labels, config, lossy)
-    return _FrameResult(instances, metrics, unknown, (labels.shape[0], labels.shape[1]))
+    return _FrameResult(instances, metrics, unknown, shape)
+
+
+def _measure(inst: Any, shape: tuple[int, int], config: Config, pose: ModuleType | None
+             ) -> dict[str, dict[str, float]] | None:
+    """The per-frame metric pose of one instance, or None without a camera/pose step."""
+    if pose is None or config.camera is None:
+        return None
+    name = inst.label
+    return pose.measure_instance(
+        inst, shape, config.camera,
+        config.shaft_diameter_for(name) if name else config.shaft_diameter_mm,
+        config.clasper_length_for(name) if name else config.clasper_length_mm)
 
 
 def _unknown_values(labels: np.ndarray, config: Config, lossy: bool = False) -> np.ndarray:
@@ -161,6 +165,20 @@ def _unknown_values(labels: np.ndarray, config: Config, lossy: bool = False) -> 
             values = values[values > VIDEO_TOLERANCE]
         return np.asarray(tracking.unknown_values(values.astype(np.uint8)[None, :], config))
     return np.asarray(tracking.unknown_values(labels, config))
+
+
+def _identify(tracker: tracking.IdentityTracker, index: int, result: _FrameResult,
+              config: Config, pose: ModuleType | None) -> tuple[list[str], _FrameResult]:
+    """Instrument names for a frame's instances, in frame order (sequential).
+
+    Uses :meth:`~mistool.tracking.IdentityTracker.resolve`, which splits a blob holding
+    several known instruments (crossing or grasping in merged masks) into its instruments;
+    the metric pose is then measured again for the split pieces only."""
+    instances, names = tracker.resolve(index, result.instances)
+    if instances is result.instances:
+        return list(names), result
+    metrics = [_measure(inst, result.shape, config, pose) for inst in instances]
+    return list(names), _FrameResult(list(instances), metrics, result.unknown, result.shape)
 
 
 def _load_and_process(frame: Frame, config: Config, pose: ModuleType | None,
@@ -235,6 +253,11 @@ def _ordered_results(frames: Iterator[Frame], config: Config, pose: ModuleType |
         return
     pending: collections.deque[tuple[Frame, Future[_FrameResult]]] = collections.deque()
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="mistool")
+    # Our pool already uses every core; OpenCV's own threads on top of it only add
+    # contention (observe_frame: 1.55 ms CPU with OpenCV's threads vs 0.75 ms without,
+    # scripts/bench_paper.py). The setting is process-wide, so it is restored afterwards.
+    cv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
     try:
         for frame in frames:
             pending.append((frame, pool.submit(_load_and_process, frame, config, pose,
@@ -247,6 +270,7 @@ def _ordered_results(frames: Iterator[Frame], config: Config, pose: ModuleType |
             yield done, fut.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+        cv2.setNumThreads(cv_threads)
 
 
 def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
@@ -279,8 +303,8 @@ def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
         for frame, result in _ordered_results(seq.frames(), cfg, pose, n_workers,
                                               lossy=seq.lossy):
             seq.check_shape(frame, result.shape)
-            names = tracker.assign(frame.index, result.instances)
-            rows.add_frame(frame.index, list(names), result)
+            names, result = _identify(tracker, frame.index, result, cfg, pose)
+            rows.add_frame(frame.index, names, result)
             unknown.update(int(v) for v in result.unknown.ravel())
             num_frames += 1
             if bar is not None:
@@ -399,7 +423,7 @@ class Tracker:
             raise MaskFormatError(f"{where}: frame size changed: {shape[1]}x{shape[0]} px, "
                                   f"earlier frames are {self._shape[1]}x{self._shape[0]} px")
         result = _process(arr, self.config, self._pose)
-        names = list(self._tracker.assign(index, result.instances))
+        names, result = _identify(self._tracker, index, result, self.config, self._pose)
         rows = _Rows(self.config.fps)
         rows.add_frame(index, names, result)
         raw = rows.table()
