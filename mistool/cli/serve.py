@@ -81,12 +81,13 @@ def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
         # SIGTERM (e.g. from a service manager) stops as cleanly as Ctrl+C.
         previous = signal.signal(signal.SIGTERM, lambda *_: waiter.set())
     replay = sequence.replay
-    print(f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
-          f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode", flush=True)
-    print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
-    if ready is not None:
-        ready.set()
-    try:
+    try:  # from here on, Ctrl+C (even during the prints) stops cleanly
+        print(f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
+              f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode",
+              flush=True)
+        print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
+        if ready is not None:
+            ready.set()
         while not waiter.wait(0.5):
             pass
         print("mistool serve: stopped", file=sys.stderr)
