@@ -12,7 +12,7 @@ import pytest
 from mistool.config import load_config
 from mistool.errors import ConfigError, InputPathError
 from mistool.export import read_csv
-from mistool.geometry import min_area_box
+from mistool.geometry import mask_box
 from mistool.synth import (
     Corruptions,
     ImageCamera,
@@ -276,11 +276,13 @@ def test_truth_boxes_are_the_clean_masks_boxes(tmp_path):
             if len(xs) == 0:
                 assert len(rows) == 0
                 continue
-            box, _ = min_area_box(np.stack([xs, ys], 1))
+            # the tracker's convention: every pixel, box grown to the pixel edges
+            box, _ = mask_box(((img >= lo) & (img <= hi)).astype(np.uint8))
             (r,) = rows
             assert truth["cx_px"][r] == pytest.approx(box.cx, abs=1e-4)
             assert truth["cy_px"][r] == pytest.approx(box.cy, abs=1e-4)
             assert truth["length_px"][r] == pytest.approx(box.length, abs=1e-4)
+            assert truth["width_px"][r] == pytest.approx(box.width, abs=1e-4)
             assert truth["angle_deg"][r] == pytest.approx(box.angle_deg, abs=1e-4)
             assert truth["area_px"][r] == len(xs)
     assert np.all(truth["visible_frac"] == 1.0)  # one instrument: nothing hides it

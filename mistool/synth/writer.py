@@ -36,7 +36,7 @@ import numpy as np
 from mistool.config import PRESETS, Camera, Config, load_config
 from mistool.errors import ConfigError, InputPathError
 from mistool.export import atomic_write, write_csv
-from mistool.geometry import min_area_box
+from mistool.geometry import mask_box
 from mistool.model import RotatedBox, TrackTable
 from mistool.paper import paper_motion
 from mistool.synth.corrupt import Corruptions, Corruptor
@@ -113,14 +113,15 @@ def _label_part(preset: str, part3d: str) -> str:
 
 
 def _part_box(mask: np.ndarray) -> tuple[RotatedBox, np.ndarray, int] | None:
-    """min_area_box over every pixel of a mask (via its outer contours: same hull)."""
+    """The part's box exactly as tracking measures it (:func:`mistool.geometry.mask_box`:
+    every pixel, grown to pixel edges), so truth and estimates share one convention."""
     area = int(np.count_nonzero(mask))
     if area == 0:
         return None
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
-                                   cv2.CHAIN_APPROX_NONE)
-    pts = np.concatenate([c.reshape(-1, 2) for c in contours], axis=0)
-    box, corners = min_area_box(pts)
+    fit = mask_box(mask.astype(np.uint8))
+    if fit is None:
+        return None
+    box, corners = fit
     return box, corners, area
 
 
