@@ -16,6 +16,20 @@ where the axis leaves the view, or the shaft's visible proximal end; clasper: J)
 ``axis_*`` unit, distal; ``qw..qz`` the wxyz quaternion of a part frame whose +z is the
 axis (shortest arc from the camera's +z: roll about the shaft is not observable from
 masks); ``quality`` the IoU of the re-rendered part with its mask. NaN = unknown.
+
+Temporal filtering (``refine_sequence(smoothing=...)``, ``mistool.track(smoothing=...)``):
+``"offline"`` (default) a zero-phase constant-velocity Kalman smoother (forward filter +
+Rauch-Tung-Striebel backward pass) for recorded sequences; ``"online"`` the causal forward
+filter only (no lag from the future; the trocar constraint, which needs the whole
+sequence, is not applied); ``"none"`` per-frame estimates (with the trocar constraint).
+
+Known limits (measured by ``scripts/eval_metric.py``): the depth comes from the shaft's
+apparent width, so a segmentation that is uniformly too fat or too thin by ``b`` px
+scales the depth by about ``1 - b * z / (f r)`` (1 px of dilation: ~2.4 mm median J
+error at 50-150 mm); the tip's depth along its viewing ray relies on priors (the
+clasper's length and a small bend from the shaft), so strong wrist bends out of the
+image plane cost millimetres; two tools touching in a merged mask yield the larger
+shaft's pose and no clasper pose.
 """
 
 from mistool.pose.measure import measure_instance
