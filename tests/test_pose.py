@@ -350,3 +350,20 @@ def test_two_shafts_overlapping_are_not_a_cylinder():
     assert cv2.connectedComponents((labels == 160).astype(np.uint8))[0] == 2
     row = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 10.0)["shaft"]
     assert math.isnan(row["end_x_mm"]) and math.isnan(row["axis_x"])
+
+
+def test_robust_line_fit_ignores_outliers():
+    from mistool.pose.silhouette import fit_line_robust
+
+    rng = np.random.default_rng(4)
+    x = np.linspace(0.0, 300.0, 600)
+    y = 0.3 * x + 5.0 + rng.uniform(-0.5, 0.5, x.size)  # quantisation-like noise
+    y[::7] += rng.uniform(3.0, 15.0, y[::7].size)        # a notch / another edge
+    line, inl, sigma = fit_line_robust(np.stack([x, y], 1), x)
+    n = np.array([-0.3, 1.0]) / math.hypot(0.3, 1.0)
+    if line[:2] @ n < 0:
+        line = -line
+    assert np.allclose(line[:2], n, atol=1e-3)
+    assert abs(line[2] - (-5.0 * n[1])) < 0.1  # offset within 0.1 px
+    assert sigma < 0.4
+    assert not np.isin(np.arange(0, 600, 7), inl).any()

@@ -170,13 +170,14 @@ def _fit_limbs(pts: np.ndarray, s: np.ndarray, q: np.ndarray, keep: np.ndarray,
         fit = fit_line_robust(pts[sel], s[sel], rng) if sel.sum() >= _MIN_LINE_POINTS else None
         if fit is not None:
             line, inl, sig = fit
-            n_in = int(inl.sum())
-            span = float(np.ptp(s[sel][inl])) if n_in else 0.0
+            idx = np.flatnonzero(sel)[inl]
+            n_in = len(idx)
+            span = float(np.ptp(s[idx])) if n_in else 0.0
             if n_in >= _MIN_LINE_POINTS and span >= _MIN_LINE_SPAN_PX:
                 if line[:2] @ centre + line[2] < 0:
                     line = -line
                 lines.append(line)
-                stats.append(_LineStats(pts[sel][inl].mean(axis=0), span, n_in, sig))
+                stats.append(_LineStats(pts[idx].mean(axis=0), span, n_in, sig))
                 continue
         lines.append(None)
         stats.append(None)
@@ -292,6 +293,7 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     if mom["m00"] <= 0:
         return out
     bnd = boundary_points(canvas, pix)
+    border = _on_border(pix, image_shape)
     xm, ym = mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]
     mu20 = mom["m20"] / mom["m00"] - xm * xm
     mu02 = mom["m02"] / mom["m00"] - ym * ym
@@ -309,9 +311,8 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     if len(bnd.other) >= 3:
         d0 = np.median(bnd.other, axis=0) - centre
     elif tr / 2.0 + disc < 9.0 * max(tr / 2.0 - disc, 1e-9):
-        on_b = _on_border(pix, image_shape)
-        if on_b.any():
-            d0 = centre - pix[on_b].mean(axis=0)
+        if border.any():
+            d0 = centre - pix[border].mean(axis=0)
     if d0 is not None and np.linalg.norm(d0) > 2.0:
         e = d0 / np.linalg.norm(d0)
     s_pix = (pix - centre) @ e
@@ -321,7 +322,6 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         distal = 1 if float(np.mean((bnd.other - centre) @ e)) >= 0 else -1
     else:
         lo, hi = s_pix.min(), s_pix.max()
-        border = _on_border(pix, image_shape)
         t_lo = bool(np.any(border & (s_pix <= lo + 2.0)))
         t_hi = bool(np.any(border & (s_pix >= hi - 2.0)))
         distal = 1 if (t_lo and not t_hi) else (-1 if (t_hi and not t_lo) else 0)
@@ -329,7 +329,6 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         e = -e
         s_pix = -s_pix
     s_min, s_max = float(s_pix.min()), float(s_pix.max())
-    border = _on_border(pix, image_shape)
     prox_at_border = bool(np.any(border & (s_pix <= s_min + 2.0)))
     dist_at_border = bool(np.any(border & (s_pix >= s_max - 2.0)))
     row["aux_distal"] = 1.0 if distal != 0 else 0.0
@@ -395,11 +394,12 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
                  stats: list[_LineStats]) -> np.ndarray | None:
         if distal == 0 or (dist_at_border and len(bnd.other) < 3):
             return None
-        near_end = s >= s_max - zone
-        d1 = np.abs(pts @ lines[0][:2] + lines[0][2])
-        d2 = np.abs(pts @ lines[1][:2] + lines[1][2])
+        near = np.flatnonzero(s >= s_max - zone)
+        pn = pts[near]
+        d1 = np.abs(pn @ lines[0][:2] + lines[0][2])
+        d2 = np.abs(pn @ lines[1][:2] + lines[1][2])
         tol = max(1.0, 2.5 * max(st.sigma for st in stats))
-        cap = near_end & (d1 > tol) & (d2 > tol)
+        cap = near[(d1 > tol) & (d2 > tol)]
         end_pts = np.concatenate([bnd.other, pts[cap]])
         is_other = np.zeros(len(end_pts), dtype=bool)
         is_other[:len(bnd.other)] = True
@@ -597,7 +597,7 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
         return joint + l_nom * c, c, tip_px
     s_j = float(ray @ joint)
     span = 3.0 * (l_nom if l_nom is not None else 16.0)
-    s = np.linspace(max(s_j - span, 1.0), s_j + span, 121)
+    s = np.linspace(max(s_j - span, 1.0), s_j + span, 81)
     X = s[:, None] * ray
     d = X - joint
     ln = np.linalg.norm(d, axis=1)

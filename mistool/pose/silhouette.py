@@ -153,13 +153,14 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
         max_points: larger inputs are regularly subsampled to this many points.
 
     Returns:
-        ``(line, inliers, sigma_px)``: (3,) line with unit normal, (N,) bool inliers,
-        residual RMS of the inliers (px); or None with fewer than 8 points.
+        ``(line, inliers, sigma_px)``: (3,) line with unit normal, indices of the
+        inlier points (among the points used when subsampled), residual RMS of the
+        inliers (px); or None with fewer than 8 points.
     """
     n = len(pts)
     if n < 8:
         return None
-    all_pts = pts
+    keep = None
     if n > max_points:  # a regular subsample: the fit's precision is already ~0.03 px
         keep = np.linspace(0, n - 1, max_points).astype(np.int64)
         pts, along = pts[keep], along[keep]
@@ -198,7 +199,7 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
         core = r[r < 2.5 * scale]
         scale = float(np.clip(1.4826 * _median(core), 0.3, thresh_px)) if len(core) else scale
     line = np.array([a, b, c0])
-    r = all_pts @ line[:2] + c0
-    inl = np.abs(r) < max(2.5 * scale, 0.75)
-    sigma = float(np.sqrt(np.mean(r[inl] ** 2))) if inl.any() else float("inf")
-    return line, inl, sigma
+    r = a * x + b * y + c0
+    inl = np.flatnonzero(np.abs(r) < max(2.5 * scale, 0.75))
+    sigma = float(np.sqrt(np.mean(r[inl] ** 2))) if len(inl) else float("inf")
+    return line, (inl if keep is None else keep[inl]), sigma
