@@ -39,6 +39,7 @@ class Timeline:
         self.fps = float(fps)
         self._draw = draw
         self._lock = threading.Lock()
+        self._tick = threading.RLock()  # held while playback advances one frame
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._target = 0
@@ -128,14 +129,17 @@ class Timeline:
         self.set_playing(not self.playing)
 
     def set_playing(self, playing: bool) -> None:
-        """Start or stop playback."""
-        if playing == self.playing:
-            return
-        if playing and not self.loop.value and self._target >= self.num_frames - 1:
-            self.seek(0)
-        self.playing = playing
-        self.play_button.label = "Pause" if playing else "Play"
-        self.play_button.icon = viser.Icon.PLAYER_PAUSE if playing else viser.Icon.PLAYER_PLAY
+        """Start or stop playback. Once it returns after stopping, no further frame
+        advance happens (a step in progress has finished)."""
+        with self._tick:
+            if playing == self.playing:
+                return
+            if playing and not self.loop.value and self._target >= self.num_frames - 1:
+                self.seek(0)
+            self.playing = playing
+            self.play_button.label = "Pause" if playing else "Play"
+            self.play_button.icon = (viser.Icon.PLAYER_PAUSE if playing
+                                     else viser.Icon.PLAYER_PLAY)
         self._wake.set()
 
     def stop(self) -> None:
@@ -179,17 +183,20 @@ class Timeline:
                 next_tick += period
                 if time.monotonic() - next_tick > 3 * period:
                     next_tick = time.monotonic()
-                frame = self._target + 1
-                if frame >= self.num_frames:
-                    if self.loop.value:
-                        frame = 0
-                    else:
-                        self.set_playing(False)
+                with self._tick:  # set_playing(False) waits for this step to finish
+                    if not self.playing:
                         continue
-                with self._lock:
-                    self._target = frame
-                self.slider.value = frame
-                self._draw_target()
+                    frame = self._target + 1
+                    if frame >= self.num_frames:
+                        if self.loop.value:
+                            frame = 0
+                        else:
+                            self.set_playing(False)
+                            continue
+                    with self._lock:
+                        self._target = frame
+                    self.slider.value = frame
+                    self._draw_target()
             else:
                 self._wake.wait(0.5)
                 self._wake.clear()
