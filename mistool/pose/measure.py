@@ -91,14 +91,15 @@ def _as_u8(mask: np.ndarray) -> np.ndarray:
     return m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).astype(np.uint8)
 
 
-def _outline(mask_u8: np.ndarray, offset: tuple[int, int]
+def _outline(mask_u8: np.ndarray, offset: tuple[int, int], contours: Any = None
              ) -> tuple[np.ndarray, dict[str, float]]:
     """Outline pixels (N, 2) of a mask (full-image px) and its region moments.
 
     A region's extreme points in any direction are outline pixels, so the outline
     replaces the full pixel list wherever only extremes are needed (much faster).
     """
-    contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if contours is None:
+        contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
     mom = {"m00": 0.0, "m10": 0.0, "m01": 0.0, "m20": 0.0, "m11": 0.0, "m02": 0.0}
     for c in contours:
@@ -285,11 +286,12 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
             cv2.drawContours(keep_u8, contours, big, 1, thickness=-1)
             smask = np.ascontiguousarray(keep_u8 & smask)
             shaft_mask = smask.view(bool)
+            contours = (contours[big],)
     others = [(p.mask, p.offset) for n, p in parts.items() if n != "shaft"]
     canvas = make_canvas(shaft_mask, shaft.offset, others, image_shape)
 
     # principal axis of the shaft's region
-    pix, mom = _outline(smask, shaft.offset)
+    pix, mom = _outline(smask, shaft.offset, contours)
     if mom["m00"] <= 0:
         return out
     bnd = boundary_points(canvas, pix)
