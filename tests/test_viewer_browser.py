@@ -151,6 +151,11 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
         for i in range(len(replay.instruments)):
             assert _hue_pixels(endo, replay.part_colour(i, "shaft")) > 300, \
                 f"instrument {replay.instruments[i]} not visible"
+        # Behind the cylinders, this browser's background is the overlay (dark mask
+        # image, letterboxed), and the frustum and grid are out of the way.
+        assert _client(viewer).client_id in viewer._endoscope
+        assert (endo.mean(axis=2) < 60).mean() > 0.4, "no mask behind the cylinders"
+        assert not viewer.scene.frustum.visible
 
         # Back to the overview: the canvas is not blank.
         client = _client(viewer)
@@ -161,6 +166,8 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
         time.sleep(1.0)
         overview = _shot(page)
         assert overview.std() > 10.0 and len(np.unique(overview.reshape(-1, 3), axis=0)) > 50
+        assert overview.mean() > 150, "the endoscope backdrop stayed after leaving the view"
+        assert viewer.scene.frustum.visible and not viewer._endoscope
 
         # A camera preset moves this browser's camera, and the picture.
         reset_cam = np.array(client.camera.position)

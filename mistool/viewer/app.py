@@ -150,6 +150,25 @@ def quiet_server(host: str, port: int) -> viser.ViserServer:
         return viser.ViserServer(host=host, port=port, verbose=False, label="mistool")
 
 
+def pad_to_aspect(rgb: np.ndarray, aspect: float) -> np.ndarray:
+    """Pad an image with black, centred, to width / height = ``aspect`` (no scaling), so
+    that stretched over a window of that aspect it keeps its own proportions."""
+    h, w = rgb.shape[:2]
+    if aspect <= 0 or abs(w / h - aspect) < 1e-3:
+        return rgb
+    if w / h < aspect:
+        new_w = int(round(h * aspect))
+        out = np.zeros((h, new_w, 3), dtype=rgb.dtype)
+        x0 = (new_w - w) // 2
+        out[:, x0:x0 + w] = rgb
+    else:
+        new_h = int(round(w / aspect))
+        out = np.zeros((new_h, w, 3), dtype=rgb.dtype)
+        y0 = (new_h - h) // 2
+        out[y0:y0 + h] = rgb
+    return out
+
+
 class ReplayViewer:
     """A running viewer: server, scene, overlay, timeline, plots."""
 
@@ -176,6 +195,9 @@ class ReplayViewer:
         self.overlay_frame = -1
         """The frame whose overlay is on screen."""
         self._current = -1
+        self._overlay_rgb: np.ndarray | None = None
+        # Browsers looking through the endoscope: client id -> (client, time it entered).
+        self._endoscope: dict[int, tuple[viser.ClientHandle, float]] = {}
         self._lock = threading.Lock()
         self.server = quiet_server(host, port)
         try:
@@ -227,6 +249,8 @@ class ReplayViewer:
         self.mode.on_update(lambda _: self._set_mode(
             next(m for m in replay.modes if labels[m] == self.mode.value)))
         self.camera_buttons.on_click(lambda e: self._camera(e.client, str(e.target.value)))
+        server.on_client_connect(lambda c: c.camera.on_update(self._camera_moved))
+        server.on_client_disconnect(lambda c: self._leave_endoscope(c, reset=False))
         self.trail.on_update(lambda _: self._redraw(trails=True))
         self.opacity.on_update(lambda _: self._redraw())
         self.boxes.on_update(lambda _: self._redraw())
@@ -291,6 +315,8 @@ class ReplayViewer:
                     self._set_jpeg(*overlay)
                     self.overlay_frame = frame
                 self.plots.set_frame(frame)
+            if overlay is not None:
+                self._send_backdrops(overlay[0])
         dt = time.perf_counter() - t0
         self.update_seconds.append(dt)
         if self.overlays is not None:
@@ -315,6 +341,7 @@ class ReplayViewer:
                     self._set_jpeg(rgb, jpeg)
                 self.overlay_frame = frame
                 self.overlay_latency.append(time.perf_counter() - t0)
+                self._send_backdrops(rgb)
 
     def wait_overlay(self, frame: int, timeout: float = 5.0) -> bool:
         """Block until ``frame``'s overlay is on screen (tests and benchmarks)."""
@@ -327,6 +354,7 @@ class ReplayViewer:
 
     def _set_jpeg(self, rgb: np.ndarray, jpeg: bytes) -> None:
         """Send one encoded JPEG to both the GUI image and the frustum's image plane."""
+        self._overlay_rgb = rgb
         # Public setters would encode the same image twice; viser 1.1.1 (pinned) keeps
         # the encoded bytes in these props, so the one encoding is shared.
         self.image._image = rgb
@@ -351,6 +379,44 @@ class ReplayViewer:
     def _camera(self, client: viser.ClientHandle | None, preset: str) -> None:
         if client is None:
             return
+        if preset == "Endoscope":
+            with self._lock:
+                self._endoscope[client.client_id] = (client, time.monotonic())
+                self.scene.set_frustum_image_visible(False)
+            self.scene.apply_camera(client, preset)
+            if self._overlay_rgb is not None:
+                self._send_backdrops(self._overlay_rgb, only=client)
+        else:
+            self._leave_endoscope(client)
+            self.scene.apply_camera(client, preset)
+
+    # -- looking through the endoscope ----------------------------------------------------
+    # A browser in the Endoscope view gets the overlay as its own background image (client
+    # scoped), padded to its window's aspect so that, with the endoscope's vertical field
+    # of view, the cylinders sit on the mask. The frustum is hidden while any browser looks
+    # through it (the scene is shared) and shown again when none does. Orbiting away from
+    # the endoscope leaves the view.
+    def _leave_endoscope(self, client: viser.ClientHandle, reset: bool = True) -> None:
         with self._lock:
-            self.scene.set_frustum_image_visible(preset != "Endoscope")
-        self.scene.apply_camera(client, preset)
+            was = self._endoscope.pop(client.client_id, None) is not None
+            self.scene.set_frustum_image_visible(not self._endoscope)
+        if was and reset:
+            with contextlib.suppress(Exception):  # the browser may be gone
+                client.scene.set_background_image(None)
+
+    def _camera_moved(self, camera: viser.CameraHandle) -> None:
+        client = camera.client
+        entry = self._endoscope.get(client.client_id)
+        if entry is None or time.monotonic() - entry[1] < 1.0:
+            return  # not in the view, or still flying there
+        if np.linalg.norm(np.asarray(camera.position)) > 0.05:
+            self._leave_endoscope(client)
+
+    def _send_backdrops(self, rgb: np.ndarray, only: viser.ClientHandle | None = None) -> None:
+        clients = [only] if only is not None else [c for c, _ in self._endoscope.values()]
+        for client in clients:
+            cam = client.camera
+            aspect = cam.image_width / cam.image_height if cam.image_height else 0.0
+            with contextlib.suppress(Exception):  # the browser may have just left
+                client.scene.set_background_image(pad_to_aspect(rgb, aspect),
+                                                  format="jpeg", jpeg_quality=80)

@@ -106,13 +106,17 @@ class SceneView:
             self.grid.remove()
         self.grid = self.server.scene.add_grid(
             "/grid", width=size, height=size, cell_size=0.5, section_size=2.0,
-            position=(float(centre[0]), float(centre[1]), floor), shadow_opacity=0.0)
+            position=(float(centre[0]), float(centre[1]), floor), shadow_opacity=0.0,
+            visible=self.show_frustum_image)
         self.show(self.frame)
 
     def set_frustum_image_visible(self, visible: bool) -> None:
-        """Show or hide the frustum (with its image) — hidden when looking through it."""
+        """Show or hide the frustum (with its image) and the grid: hidden while a browser
+        looks through the endoscope (they would cover the view and the mask behind)."""
         self.show_frustum_image = visible
         self.frustum.visible = visible
+        if self.grid is not None:
+            self.grid.visible = visible
 
     def set_overlay(self, rgb: np.ndarray) -> None:
         """Put an overlay image (RGB uint8) on the frustum's image plane."""
