@@ -138,7 +138,7 @@ _DRAWS = np.random.default_rng(12345).random((2, 64))
 
 
 def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator | None = None,
-                    thresh_px: float = 1.5, iters: int = 20, max_points: int = 192
+                    thresh_px: float = 1.5, iters: int = 12, max_points: int = 192
                     ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """Robust sub-pixel line: RANSAC on long baselines, then Tukey-weighted TLS.
 
