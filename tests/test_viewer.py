@@ -458,3 +458,20 @@ def test_plot_cursor_marks_the_current_time(sequence) -> None:
                                    replay.series["metric/position"][k, i, p], rtol=1e-9)
     finally:
         viewer.close()
+
+
+@pytest.mark.parametrize("shape, aspect, out_shape", [
+    ((576, 720), 1280 / 800, (576, 922)),  # wider window: black bars left and right
+    ((576, 720), 0.5, (1440, 720)),         # taller window: bars above and below
+    ((576, 720), 1.25, (576, 720)),         # same aspect: unchanged
+])
+def test_pad_to_aspect_keeps_the_image_centred(shape, aspect, out_shape) -> None:
+    from mistool.viewer.app import pad_to_aspect
+
+    img = np.full((*shape, 3), 200, np.uint8)
+    out = pad_to_aspect(img, aspect)
+    assert out.shape[:2] == out_shape
+    ys, xs = np.nonzero(out[..., 0])
+    assert (ys.min() + ys.max()) / 2 == pytest.approx((out_shape[0] - 1) / 2, abs=1)
+    assert (xs.min() + xs.max()) / 2 == pytest.approx((out_shape[1] - 1) / 2, abs=1)
+    assert (out > 0).sum() == img.size

@@ -4,8 +4,9 @@ Shared or per-browser? The **timeline and display options are shared** by every 
 connected to one server (slider, play/pause, speed, mode, trails, opacity, plot
 selection): a teacher scrubs and the class follows, and the server's work per frame does
 not grow with the number of browsers. **Cameras are per browser**: orbiting or a camera
-preset moves only the browser that asked (except that the "Endoscope" preset hides the
-frustum for everyone, since the scene is shared, and the other presets show it again).
+preset moves only the browser that asked. In the "Endoscope" view the overlay is that
+browser's own background (one extra JPEG per frame per such browser); the frustum and the
+grid, being shared, are hidden while any browser looks through the endoscope.
 """
 
 from __future__ import annotations
