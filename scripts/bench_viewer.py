@@ -248,7 +248,8 @@ def bench_memory(browser, seq: Path, poses: Path | None, tmp: Path,
 
 
 def screenshot(browser, seq: Path, poses: Path | None, path: Path) -> None:
-    """The README's screenshot: the overview camera at the frame showing most parts."""
+    """The README's screenshots: the overview camera at the frame showing most parts, and
+    the Endoscope view of it (``<name>_endoscope.png``)."""
     viewer = _viewer(seq, poses)
     page = browser.new_page(viewport={"width": 1280, "height": 760})
     try:
@@ -268,6 +269,11 @@ def screenshot(browser, seq: Path, poses: Path | None, path: Path) -> None:
         time.sleep(2.0)
         page.screenshot(path=str(path))
         print(f"screenshot of frame {frame} -> {path}")
+        endo = path.with_name(f"{path.stem}_endoscope{path.suffix}")
+        page.get_by_role("button", name="Endoscope").click()
+        time.sleep(2.5)
+        page.screenshot(path=str(endo))
+        print(f"looking through the endoscope -> {endo}")
     finally:
         page.close()
         viewer.close()

@@ -199,6 +199,7 @@ class ReplayViewer:
         self._overlay_rgb: np.ndarray | None = None
         # Browsers looking through the endoscope: client id -> (client, time it entered).
         self._endoscope: dict[int, tuple[viser.ClientHandle, float]] = {}
+        self._closing = False
         self._lock = threading.Lock()
         self.server = quiet_server(host, port)
         try:
@@ -282,6 +283,7 @@ class ReplayViewer:
 
     def close(self) -> None:
         """Stop playback and the server."""
+        self._closing = True
         self.timeline.stop()
         if self.overlays is not None:
             self.overlays.close()
@@ -400,7 +402,8 @@ class ReplayViewer:
     def _leave_endoscope(self, client: viser.ClientHandle, reset: bool = True) -> None:
         with self._lock:
             was = self._endoscope.pop(client.client_id, None) is not None
-            self.scene.set_frustum_image_visible(not self._endoscope)
+            if was and not self._endoscope and not self._closing:
+                self.scene.set_frustum_image_visible(True)
         if was and reset:
             with contextlib.suppress(Exception):  # the browser may be gone
                 client.scene.set_background_image(None)
