@@ -14,8 +14,9 @@ truth rows where the part is visible), the 3D error of the joint J (shaft) and o
 
 Targets (issue 4): mild corruption (jitter 1 px, holes, speckle): J median <= 1.0 mm,
 p90 <= 2 mm, shaft axis median <= 1.5 deg, tip median <= 2 mm, coverage >= 95%; boundary
-bias or occlusion: J median <= 2 mm. (The renderer's bias is a whole-pixel dilation or
-erosion, so the bias rows use 1 px, twice the issue's 0.5 px.)
+bias or occlusion: J median <= 2 mm. The boundary bias is rendered sub-pixel exactly (every
+outline moved outward by ``bias_px`` px at its depth, ``mistool.synth.render``): the issue's
+0.5 px in both directions, and 1 px.
 
 Usage: /work/venv/bin/python scripts/eval_metric.py [--frames 100] [--seeds 0 1]
        [--instruments 2] [--json out.json]
@@ -42,8 +43,10 @@ MILD = dict(jitter_px=1.0, holes=3.0, speckle=10.0)
 CONDITIONS: dict[str, Corruptions] = {
     "clean": Corruptions(),
     "mild (jitter 1px, holes, speckle)": Corruptions(**MILD),
-    "mild + dilate 1px": Corruptions(bias_px=1, **MILD),
-    "mild + erode 1px": Corruptions(bias_px=-1, **MILD),
+    "mild + bias +0.5px": Corruptions(bias_px=0.5, **MILD),
+    "mild + bias -0.5px": Corruptions(bias_px=-0.5, **MILD),
+    "mild + bias +1px": Corruptions(bias_px=1.0, **MILD),
+    "mild + bias -1px": Corruptions(bias_px=-1.0, **MILD),
     "mild + occluders 3": Corruptions(occluders=3, **MILD),
     "mild + clasper hidden 30%": Corruptions(hide_clasper=0.3, **MILD),
 }

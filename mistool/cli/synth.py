@@ -47,7 +47,8 @@ names). --distinct-labels gives instrument i (0-based) the values v - i instead.
 
 Corruptions (all off by default, seeded, they change the masks and never truth.csv):
   --jitter PX        boundaries wobble by up to PX px (smooth random displacement field)
-  --bias PX          over-segmentation by PX px (dilation), or under- if negative (erosion)
+  --bias PX          over-segmentation: every outline moved outward by PX px (inward if
+                     negative), sub-pixel exact (e.g. 0.5), rendered at each part's depth
   --holes N          about N specular-highlight holes per frame on the tools (2-7 px)
   --speckle N        about N label specks per frame (1-3 px, random part values)
   --occluders N      N tissue blobs (30-90 px) hovering over the tools' heads, hiding them
@@ -103,8 +104,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c = p.add_argument_group("corruptions (see above)")
     c.add_argument("--jitter", type=float, default=0.0, metavar="PX",
                    help="boundary jitter amplitude")
-    c.add_argument("--bias", type=int, default=0, metavar="PX",
-                   help="dilation (> 0) or erosion (< 0) of the masks")
+    c.add_argument("--bias", type=float, default=0.0, metavar="PX",
+                   help="outlines moved outward (> 0) or inward (< 0) by PX px, "
+                        "sub-pixel (e.g. 0.5)")
     c.add_argument("--holes", type=float, default=0.0, metavar="N",
                    help="specular holes per frame")
     c.add_argument("--speckle", type=float, default=0.0, metavar="N",

@@ -5,8 +5,12 @@ never the ground truth (``truth.csv`` always describes the clean, exact projecti
 
 - ``jitter_px``: boundaries wobble by up to this many px (a smooth random displacement
   field, coherent along an edge, resampled every frame);
-- ``bias_px``: a systematic over- (> 0, dilation) or under-segmentation (< 0, erosion) of
-  every part by this many px;
+- ``bias_px``: a systematic over- (> 0) or under-segmentation (< 0): every outline moves
+  outward (inward) by this many px, fractions included. ``synthesize`` renders it
+  exactly: the ray caster inflates every primitive's radius by ``bias_px`` px at its depth
+  (:mod:`mistool.synth.render`), so a 0.5 px bias moves a shaft's limb lines by 0.5 px.
+  :meth:`Corruptor.apply` on a label image alone (no geometry) approximates it by a
+  morphological dilation (> 0) or erosion (< 0) by ``round(|bias_px|)`` whole pixels;
 - ``holes``: mean number of specular-highlight holes per frame (small ellipses of
   background on the instrument, 2-7 px);
 - ``speckle``: mean number of label specks per frame (1-3 px blobs of a random part value,
@@ -38,8 +42,8 @@ class Corruptions:
 
     jitter_px: float = 0.0
     """Boundary jitter amplitude (px)."""
-    bias_px: int = 0
-    """Dilation (> 0) or erosion (< 0) of every part (px)."""
+    bias_px: float = 0.0
+    """Outline moved outward (> 0) or inward (< 0) by this many px (sub-pixel)."""
     holes: float = 0.0
     """Mean number of specular holes per frame."""
     speckle: float = 0.0
@@ -108,15 +112,18 @@ class Corruptor:
         return bool(self._hidden[instrument, frame])
 
     def apply(self, labels: np.ndarray, instance: np.ndarray, part: np.ndarray,
-              frame: int, values: list[int]) -> np.ndarray:
+              frame: int, values: list[int], biased: bool = False) -> np.ndarray:
         """Corrupt one frame.
 
         Args:
-            labels: (H, W) uint8/uint16 clean label image (not modified).
+            labels: (H, W) uint8/uint16 clean label image (not modified), or the image
+                already rendered with the boundary bias when ``biased``.
             instance: (H, W) uint8, 0 background, i + 1 for instrument i.
             part: (H, W) uint8 3D part codes (1 shaft, 2 wrist, 3 clasper).
             frame: frame index (seeds the random streams).
             values: the part label values used in this sequence (for speckle).
+            biased: ``labels`` already carry ``bias_px`` (rendered by the ray caster);
+                otherwise it is approximated morphologically (whole pixels).
 
         Returns:
             The corrupted label image, same shape and dtype.
@@ -128,8 +135,8 @@ class Corruptor:
             for i in range(self._hidden.shape[0]):
                 if self._hidden[i, frame]:
                     out[(instance == i + 1) & (part >= 2)] = 0
-        if c.bias_px:
-            out = _bias(out, c.bias_px)
+        if c.bias_px and not biased:
+            out = _bias(out, int(round(c.bias_px)))
         if c.jitter_px > 0:
             rng = _rng(self.seed, _JITTER, frame)
             gh, gw = 6, 8
@@ -183,6 +190,8 @@ class Corruptor:
 
 def _bias(labels: np.ndarray, px: int) -> np.ndarray:
     """Dilate (px > 0) or erode (px < 0) every part value's region by ``|px|`` pixels."""
+    if px == 0:
+        return labels.copy()
     k = 2 * abs(px) + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
     out = labels.copy()

@@ -7,6 +7,13 @@ mask is the exact projection of the 3D model sampled at pixel centres: a cylinde
 is bounded by its two analytic limb lines, its caps by ellipses. Rays are cast only inside
 each primitive's projected bounding box (clipped to the image), which bounds the cost.
 Nearer surfaces win over farther ones (z-buffer), also between instruments.
+
+Boundary bias (``bias_px``, a segmentation that is uniformly too fat or too thin): every
+primitive's radius is inflated (deflated when negative) per ray by ``bias_px`` times the
+rate at which the ray's distance to the primitive grows per pixel of image displacement
+(``depth / f`` times the obliquity of the closest-approach direction), so that each
+outline (cylinder limb lines, cap ellipses, sphere circles) moves outward by ``bias_px``
+pixels, sub-pixel exactly to first order, at whatever depth each part is.
 """
 
 from __future__ import annotations
@@ -52,9 +59,11 @@ class RayCaster:
         self.yn2 = self.yn * self.yn + np.float32(1.0)
 
     # ----------------------------------------------------------------------------------
-    def _bbox(self, centres: list[np.ndarray], radius: float) -> tuple[int, int, int, int] | None:
+    def _bbox(self, centres: list[np.ndarray], radius: float, pad_px: float = 0.0
+              ) -> tuple[int, int, int, int] | None:
         """Pixel box (x0, y0, x1, y1), exclusive ends, bounding spheres of ``radius`` at the
-        given centres and everything between them (their convex hull); None if empty."""
+        given centres and everything between them (their convex hull), grown by ``pad_px``;
+        None if empty."""
         pts = np.array(centres, dtype=np.float64)
         if pts.shape[0] == 2:  # clip the segment to the near plane
             z = pts[:, 2]
@@ -72,8 +81,8 @@ class RayCaster:
         u = c.fx * pts[:, 0] / pts[:, 2] + c.cx
         v = c.fy * pts[:, 1] / pts[:, 2] + c.cy
         # a sphere of radius r at depth z projects inside a circle of radius about f r / (z - r)
-        ru = c.fx * radius / z * 1.5 + 2.0
-        rv = c.fy * radius / z * 1.5 + 2.0
+        ru = c.fx * radius / z * 1.5 + 2.0 + pad_px
+        rv = c.fy * radius / z * 1.5 + 2.0 + pad_px
         x0 = int(np.floor(max((u - ru).min(), 0)))
         x1 = int(np.ceil(min((u + ru).max() + 1, self.cam.width)))
         y0 = int(np.floor(max((v - rv).min(), 0)))
@@ -82,15 +91,18 @@ class RayCaster:
             return None
         return x0, y0, x1, y1
 
-    def _cylinder(self, cyl: Cylinder) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+    def _cylinder(self, cyl: Cylinder, bias_px: float = 0.0
+                  ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         p0 = np.asarray(cyl.p0, dtype=np.float64)
         a = np.asarray(cyl.axis, dtype=np.float64)
-        box = self._bbox([p0, p0 + cyl.length * a], cyl.radius)
+        box = self._bbox([p0, p0 + cyl.length * a], cyl.radius, abs(bias_px))
         if box is None:
             return None
         x0, y0, x1, y1 = box
         xn, yn = self.xn[x0:x1][None, :], self.yn[y0:y1][:, None]
         f32 = np.float32
+        c = self.cam.camera
+        ifx, ify = f32(1.0 / c.fx), f32(1.0 / c.fy)
         dd = self.xn2[x0:x1][None, :] + self.yn2[y0:y1][:, None]
         da = f32(a[0]) * xn + (f32(a[1]) * yn + f32(a[2]))            # d . a
         dp = f32(p0[0]) * xn + (f32(p0[1]) * yn + f32(p0[2]))         # d . p0
@@ -98,10 +110,21 @@ class RayCaster:
         # |t d - p0|_perp^2 = r^2  ->  A t^2 - 2 B t + C = 0
         aa = dd - da * da
         bb = dp - da * f32(pa)
-        cc = f32(float(p0 @ p0) - pa * pa - cyl.radius ** 2)
-        disc = bb * bb - aa * cc
-        hit = disc >= 0
         with np.errstate(invalid="ignore", divide="ignore"):
+            if bias_px:
+                # the ray's distance to the axis is smallest at t* = B / A (its depth),
+                # along n = d x a / |d x a|; one pixel of image displacement changes it by
+                # t* |(n_x / fx, n_y / fy)|
+                nx = yn * f32(a[2]) - f32(a[1])
+                ny = f32(a[0]) - xn * f32(a[2])
+                grow = np.abs(bb / aa) * np.sqrt((nx * nx * ifx * ifx + ny * ny * ify * ify)
+                                                 / np.maximum(aa, f32(1e-12)))
+                rad = np.maximum(f32(cyl.radius) + f32(bias_px) * grow, f32(0.0))
+            else:
+                rad = f32(cyl.radius)
+            cc = f32(float(p0 @ p0) - pa * pa) - rad * rad
+            disc = bb * bb - aa * cc
+            hit = disc >= 0
             t = (bb - np.sqrt(np.maximum(disc, 0))) / aa
             s = t * da - f32(pa)                                      # axial coordinate
             t = np.where(hit & (s >= 0) & (s <= cyl.length), t, np.inf)
@@ -115,14 +138,29 @@ class RayCaster:
                 tc = f32(cap_s + pa) / da
                 # squared distance from the axis at the cap: |t d - p0|^2 - cap_s^2
                 rho2 = tc * tc * dd - f32(2.0) * tc * dp + f32(float(p0 @ p0) - cap_s ** 2)
-                tc = np.where((rho2 <= f32(cyl.radius ** 2)) & (tc > 0), tc, np.inf)
+                rad_c = f32(cyl.radius)
+                if bias_px:
+                    # the hit's in-plane offset w from the cap centre q; a pixel step moves
+                    # the hit by t (dd_pix - (a . dd_pix) / (a . d) d), dd_pix = e_x / fx
+                    q = p0 + cap_s * a
+                    wx = tc * xn - f32(q[0])
+                    wy = tc * yn - f32(q[1])
+                    wz = tc - f32(q[2])
+                    wn = np.sqrt(np.maximum(wx * wx + wy * wy + wz * wz, f32(1e-12)))
+                    k = (wx * xn + wy * yn + wz) / (wn * da)               # (w^ . d) / (a . d)
+                    gu = (wx / wn - f32(a[0]) * k) * ifx
+                    gv = (wy / wn - f32(a[1]) * k) * ify
+                    rad_c = np.maximum(rad_c + f32(bias_px) * np.abs(tc)
+                                       * np.sqrt(gu * gu + gv * gv), f32(0.0))
+                tc = np.where((rho2 <= rad_c * rad_c) & (tc > 0), tc, np.inf)
                 t = np.minimum(t, tc)
         t = np.where(t >= NEAR_MM, t, np.inf)
         return box, t
 
-    def _sphere(self, sph: Sphere) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+    def _sphere(self, sph: Sphere, bias_px: float = 0.0
+                ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         c = np.asarray(sph.centre, dtype=np.float64)
-        box = self._bbox([c], sph.radius)
+        box = self._bbox([c], sph.radius, abs(bias_px))
         if box is None:
             return None
         x0, y0, x1, y1 = box
@@ -130,22 +168,39 @@ class RayCaster:
         f32 = np.float32
         dd = self.xn2[x0:x1][None, :] + self.yn2[y0:y1][:, None]
         dc = f32(c[0]) * xn + (f32(c[1]) * yn + f32(c[2]))
-        disc = dc * dc - dd * f32(float(c @ c) - sph.radius ** 2)
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            if bias_px:
+                # closest approach t* = (d . c) / |d|^2, along n = t* d - c
+                cam = self.cam.camera
+                ts = dc / dd
+                nx = ts * xn - f32(c[0])
+                ny = ts * yn - f32(c[1])
+                nz = ts - f32(c[2])
+                nn = np.maximum(nx * nx + ny * ny + nz * nz, f32(1e-12))
+                grow = np.abs(ts) * np.sqrt((nx * nx / f32(cam.fx ** 2)
+                                             + ny * ny / f32(cam.fy ** 2)) / nn)
+                rad = np.maximum(f32(sph.radius) + f32(bias_px) * grow, f32(0.0))
+            else:
+                rad = f32(sph.radius)
+            disc = dc * dc - dd * (f32(float(c @ c)) - rad * rad)
             t = np.where(disc >= 0, (dc - np.sqrt(np.maximum(disc, 0))) / dd, np.inf)
         t = np.where(t >= NEAR_MM, t, np.inf)
         return box, t
 
-    def depth_of(self, prim: Primitive) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+    def depth_of(self, prim: Primitive, bias_px: float = 0.0
+                 ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         """Depth (mm, float32, inf where missed) of one primitive over its pixel box
-        ``(x0, y0, x1, y1)``; None when it projects outside the image."""
+        ``(x0, y0, x1, y1)``; None when it projects outside the image. ``bias_px`` moves
+        its outline outward (inward if negative) by that many px (module docstring)."""
         if isinstance(prim, Cylinder):
-            return self._cylinder(prim)
-        return self._sphere(prim)
+            return self._cylinder(prim, bias_px)
+        return self._sphere(prim, bias_px)
 
-    def render(self, instruments: list[list[PartGeometry]]) -> RenderBuffers:
+    def render(self, instruments: list[list[PartGeometry]], bias_px: float = 0.0
+               ) -> RenderBuffers:
         """Render instruments (each a list of parts) into depth, instance and part maps;
-        each instrument is rendered alone, then composited by depth."""
+        each instrument is rendered alone, then composited by depth. ``bias_px``: every
+        outline moved outward by that many px (inward if negative; see module docstring)."""
         h, w = self.cam.height, self.cam.width
         depth = np.full((h, w), np.inf, dtype=np.float32)
         instance = np.zeros((h, w), dtype=np.uint8)
@@ -157,7 +212,7 @@ class RayCaster:
             for pg in parts:
                 code = PART_CODES[pg.part]
                 for prim in pg.primitives:
-                    res = self.depth_of(prim)
+                    res = self.depth_of(prim, bias_px)
                     if res is None:
                         continue
                     (x0, y0, x1, y1), t = res

@@ -335,8 +335,14 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
                 else []
             rows += truth_rows(f, float(fps), clean, buf.instance, alone, parts, frame_poses,
                                values, names)
-            labels = corruptor.apply(clean, buf.instance, buf.part, f, all_values) \
-                if corr.any() else clean
+            if corr.bias_px:  # the biased masks are rendered; the truth stays clean
+                bb = caster.render(parts, bias_px=float(corr.bias_px))
+                labels = corruptor.apply(lut[bb.instance, bb.part], bb.instance, bb.part, f,
+                                         all_values, biased=True)
+            elif corr.any():
+                labels = corruptor.apply(clean, buf.instance, buf.part, f, all_values)
+            else:
+                labels = clean
             if not cv2.imwrite(str(tmp / f"{f:06d}.png"), labels,
                                [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]):
                 raise InputPathError(f"{tmp / f'{f:06d}.png'}: cannot write")
