@@ -238,7 +238,7 @@ class TrackTable(Mapping[str, np.ndarray]):
             return
         cols = [self._cols[k] for k in keys]
         seen: dict[tuple[Any, ...], list[int]] = {}
-        for i, key in enumerate(zip(*cols)):
+        for i, key in enumerate(zip(*cols, strict=True)):
             seen.setdefault(tuple(key), []).append(i)
         for key, idx in seen.items():
             yield key, np.asarray(idx, dtype=np.int64)
