@@ -1,12 +1,24 @@
 # Shared set-up for scripts/serve.sh and scripts/test.sh (sourced, not run).
-# Creates .venv in the repository (once) and installs mistool into it, editable.
+# Creates .venv in the repository (once) and installs mistool into it, editable, with the
+# extras named by $1 ("" or "[test]"); skipped when pyproject.toml/setup.py are unchanged.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 PY="${PYTHON:-python3}"
 if [ ! -x .venv/bin/python ]; then
+  echo "setting up .venv (first run only) ..." >&2
   "$PY" -m venv .venv
 fi
 VPY="$ROOT/.venv/bin/python"
-"$VPY" -m pip install -q --upgrade pip >/dev/null
-"$VPY" -m pip install -q -e ".$1"
+STAMP=".venv/.mistool-installed$1"
+WANT="$(cat pyproject.toml setup.py | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ]; then
+  LOG=".venv/install.log"
+  if ! { "$VPY" -m pip install -q --upgrade pip && "$VPY" -m pip install -q -e ".$1"; } \
+      >"$LOG" 2>&1; then
+    cat "$LOG" >&2
+    echo "set-up failed: pip install -e \".$1\" (log above, also in $LOG)" >&2
+    exit 1
+  fi
+  echo "$WANT" > "$STAMP"
+fi
