@@ -465,13 +465,44 @@ def test_plot_cursor_marks_the_current_time(sequence) -> None:
     ((576, 720), 0.5, (1440, 720)),         # taller window: bars above and below
     ((576, 720), 1.25, (576, 720)),         # same aspect: unchanged
 ])
-def test_pad_to_aspect_keeps_the_image_centred(shape, aspect, out_shape) -> None:
-    from mistool.viewer.app import pad_to_aspect
+def test_endoscope_backdrop_keeps_a_centred_image_centred(shape, aspect, out_shape) -> None:
+    from mistool.viewer.app import endoscope_backdrop
 
+    h, w = shape
     img = np.full((*shape, 3), 200, np.uint8)
-    out = pad_to_aspect(img, aspect)
+    out, fov = endoscope_backdrop(img, aspect, (600.0, 600.0, (w - 1) / 2, (h - 1) / 2),
+                                  (w, h))
     assert out.shape[:2] == out_shape
     ys, xs = np.nonzero(out[..., 0])
     assert (ys.min() + ys.max()) / 2 == pytest.approx((out_shape[0] - 1) / 2, abs=1)
     assert (xs.min() + xs.max()) / 2 == pytest.approx((out_shape[1] - 1) / 2, abs=1)
     assert (out > 0).sum() == img.size
+    # The camera's vertical field of view spans the padded height.
+    assert fov == pytest.approx(2 * np.arctan(out_shape[0] / 2 / 600.0))
+
+
+@pytest.mark.parametrize("aspect", [0.6, 1.25, 1.9])
+def test_endoscope_backdrop_puts_rays_where_the_camera_sees_them(aspect) -> None:
+    """Off-centre principal point, fx != fy, an overlay at display size: every image
+    point lands, in the window, where a centred pinhole with the returned vertical field
+    of view projects its ray (what viser's camera does)."""
+    from mistool.viewer.app import endoscope_backdrop
+
+    W, H = 720, 576  # the image the intrinsics refer to
+    fx, fy, cx, cy = 610.0, 590.0, 330.0, 300.0
+    small = (288, 360)  # the overlay's (h, w)
+    img = np.zeros((*small, 3), np.uint8)
+    pts = np.array([[40.0, 30.0], [600.0, 100.0], [330.0, 300.0], [700.0, 560.0]])  # (u, v)
+    for u, v in pts:  # mark them in the overlay's pixels
+        img[int((v + 0.5) * small[0] / H), int((u + 0.5) * small[1] / W)] = 255
+    out, fov = endoscope_backdrop(img, aspect, (fx, fy, cx, cy), (W, H))
+    assert out.shape[1] / out.shape[0] == pytest.approx(aspect, rel=0.01)
+    # Window coordinates in [-1, 1] (x right, y down) of each ray, for that camera.
+    t = np.tan(fov / 2)
+    rays = np.stack([(pts[:, 0] - cx) / fx, (pts[:, 1] - cy) / fy], axis=1)
+    ndc = np.stack([rays[:, 0] / (t * aspect), rays[:, 1] / t], axis=1)
+    ys, xs = np.nonzero(out[..., 0] > 60)
+    found = np.stack([(xs + 0.5) / out.shape[1] * 2 - 1, (ys + 0.5) / out.shape[0] * 2 - 1], 1)
+    for p in ndc:
+        err = np.linalg.norm(found - p, axis=1).min() * out.shape[0] / 2  # in output px
+        assert err < 1.5, (p, err)

@@ -219,6 +219,83 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
         page.close()
 
 
+def _shaft_pixels(img: np.ndarray, rgb: tuple[int, int, int]) -> np.ndarray:
+    """Boolean map of pixels with the hue of a shaft colour ``rgb`` and its strong
+    saturation (lit or shaded cylinder, or the overlay's blend on the dark background;
+    the lighter clasper colours and the grey background stay out)."""
+    hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV).astype(int)
+    target = int(cv2.cvtColor(np.uint8([[rgb]]), cv2.COLOR_RGB2HSV)[0, 0, 0])
+    dh = np.abs(hsv[..., 0] - target)
+    dh = np.minimum(dh, 180 - dh)
+    return (dh <= 8) & (hsv[..., 1] > 150) & (hsv[..., 2] > 40)
+
+
+def test_endoscope_view_lines_up_with_the_mask(browser, viewer: ReplayViewer) -> None:
+    """Through the endoscope each instrument's shaft cylinder covers its shaft in the mask
+    behind it, in a tall window and after resizing it to a wide one. Two screenshots per
+    window: the background alone (cylinders hidden) and the cylinders alone (background
+    removed); their shaft pixels must coincide."""
+    replay = viewer.replay
+    busy = _busy_frames(replay)
+    frame = int(busy[len(busy) // 2])
+    trail, boxes = viewer.trail.value, viewer.boxes.value
+    page = browser.new_page(viewport={"width": 620, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    try:
+        page.goto(viewer.url)
+        page.wait_for_selector("canvas[data-engine]", timeout=20000)
+        page.get_by_role("button", name="Endoscope").wait_for(timeout=20000)
+        close = page.locator(".mantine-Notification-root button")  # an orange bar
+        if close.count():
+            close.first.click()
+        viewer.trail.value = 0  # trails and box outlines share the instruments' hues
+        viewer.boxes.value = False
+        viewer.timeline.seek(frame)
+        assert viewer.timeline.wait_shown(frame) and viewer.wait_overlay(frame)
+        page.get_by_role("button", name="Endoscope").click()
+        page.get_by_label("Minimize panel").click()  # the panel would hide the view
+        assert _wait(lambda: len(viewer._endoscope) == 1)
+        client = next(c for c, _ in viewer._endoscope.values())
+        for size in ({"width": 620, "height": 900}, {"width": 1280, "height": 640}):
+            page.set_viewport_size(size)
+            w, h = size["width"], size["height"]
+            assert _wait(lambda wh=(w, h): (client.camera.image_width,
+                                            client.camera.image_height) == wh)
+            time.sleep(0.5)  # the new layout follows the camera message
+            for cyl in viewer.scene.cylinders.values():
+                cyl.visible = False
+            time.sleep(1.0)
+            backdrop = _shot(page, {"x": 0, "y": 0, **size})
+            client.scene.set_background_image(None)
+            viewer.scene.show(frame)
+            time.sleep(1.0)
+            cylinders = _shot(page, {"x": 0, "y": 0, **size})
+            assert (cylinders.min(axis=2) > 250).mean() > 0.5  # background gone
+            # Within the image (the padding is black; cylinders run on over it), below
+            # the minimised panel.
+            keep = cv2.erode((backdrop.max(axis=2) > 10).astype(np.uint8),
+                             np.ones((7, 7), np.uint8)) > 0
+            keep[:70] = False
+            for i, name in enumerate(replay.instruments):
+                colour = replay.part_colour(i, "shaft")
+                mask = _shaft_pixels(backdrop, colour) & keep
+                drawn = _shaft_pixels(cylinders, colour) & keep
+                assert mask.sum() > 1500 and drawn.sum() > 1500, (size, name, mask.sum(),
+                                                                  drawn.sum())
+                iou = (mask & drawn).sum() / (mask | drawn).sum()
+                ym, xm = np.nonzero(mask)
+                yd, xd = np.nonzero(drawn)
+                shift = np.hypot(xd.mean() - xm.mean(), yd.mean() - ym.mean())
+                assert iou > 0.85 and shift < 4.0, \
+                    f"{w}x{h}, instrument {name}: IoU {iou:.2f}, centroids {shift:.1f} px apart"
+            viewer._send_backdrops(viewer._overlay_rgb, only=client)  # what a frame does
+        assert not errors, errors
+    finally:
+        page.close()
+        viewer.trail.value, viewer.boxes.value = trail, boxes
+
+
 class _SocketClient:
     """A bare viser websocket client (what a browser tab is to the server): it receives
     every message the server sends, as fast as it can, until closed."""

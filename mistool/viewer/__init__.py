@@ -24,9 +24,10 @@ What the browser shows:
   rotated boxes drawn, opacity adjustable; JPEG; frames read lazily, overlays of the next
   frames prepared ahead by a worker during playback.
 - **Cameras**: presets Endoscope (look through the endoscope: the overlay becomes that
-  browser's background, so the cylinders sit on the mask; frustum and grid hidden while
-  any browser looks through it), Side, Top, Reset; orbit controls otherwise (orbiting
-  away leaves the Endoscope view).
+  browser's background, padded to its window around the principal point with the
+  matching field of view, so the cylinders sit on the mask whatever the window's shape
+  and as it is resized; frustum and grid hidden while any browser looks through it),
+  Side, Top, Reset; orbit controls otherwise (orbiting away leaves the Endoscope view).
 - **Plots** (:mod:`~mistool.viewer.plots`): x/y/z and roll/pitch/yaw of a chosen part over
   time, downsampled, with a cursor at the current frame.
 - One colour per instrument everywhere (:data:`~mistool.viewer.replay.PALETTE`; claspers

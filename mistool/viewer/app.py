@@ -15,6 +15,7 @@ import collections
 import contextlib
 import hashlib
 import io
+import math
 import os
 import socket
 import threading
@@ -22,6 +23,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import viser
 
@@ -151,23 +153,71 @@ def quiet_server(host: str, port: int) -> viser.ViserServer:
         return viser.ViserServer(host=host, port=port, verbose=False, label="mistool")
 
 
-def pad_to_aspect(rgb: np.ndarray, aspect: float) -> np.ndarray:
-    """Pad an image with black, centred, to width / height = ``aspect`` (no scaling), so
-    that stretched over a window of that aspect it keeps its own proportions."""
+def endoscope_layout(size_wh: tuple[int, int], intrinsics: tuple[float, float, float, float],
+                     image_wh: tuple[int, int], aspect: float,
+                     ) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int], float]:
+    """How an image is laid out as the background of a window looking through the
+    endoscope, so that the 3D scene drawn by viser's camera lines up with it.
+
+    viser's camera is a centred pinhole with square pixels whose vertical field of view
+    spans the window's height, and the background image is stretched over the whole
+    window. So the image is resampled to square pixels (when fx != fy), padded with black
+    so that the principal point is at its centre and its aspect is the window's, and the
+    camera gets the vertical field of view of the padded image's height.
+
+    Args:
+        size_wh: (w, h) px of the image to lay out (e.g. the overlay, at display size).
+        intrinsics: (fx, fy, cx, cy) px, OpenCV convention, of an image of ``image_wh``
+            covering the same view.
+        image_wh: (w, h) px of the image the intrinsics refer to.
+        aspect: the window's width / height (<= 0: unknown, no padding beyond centring).
+
+    Returns:
+        ``(resampled (w, h), padded (W, H), offset (x0, y0) of the image in the padded
+        one, vertical field of view in radians)``.
+    """
+    w, h = size_wh
+    fx, fy, cx, cy = intrinsics
+    sx, sy = w / image_wh[0], h / image_wh[1]
+    # In the image's own pixels, with its edges at 0 and w (resp. h).
+    fx, cx = fx * sx, (cx + 0.5) * sx
+    fy, cy = fy * sy, (cy + 0.5) * sy
+    if abs(fx - fy) > 1e-6 * fx:  # stretch vertically to square pixels
+        k = max(1, int(round(h * fx / fy))) / h
+        h, fy, cy = int(round(h * k)), fy * k, cy * k
+    half_w = max(cx, w - cx)  # around the principal point
+    half_h = max(cy, h - cy)
+    if aspect > 0:
+        if half_w / half_h < aspect:
+            half_w = half_h * aspect
+        else:
+            half_h = half_w / aspect
+    big_w, big_h = max(w, int(round(2 * half_w))), max(h, int(round(2 * half_h)))
+    x0 = min(max(int(round(big_w / 2 - cx)), 0), big_w - w)
+    y0 = min(max(int(round(big_h / 2 - cy)), 0), big_h - h)
+    return (w, h), (big_w, big_h), (x0, y0), 2.0 * math.atan2(big_h / 2.0, fy)
+
+
+def endoscope_backdrop(rgb: np.ndarray, aspect: float,
+                       intrinsics: tuple[float, float, float, float],
+                       image_wh: tuple[int, int]) -> tuple[np.ndarray, float]:
+    """An image (RGB uint8, (h, w, 3)) laid out by :func:`endoscope_layout` as the
+    background of a window of ``aspect`` (width / height) looking through the endoscope.
+
+    Returns:
+        The (H, W, 3) background (``rgb`` itself when nothing changes) and the vertical
+        field of view (radians) the window's camera needs.
+    """
     h, w = rgb.shape[:2]
-    if aspect <= 0 or abs(w / h - aspect) < 1e-3:
-        return rgb
-    if w / h < aspect:
-        new_w = int(round(h * aspect))
-        out = np.zeros((h, new_w, 3), dtype=rgb.dtype)
-        x0 = (new_w - w) // 2
-        out[:, x0:x0 + w] = rgb
-    else:
-        new_h = int(round(w / aspect))
-        out = np.zeros((new_h, w, 3), dtype=rgb.dtype)
-        y0 = (new_h - h) // 2
-        out[y0:y0 + h] = rgb
-    return out
+    (w2, h2), (big_w, big_h), (x0, y0), fov = endoscope_layout((w, h), intrinsics,
+                                                                image_wh, aspect)
+    if h2 != h:
+        rgb = cv2.resize(rgb, (w2, h2), interpolation=cv2.INTER_LINEAR)
+    if (big_w, big_h) == (w2, h2):
+        return rgb, fov
+    out = np.zeros((big_h, big_w, 3), dtype=rgb.dtype)
+    out[y0:y0 + h2, x0:x0 + w2] = rgb
+    return out, fov
 
 
 class ReplayViewer:
@@ -199,6 +249,8 @@ class ReplayViewer:
         self._overlay_rgb: np.ndarray | None = None
         # Browsers looking through the endoscope: client id -> (client, time it entered).
         self._endoscope: dict[int, tuple[viser.ClientHandle, float]] = {}
+        # Client id -> window aspect its Endoscope view was last laid out for.
+        self._backdrop_aspect: dict[int, float] = {}
         self._closing = False
         self._lock = threading.Lock()
         self.server = quiet_server(host, port)
@@ -378,6 +430,8 @@ class ReplayViewer:
         with self._lock:
             self.scene.set_mode(mode)
             self.plots.set_mode(mode)
+            if self._overlay_rgb is not None:  # the modes see the image differently
+                self._send_backdrops(self._overlay_rgb)
 
     def _camera(self, client: viser.ClientHandle | None, preset: str) -> None:
         if client is None:
@@ -386,22 +440,25 @@ class ReplayViewer:
             with self._lock:
                 self._endoscope[client.client_id] = (client, time.monotonic())
                 self.scene.set_frustum_image_visible(False)
-            self.scene.apply_camera(client, preset)
-            if self._overlay_rgb is not None:
-                self._send_backdrops(self._overlay_rgb, only=client)
+            self.scene.apply_camera(client, preset, fov=self._endoscope_fov(client))
+            with self._lock:
+                if self._overlay_rgb is not None:
+                    self._send_backdrops(self._overlay_rgb, only=client)
         else:
             self._leave_endoscope(client)
             self.scene.apply_camera(client, preset)
 
     # -- looking through the endoscope ----------------------------------------------------
     # A browser in the Endoscope view gets the overlay as its own background image (client
-    # scoped), padded to its window's aspect so that, with the endoscope's vertical field
-    # of view, the cylinders sit on the mask. The frustum is hidden while any browser looks
-    # through it (the scene is shared) and shown again when none does. Orbiting away from
-    # the endoscope leaves the view.
+    # scoped), padded to its window's aspect around the principal point, and the vertical
+    # field of view of that padded image (endoscope_layout), so that the cylinders sit on
+    # the mask whatever the window's shape; both follow the window when it is resized.
+    # The frustum is hidden while any browser looks through it (the scene is shared) and
+    # shown again when none does. Orbiting away from the endoscope leaves the view.
     def _leave_endoscope(self, client: viser.ClientHandle, reset: bool = True) -> None:
         with self._lock:
             was = self._endoscope.pop(client.client_id, None) is not None
+            self._backdrop_aspect.pop(client.client_id, None)
             if was and not self._endoscope and not self._closing:
                 self.scene.set_frustum_image_visible(True)
         if was and reset:
@@ -411,16 +468,44 @@ class ReplayViewer:
     def _camera_moved(self, camera: viser.CameraHandle) -> None:
         client = camera.client
         entry = self._endoscope.get(client.client_id)
-        if entry is None or time.monotonic() - entry[1] < 1.0:
-            return  # not in the view, or still flying there
+        if entry is None:
+            return  # not in the view
+        if abs(_aspect(camera) - self._backdrop_aspect.get(client.client_id, 0.0)) > 1e-3:
+            with self._lock:  # the window was resized: lay the view out again
+                if client.client_id in self._endoscope:
+                    with contextlib.suppress(Exception):  # the browser may have just left
+                        camera.fov = self._endoscope_fov(client)
+                    if self._overlay_rgb is not None:
+                        self._send_backdrops(self._overlay_rgb, only=client)
+        if time.monotonic() - entry[1] < 1.0:
+            return  # still flying there
         if np.linalg.norm(np.asarray(camera.position)) > 0.05:
             self._leave_endoscope(client)
 
+    def _endoscope_fov(self, client: viser.ClientHandle) -> float:
+        """The vertical field of view (rad) of ``client``'s window looking through the
+        endoscope (see :func:`endoscope_layout`)."""
+        replay = self.replay
+        self._backdrop_aspect[client.client_id] = aspect = _aspect(client.camera)
+        return endoscope_layout(replay.image_wh, replay.view_intrinsics(self.scene.mode),
+                                replay.image_wh, aspect)[3]
+
     def _send_backdrops(self, rgb: np.ndarray, only: viser.ClientHandle | None = None) -> None:
+        """Send the overlay ``rgb`` as the background of the browsers looking through the
+        endoscope (or of ``only``), laid out for each one's window, with the matching field
+        of view (call holding ``self._lock``)."""
         clients = [only] if only is not None else [c for c, _ in self._endoscope.values()]
+        intrinsics = self.replay.view_intrinsics(self.scene.mode)
         for client in clients:
             cam = client.camera
-            aspect = cam.image_width / cam.image_height if cam.image_height else 0.0
+            aspect = _aspect(cam)
+            image, fov = endoscope_backdrop(rgb, aspect, intrinsics, self.replay.image_wh)
             with contextlib.suppress(Exception):  # the browser may have just left
-                client.scene.set_background_image(pad_to_aspect(rgb, aspect),
-                                                  format="jpeg", jpeg_quality=80)
+                client.scene.set_background_image(image, format="jpeg", jpeg_quality=80)
+                cam.fov = fov  # no message unless it changed
+                self._backdrop_aspect[client.client_id] = aspect
+
+
+def _aspect(camera: viser.CameraHandle) -> float:
+    """Width / height of a browser's 3D view (0 when not known yet)."""
+    return camera.image_width / camera.image_height if camera.image_height else 0.0

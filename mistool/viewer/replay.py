@@ -176,6 +176,17 @@ class Replay:
         fy = self.config.camera.fy if self.config.camera is not None else float(max(w, h))
         return 2.0 * math.atan2(h / 2.0, fy), w / h
 
+    def view_intrinsics(self, mode: str) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy), px (OpenCV: pixel centres at integers), of the image as the
+        endoscope at the world origin sees ``mode``'s cylinders: the camera's in metric
+        mode; in paper mode the pixel plane at depth fy, centred on the image."""
+        w, h = self.image_wh
+        cam = self.config.camera
+        if mode == "metric" and cam is not None:
+            return cam.fx, cam.fy, cam.cx, cam.cy
+        f = cam.fy if cam is not None else float(max(w, h))
+        return f, f, w / 2.0, h / 2.0
+
     def part_colour(self, instrument_index: int, part: str) -> tuple[int, int, int]:
         """RGB colour of a part of the instrument at ``instrument_index``."""
         return part_colour(self.colours[instrument_index], part)

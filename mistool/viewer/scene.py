@@ -186,9 +186,12 @@ class SceneView:
                     up, math.radians(50))
         raise ValueError(f"unknown camera preset {preset!r}; choose from {', '.join(PRESETS)}")
 
-    def apply_camera(self, client: viser.ClientHandle, preset: str) -> None:
-        """Move one client's camera to a preset (cameras are per browser)."""
-        position, look_at, up, fov = self.camera_pose(preset)
+    def apply_camera(self, client: viser.ClientHandle, preset: str,
+                     fov: float | None = None) -> None:
+        """Move one client's camera to a preset (cameras are per browser); ``fov``
+        (vertical, rad) overrides the preset's."""
+        position, look_at, up, preset_fov = self.camera_pose(preset)
+        fov = preset_fov if fov is None else fov
         with client.atomic():
             client.camera.up_direction = tuple(up)
             client.camera.position = tuple(position)
