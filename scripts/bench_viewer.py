@@ -270,6 +270,9 @@ def screenshot(browser, seq: Path, poses: Path | None, path: Path) -> None:
         page.screenshot(path=str(path))
         print(f"screenshot of frame {frame} -> {path}")
         endo = path.with_name(f"{path.stem}_endoscope{path.suffix}")
+        # Without the rotated boxes: a box bounds the whole perspective-tapered shaft, so
+        # near the joint it is much wider than the shaft and reads as a misalignment.
+        viewer.boxes.value = False
         page.get_by_role("button", name="Endoscope").click()
         time.sleep(2.5)
         page.screenshot(path=str(endo))
