@@ -206,7 +206,7 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
     shaft_counts = (np.bincount(cc[masks["shaft"] > 0], minlength=n) if "shaft" in masks
                     else np.zeros(n, np.int64))
     found = []
-    for group in _group_fragments(counts, shaft_counts, stats, max(min_area, 1)):
+    for group in _group_fragments(counts, shaft_counts, stats, max(min_area, 1), cc):
         x0 = min(int(stats[i, 0]) for i in group)
         y0 = min(int(stats[i, 1]) for i in group)
         x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
@@ -338,51 +338,98 @@ def _merge_instances(a: InstanceObservation, b: InstanceObservation, min_area: i
 
 
 def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.ndarray,
-                     min_area: int) -> list[list[int]]:
+                     min_area: int, cc: np.ndarray | None = None) -> list[list[int]]:
     """Components (labels 1..n-1) grouped into instruments.
 
     - A component smaller than ``min_area`` pixels is a speck and is dropped.
-    - A *head* (a component without shaft pixels: jaws, a wrist) joins the nearest
-      component with a shaft whose bounding box is at most ``max(FRAGMENT_GAP_PX,
-      HEAD_GAP_FRAC * sqrt(its area))`` px away: open jaws, or a clasper cut by an
-      occluder, are not new instruments. Heads with no such shaft near (an instrument
-      entering the view head first) join each other by the same distance.
-    - A *fragment* (less than :data:`FRAGMENT_AREA_FRAC` of a larger component's area,
-      at most :data:`FRAGMENT_GAP_PX` from it) joins it.
+    - A *fragment* (a shaft piece with less than :data:`FRAGMENT_AREA_FRAC` of a larger
+      component's area, at most :data:`FRAGMENT_GAP_PX` from it) joins it.
+    - A *head* (a component without shaft pixels: jaws, a wrist) joins the group with a
+      shaft (a component and what joined it so far) nearest to it, if at most
+      ``max(FRAGMENT_GAP_PX, HEAD_GAP_FRAC * sqrt(group area))`` px away: open jaws, or a
+      clasper cut in pieces by an occluder, are not new instruments. Heads join one at a
+      time, nearest first, each join growing its group's bounds and area. The gap is the
+      groups' bounding boxes' gap, and, with ``cc`` (the component label image), the
+      pixels' own gap (a head beside a long oblique shaft is far from its pixels, though
+      inside its bounds). Heads with no such shaft near (an instrument entering the view
+      head first) join each other by the same distance (at least
+      :data:`HEAD_HEAD_GAP_PX`).
     """
     labels = [i for i in range(1, len(counts)) if counts[i] >= min_area]
     labels.sort(key=lambda i: -counts[i])
     hosts = [i for i in labels if shaft_counts[i] >= min_area]
     heads = [i for i in labels if shaft_counts[i] < min_area]
 
-    def reach(i: int) -> float:
-        return max(FRAGMENT_GAP_PX, HEAD_GAP_FRAC * math.sqrt(float(counts[i])))
-
     owner: dict[int, int] = {i: i for i in labels}
+    members: dict[int, list[int]] = {i: [i] for i in labels}
+    box = {i: [int(stats[i, 0]), int(stats[i, 1]), int(stats[i, 0] + stats[i, 2]),
+               int(stats[i, 1] + stats[i, 3])] for i in labels}  # x0, y0, x1, y1 (excl.)
+    area = {i: float(counts[i]) for i in labels}
+
+    def join(i: int, j: int) -> None:  # group i (a root) into group j (a root)
+        owner[i] = j
+        members[j] += members.pop(i)
+        bi, bj = box[i], box[j]
+        box[j] = [min(bi[0], bj[0]), min(bi[1], bj[1]), max(bi[2], bj[2]), max(bi[3], bj[3])]
+        area[j] += area[i]
+
+    def reach(j: int) -> float:
+        return max(FRAGMENT_GAP_PX, HEAD_GAP_FRAC * math.sqrt(area[j]))
+
+    def gap(i: int, j: int, limit: float) -> float:
+        bi, bj = box[i], box[j]
+        dx = max(bi[0] - bj[2] + 1, bj[0] - bi[2] + 1, 0)
+        dy = max(bi[1] - bj[3] + 1, bj[1] - bi[3] + 1, 0)
+        g = math.hypot(dx, dy)
+        if g > limit or cc is None:
+            return g
+        return _pixel_gap(cc, members[i], members[j], bi, int(math.ceil(limit)))
+
     for k, i in enumerate(hosts):  # small shaft pieces next to a much larger one
         for j in hosts[:k]:
             if owner[j] == j and counts[i] < FRAGMENT_AREA_FRAC * counts[j] \
                     and _bbox_gap(stats[i], stats[j]) <= FRAGMENT_GAP_PX:
-                owner[i] = j
+                join(i, j)
                 break
-    for k, i in enumerate(heads):
-        near = [(_bbox_gap(stats[i], stats[j]), j) for j in hosts if owner[j] == j]
-        near = [(g, j) for g, j in near if g <= reach(j)]
-        if near:
-            owner[i] = min(near)[1]
-            continue
-        for j in heads[:k]:  # larger heads first
-            if owner[j] == j and _bbox_gap(stats[i], stats[j]) <= max(reach(j),
-                                                                    HEAD_HEAD_GAP_PX):
-                owner[i] = j
-                break
-    groups: dict[int, list[int]] = {}
-    for i in labels:
-        root = owner[i]
-        while owner[root] != root:
-            root = owner[root]
-        groups.setdefault(root, []).append(i)
-    return list(groups.values())
+    todo = list(heads)
+    while todo:  # the nearest head joins first; its group grows
+        best: tuple[float, int, int] | None = None
+        for i in todo:
+            for j in members:
+                if j in todo or j not in hosts:
+                    continue
+                g = gap(i, j, reach(j))
+                if g <= reach(j) and (best is None or g < best[0]):
+                    best = (g, i, j)
+        if best is None:
+            break
+        todo.remove(best[1])
+        join(best[1], best[2])
+    for k, i in enumerate(todo):  # heads without a shaft near: larger heads first
+        for j in todo[:k]:
+            if owner[j] == j:
+                lim = max(reach(j), HEAD_HEAD_GAP_PX)
+                if gap(i, j, lim) <= lim:
+                    join(i, j)
+                    break
+    return list(members.values())
+
+
+def _pixel_gap(cc: np.ndarray, a: list[int], b: list[int], box_a: list[int],
+               reach: int) -> float:
+    """Smallest distance (px) from a pixel labelled in ``a`` to one labelled in ``b`` in the
+    component label image ``cc``, looked for within ``reach`` px of ``a``'s bounds
+    ``box_a`` (x0, y0, x1, y1 exclusive); ``inf`` beyond."""
+    h, w = cc.shape
+    x0, y0 = max(box_a[0] - reach, 0), max(box_a[1] - reach, 0)
+    x1, y1 = min(box_a[2] + reach, w), min(box_a[3] + reach, h)
+    win = cc[y0:y1, x0:x1]
+    in_b = win == b[0] if len(b) == 1 else np.isin(win, b)
+    if not in_b.any():
+        return math.inf
+    not_a = (win != a[0] if len(a) == 1 else ~np.isin(win, a)).astype(np.uint8)
+    dist = cv2.distanceTransform(not_a, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return float(dist[in_b].min())
 
 
 def _bbox_gap(a: np.ndarray, b: np.ndarray) -> float:
