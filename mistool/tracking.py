@@ -51,6 +51,9 @@ HEAD_GAP_FRAC = 0.8
 #: ... and components without shaft pixels join each other this many px apart (the two
 #: jaws of an open clasper entering the view).
 HEAD_HEAD_GAP_PX = 60.0
+#: ... and a head that does not touch the image border (its shaft cannot be beyond it)
+#: joins a shaft component up to this many px away (an occluder hides what joins them).
+HEAD_ORPHAN_GAP_PX = 100.0
 
 
 @dataclass(frozen=True)
@@ -86,6 +89,8 @@ class InstanceObservation:
     """Number of the instrument's part pixels."""
     bbox_xywh: tuple[int, int, int, int]
     """Axis-aligned bounds of those pixels: (x0, y0, width, height), px."""
+    image_shape: tuple[int, int] | None = None
+    """(H, W) of the label image (None if unknown): where the image border is."""
 
 
 def _check_labels(labels: np.ndarray, config: Config) -> np.ndarray:
@@ -115,7 +120,8 @@ def _foreground(img: np.ndarray) -> tuple[int, int, int, int]:
     return tuple(int(v) for v in cv2.boundingRect(nz))  # type: ignore[return-value]
 
 
-def _instance(label: str | None, parts: dict[str, PartObservation]) -> InstanceObservation:
+def _instance(label: str | None, parts: dict[str, PartObservation],
+              shape: tuple[int, int] | None = None) -> InstanceObservation:
     area = sum(p.area_px for p in parts.values())
     sx = sy = 0.0
     x0 = y0 = math.inf
@@ -131,7 +137,7 @@ def _instance(label: str | None, parts: dict[str, PartObservation]) -> InstanceO
         x1, y1 = max(x1, p.offset[0] + w), max(y1, p.offset[1] + h)
     return InstanceObservation(
         label=label, parts=parts, centroid_px=(sx / area, sy / area), area_px=area,
-        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)))
+        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)), image_shape=shape)
 
 
 def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservation]:
@@ -153,6 +159,7 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
         MaskFormatError: if ``labels`` is not a 2-D integer image.
     """
     img = _check_labels(labels, config)
+    shape = (int(img.shape[0]), int(img.shape[1]))
     min_area = config.min_area_px
     out: list[InstanceObservation] = []
     fx, fy, fw, fh = _foreground(img)
@@ -169,7 +176,7 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
                     if obs is not None:
                         parts[part] = obs
             if parts:
-                out.append(_instance(spec.name, parts))
+                out.append(_instance(spec.name, parts, shape))
         return out
 
     part_names = [p for p in PARTS if p in config.parts and config.parts[p][1] > 0]
@@ -199,14 +206,19 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
             if obs is not None:
                 parts[p] = obs
         if parts and sum(o.area_px for o in parts.values()) >= max(min_area, 1):
-            out.append(_instance(None, parts))
+            out.append(_instance(None, parts, shape))
         return out
     n, cc, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
     counts = np.bincount(cc[union > 0], minlength=n)
     shaft_counts = (np.bincount(cc[masks["shaft"] > 0], minlength=n) if "shaft" in masks
                     else np.zeros(n, np.int64))
     found = []
-    for group in _group_fragments(counts, shaft_counts, stats, max(min_area, 1), cc):
+    h_img, w_img = img.shape[:2]
+    border = ((stats[:, 0] + fx <= 0) | (stats[:, 1] + fy <= 0)
+              | (stats[:, 0] + stats[:, 2] + fx >= w_img)
+              | (stats[:, 1] + stats[:, 3] + fy >= h_img))
+    for group in _group_fragments(counts, shaft_counts, stats, max(min_area, 1), cc,
+                                  border):
         x0 = min(int(stats[i, 0]) for i in group)
         y0 = min(int(stats[i, 1]) for i in group)
         x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
@@ -220,7 +232,7 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
             if obs is not None:
                 parts[p] = obs
         if parts:
-            found.append(_instance(None, parts))
+            found.append(_instance(None, parts, shape))
     found = _join_cut_shafts(found, min_area, (img.shape[0], img.shape[1]))
     found.sort(key=lambda inst: -inst.area_px)
     return found
@@ -334,16 +346,17 @@ def _merge_instances(a: InstanceObservation, b: InstanceObservation, min_area: i
         joined = _part_observation(name, m, x0, y0, min_area)
         if joined is not None:
             parts[name] = joined
-    return _instance(None, parts)
+    return _instance(None, parts, a.image_shape)
 
 
 def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.ndarray,
-                     min_area: int, cc: np.ndarray | None = None) -> list[list[int]]:
+                     min_area: int, cc: np.ndarray | None = None,
+                     border: np.ndarray | None = None) -> list[list[int]]:
     """Components (labels 1..n-1) grouped into instruments.
 
     - A component smaller than ``min_area`` pixels is a speck and is dropped.
     - A *fragment* (a shaft piece with less than :data:`FRAGMENT_AREA_FRAC` of a larger
-      component's area, at most :data:`FRAGMENT_GAP_PX` from it) joins it.
+      component's area, at most :data:`FRAGMENT_GAP_PX` from its pixels) joins it.
     - A *head* (a component without shaft pixels: jaws, a wrist) joins the group with a
       shaft (a component and what joined it so far) nearest to it, if at most
       ``max(FRAGMENT_GAP_PX, HEAD_GAP_FRAC * sqrt(group area))`` px away: open jaws, or a
@@ -354,6 +367,9 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
       inside its bounds). Heads with no such shaft near (an instrument entering the view
       head first) join each other by the same distance (at least
       :data:`HEAD_HEAD_GAP_PX`).
+    - A head left alone that does not touch the image border (``border[i]`` False) has
+      lost its shaft to an occluder: it joins the nearest group with a shaft within
+      :data:`HEAD_ORPHAN_GAP_PX` (or twice its own head reach).
     """
     labels = [i for i in range(1, len(counts)) if counts[i] >= min_area]
     labels.sort(key=lambda i: -counts[i])
@@ -388,7 +404,7 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
     for k, i in enumerate(hosts):  # small shaft pieces next to a much larger one
         for j in hosts[:k]:
             if owner[j] == j and counts[i] < FRAGMENT_AREA_FRAC * counts[j] \
-                    and _bbox_gap(stats[i], stats[j]) <= FRAGMENT_GAP_PX:
+                    and gap(i, j, FRAGMENT_GAP_PX) <= FRAGMENT_GAP_PX:
                 join(i, j)
                 break
     todo = list(heads)
@@ -405,6 +421,15 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
             break
         todo.remove(best[1])
         join(best[1], best[2])
+    for i in list(todo):  # a head inside the view cut off from its shaft by an occluder
+        if border is not None and border[i]:
+            continue  # a head at the border: its shaft may be beyond it
+        lim = max(HEAD_ORPHAN_GAP_PX, 2.0 * HEAD_GAP_FRAC * math.sqrt(area[i]))
+        near = [(gap(i, j, lim), j) for j in members if j in hosts]
+        near = [(g, j) for g, j in near if g <= lim]
+        if near:
+            todo.remove(i)
+            join(i, min(near)[1])
     for k, i in enumerate(todo):  # heads without a shaft near: larger heads first
         for j in todo[:k]:
             if owner[j] == j:
@@ -627,10 +652,65 @@ class IdentityTracker:
                         best = got
                 if best is not None:
                     pieces[b] = best[1]
+        # a blob with more shafts entering from the border than instruments known in it
+        # (instruments touching since they came into view): split on those shafts
+        own: dict[int, list[_Track]] = {}
+        if split:
+            # tracks believed hidden in a blob that was not split may be found elsewhere
+            used = set(owner.values()) | {a for b, hidden in blob_of.items() if b in pieces
+                                          for a in hidden}
+            spare = [a for a in range(len(live)) if a not in used]
+            for b, inst in enumerate(instances):
+                if b in pieces:
+                    continue
+                group = ([owner[b]] + blob_of.get(b, [])) if b in owner else []
+                spare_b = [a for a in spare if a not in group]
+                entries = _border_entries(inst)
+                if len(entries) < max(2, len(group)):
+                    continue
+                if len(entries) == len(group) and b not in blob_of:
+                    continue  # as many shafts as instruments known: nothing new
+                got = _split_entries(inst, entries, max(self._config.min_area_px, 1))
+                if got is None:
+                    continue
+                cands = group + spare_b
+                cost = np.full((len(cands), len(got)), np.inf)
+                for r, a in enumerate(cands):
+                    for c, piece in enumerate(got):
+                        # the blob's own instruments: their state is the blob's, looser
+                        cost[r, c] = self._cost(live[a], piece, frame_index) * (
+                            0.5 if r < len(group) else 1.0)
+                pairs_b = _assignment(cost, self.MAX_COST)
+                taken = {cands[r] for r, _ in pairs_b}
+                spare = [a for a in spare if a not in taken and a not in group]
+                for b2 in [b2 for b2 in blob_of if b2 != b]:
+                    blob_of[b2] = [a for a in blob_of[b2] if a not in taken]
+                    if not blob_of[b2]:
+                        del blob_of[b2]
+                by_piece = {c: live[cands[r]] for r, c in pairs_b}
+                tracks = []
+                for c, piece in enumerate(got):
+                    t = by_piece.get(c)
+                    if t is None:
+                        t = self._new_track(piece, frame_index)
+                    else:
+                        self._update(t, piece, frame_index, merged=False)
+                    tracks.append(t)
+                for a in group:  # known instruments the split did not find: coast
+                    if a not in taken:
+                        t = live[a]
+                        t.centroid = self._predict(t, frame_index)
+                        t.last_frame = frame_index
+                        t.merged = t.hidden = True
+                pieces[b] = got
+                own[b] = tracks
         out_instances: list[InstanceObservation] = []
         names: list[str] = []
         for b, inst in enumerate(instances):
-            if b in pieces:
+            if b in own:
+                out_instances.extend(pieces[b])
+                names.extend(t.name for t in own[b])
+            elif b in pieces:
                 group = [live[owner[b]]] + [live[a] for a in blob_of[b]]
                 for t, piece in zip(group, pieces[b], strict=True):
                     self._update(t, piece, frame_index, merged=False, apart=False)
@@ -782,6 +862,99 @@ def _distal_axis(boxes: dict[str, RotatedBox]) -> tuple[np.ndarray, np.ndarray, 
     return c + 0.5 * sb.length * u, u, back
 
 
+#: A shaft entering the view is seen on the image border over at least this many px.
+ENTRY_MIN_PX = 6
+
+
+def _border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Where the instance's shaft pixels cross the image border, one entry per run of
+    border pixels (runs around a corner are one): ``(point, inward direction, width)``,
+    px. The direction is the principal axis of the shaft pixels near the run; the width
+    the run's length across that direction. Empty unless there are two entries or more
+    (one instrument per entry, unless two touch at the border)."""
+    shaft = inst.parts.get("shaft")
+    if shaft is None or inst.image_shape is None:
+        return []
+    hh, ww = inst.image_shape
+    m = shaft.mask
+    x0, y0 = shaft.offset
+    h, w = m.shape
+    n = 2 * (ww - 1) + 2 * (hh - 1)  # the border as a loop: top, right, bottom, left
+    on = np.zeros(n, bool)
+    xs, ys = np.arange(x0, x0 + w), np.arange(y0, y0 + h)
+    if y0 == 0:
+        on[xs[m[0]]] = True
+    if x0 + w == ww:
+        on[(ww - 1 + ys[m[:, -1]]) % n] = True
+    if y0 + h == hh:
+        on[(ww - 1) + (hh - 1) + (ww - 1 - xs[m[-1]])] = True
+    if x0 == 0:
+        on[(2 * (ww - 1) + (hh - 1) + (hh - 1 - ys[m[:, 0]])) % n] = True
+    if on.sum() < 2 * ENTRY_MIN_PX:
+        return []
+    if on.all():
+        return []
+    start = int(np.argmin(on))  # a border pixel off the shaft: runs do not wrap from here
+    roll = np.roll(on, -start).astype(np.int8)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], roll, [0]])))
+    runs = [((a + start) % n, b - a) for a, b in zip(edges[::2], edges[1::2], strict=True)
+            if b - a >= ENTRY_MIN_PX]
+    if len(runs) < 2:
+        return []
+
+    def xy(i: int) -> tuple[float, float]:
+        if i < ww - 1:
+            return float(i), 0.0
+        i -= ww - 1
+        if i < hh - 1:
+            return float(ww - 1), float(i)
+        i -= hh - 1
+        if i < ww - 1:
+            return float(ww - 1 - i), float(hh - 1)
+        i -= ww - 1
+        return 0.0, float(hh - 1 - i)
+
+    yy, xx = np.nonzero(m)
+    pts = np.stack([xx + x0, yy + y0], 1).astype(np.float64)
+    pts = pts[::max(1, len(pts) // 20000)]
+    out = []
+    for a, length in runs:
+        ends = np.array([xy((a + k) % n) for k in (0, length // 2, length - 1)])
+        mid = ends[1]
+        r = max(3.0 * length, 30.0)
+        near = pts[np.einsum("nd,nd->n", pts - mid, pts - mid) <= r * r]
+        if len(near) < 3:
+            continue
+        c = near.mean(0)
+        _, v = np.linalg.eigh(np.cov((near - c).T))
+        d = v[:, 1]
+        if d @ (c - mid) < 0:
+            d = -d
+        tangent = ends[2] - ends[0]
+        tn = float(np.hypot(*tangent))
+        sin = abs(float(tangent[0] * d[1] - tangent[1] * d[0])) / tn if tn > 0 else 1.0
+        out.append((mid, d, max(length * sin, 3.0)))
+    return out if len(out) >= 2 else []
+
+
+def _split_entries(inst: InstanceObservation,
+                   entries: list[tuple[np.ndarray, np.ndarray, float]],
+                   min_area_px: int) -> list[InstanceObservation] | None:
+    """Split an instance between the shafts entering at ``entries`` (:func:`_split` with
+    half-lines from the border, nothing known of the instruments' heads)."""
+    x, y, w, h = inst.bbox_xywh
+    reach = float(np.hypot(w, h))
+    expected = []
+    axes = []
+    for p, d, width in entries:
+        c = p + 0.5 * reach * d
+        angle = math.degrees(math.atan2(d[1], d[0])) % 180.0
+        expected.append({"shaft": RotatedBox(float(c[0]), float(c[1]), reach, width, angle)})
+        axes.append((p + reach * d, d, math.inf))
+    got = _split(inst, expected, min_area_px, axes)
+    return None if got is None else got[1]
+
+
 def split_instance(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
                    min_area_px: int = 1) -> list[InstanceObservation] | None:
     """Split one instance holding several instruments between them.
@@ -810,9 +983,12 @@ def split_instance(inst: InstanceObservation, expected: list[dict[str, RotatedBo
 
 
 def _split(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
-           min_area_px: int) -> tuple[float, list[InstanceObservation]] | None:
+           min_area_px: int,
+           axes: list[tuple[np.ndarray, np.ndarray, float]] | None = None
+           ) -> tuple[float, list[InstanceObservation]] | None:
     """:func:`split_instance` and its score (the worst RMS distance of a shaft's pixels
-    to its axis, in half-widths; lower is better)."""
+    to its axis, in half-widths; lower is better). ``axes``: the shafts' (distal end,
+    distal direction, back length) when not from ``expected`` (:func:`_distal_axis`)."""
     shaft = inst.parts.get("shaft")
     k = len(expected)
     if shaft is None or k < 2 or any("shaft" not in e for e in expected):
@@ -821,7 +997,8 @@ def _split(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
     pts = np.stack([xs + shaft.offset[0], ys + shaft.offset[1]], 1).astype(np.float64)
     step = max(1, len(pts) // 4000)  # the fits need no more points than this
     fit_pts = pts[::step]
-    axes = [_distal_axis(e) for e in expected]
+    if axes is None:
+        axes = [_distal_axis(e) for e in expected]
     ends = np.array([a[0] for a in axes])
     dirs = np.array([a[1] for a in axes])
     back = np.array([a[2] for a in axes])
@@ -880,7 +1057,7 @@ def _split(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
                 pieces[j][name] = obs
     if any("shaft" not in parts for parts in pieces):
         return None
-    return score, [_instance(None, parts) for parts in pieces]
+    return score, [_instance(None, parts, inst.image_shape) for parts in pieces]
 
 
 def _inside(p: np.ndarray, bbox: tuple[int, int, int, int], margin: float) -> bool:

@@ -113,14 +113,19 @@ def test_clasper_across_one_pixel_gap_stays_one_instrument():
     img[42:58, 140:170] = CLASPER  # 40 px on from the shaft's end: its head, cut off
     assert len(observe_frame(img, MERGED)) == 1
     img[:, 101:] = 0
-    img[72:88, 140:170] = CLASPER  # as far, but 30 px off the axis: another one
+    img[72:88, 170:200] = CLASPER  # 30 px off the axis, at the border: another one
     assert len(observe_frame(img, MERGED)) == 2
+    img[:, 101:] = 0
+    # the same head inside the view: no shaft can reach it but through an occluder
+    img[72:88, 140:170] = CLASPER
+    assert len(observe_frame(img, MERGED)) == 1
 
 
 @pytest.mark.parametrize("second_area, gap, value, expected", [
     (10 * 30, 25, CLASPER, 1),  # a jaw 25 px from a shaft: part of that instrument
     (10 * 30, 80, CLASPER, 1),  # heads reach 0.8 sqrt(11200) = 85 px
-    (10 * 30, 100, CLASPER, 2),  # too far: its own instrument
+    (10 * 30, 100, CLASPER, 1),  # a head alone in the view: an occluder cut it off
+    (10 * 30, 120, CLASPER, 2),  # too far even so (100 px): its own instrument
     (10 * 30, 25, SHAFT, 1),    # a small shaft piece close by: a fragment
     (10 * 30, 45, SHAFT, 2),    # ... but fragments reach only 30 px
     (40 * 100, 25, SHAFT, 2),   # a large shaft nearby is never a fragment
