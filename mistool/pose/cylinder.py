@@ -118,15 +118,17 @@ def pixel_rays(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
     d[:, 0] = (uv[:, 0] - K[0, 2]) / K[0, 0]
     d[:, 1] = (uv[:, 1] - K[1, 2]) / K[1, 1]
     d[:, 2] = 1.0
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
+    d /= np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + 1.0)[:, None]
+    return d
 
 
 def project(X: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803 - 3D points
     """Project camera-frame points (N, 3) mm to pixels (N, 2); z must be > 0."""
     X = np.asarray(X, dtype=np.float64).reshape(-1, 3)
-    u = K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2]
-    v = K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]
-    return np.stack([u, v], axis=1)
+    uv = np.empty((len(X), 2))
+    uv[:, 0] = K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2]
+    uv[:, 1] = K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]
+    return uv
 
 
 def ray_cylinder(rays: np.ndarray, p0: np.ndarray, a: np.ndarray, radius_mm: float

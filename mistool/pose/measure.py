@@ -113,6 +113,36 @@ def _outline(mask_u8: np.ndarray, offset: tuple[int, int], contours: Any = None
     return pts, mom
 
 
+def _median_rows(v: np.ndarray) -> np.ndarray:
+    """Column-wise median (as ``np.median(v, axis=0)``) of an (N, 2) array, N >= 1."""
+    n = len(v)
+    k = n // 2
+    if n % 2:
+        return np.partition(v, k, axis=0)[k]
+    part = np.partition(v, (k - 1, k), axis=0)
+    return 0.5 * (part[k - 1] + part[k])
+
+
+def _median1(v: np.ndarray) -> float:
+    """Median of a 1-D array (as ``np.median``, without its overhead), len >= 1."""
+    n = len(v)
+    k = n // 2
+    if n % 2:
+        return float(np.partition(v, k)[k])
+    part = np.partition(v, (k - 1, k))
+    return 0.5 * float(part[k - 1] + part[k])
+
+
+def _window_max(x: np.ndarray, size: int) -> np.ndarray:
+    """Sliding maximum: ``out[i] = x[i:i + size].max()`` for every full window."""
+    m, w = x, 1
+    while 2 * w <= size:  # m[i] = max(x[i:i + w])
+        m = np.maximum(m[:-w], m[w:])
+        w *= 2
+    n_out = len(x) - size + 1
+    return np.maximum(m[:n_out], m[size - w:size - w + n_out])
+
+
 def _on_border(px: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
     H, W = image_shape
     return (px[:, 0] <= 0) | (px[:, 1] <= 0) | (px[:, 0] >= W - 1) | (px[:, 1] >= H - 1)
@@ -147,8 +177,8 @@ def _joint_t(pts: np.ndarray, is_other: np.ndarray, p0: np.ndarray, a: np.ndarra
         v = np.minimum(t_in, t_out)[bg]
     else:
         v = np.where(is_other, t_in, np.minimum(t_in, t_out))
-    med = float(np.median(v))
-    return med, 1.4826 * float(np.median(np.abs(v - med)))
+    med = _median1(v)
+    return med, 1.4826 * _median1(np.abs(v - med))
 
 
 class _LineStats:
@@ -207,7 +237,7 @@ def _uncertainty(lines: list[np.ndarray], stats: list[_LineStats], K: np.ndarray
     over a few pixels: ``n_eff <= span / 2``), plus ``_PX_BIAS`` of unknown systematic
     offset (e.g. segmentation bias).
     """
-    rref = ref / np.linalg.norm(ref)
+    rref = ref / math.sqrt(float(ref @ ref))
     l1 = np.repeat(lines[0][None], 4, axis=0)
     l2 = np.repeat(lines[1][None], 4, axis=0)
     for k, ln in ((0, l1), (1, l2)):
@@ -220,12 +250,15 @@ def _uncertainty(lines: list[np.ndarray], stats: list[_LineStats], K: np.ndarray
     # batched closed form (see cylinder.axis_from_lines)
     n1 = l1 @ K
     n2 = l2 @ K
-    n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
-    n2 /= np.linalg.norm(n2, axis=1, keepdims=True)
+    n1 /= np.sqrt(np.einsum("ij,ij->i", n1, n1))[:, None]
+    n2 /= np.sqrt(np.einsum("ij,ij->i", n2, n2))[:, None]
     c = np.einsum("ij,ij->i", n1, n2)
-    ax = np.cross(n1, n2)
-    sn = np.linalg.norm(ax, axis=1)
-    if np.any(sn < 1e-9) or np.any(c <= -0.999999):
+    ax = np.empty_like(n1)  # n1 x n2, row-wise (np.cross is slow on small arrays)
+    ax[:, 0] = n1[:, 1] * n2[:, 2] - n1[:, 2] * n2[:, 1]
+    ax[:, 1] = n1[:, 2] * n2[:, 0] - n1[:, 0] * n2[:, 2]
+    ax[:, 2] = n1[:, 0] * n2[:, 1] - n1[:, 1] * n2[:, 0]
+    sn = np.sqrt(np.einsum("ij,ij->i", ax, ax))
+    if sn.min() < 1e-9 or c.min() <= -0.999999:
         return math.inf, math.inf
     ax /= sn[:, None]
     p0 = radius * (n1 + n2) / (1.0 + c)[:, None]
@@ -310,18 +343,20 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     tr, det = mu20 + mu02, mu20 * mu02 - mu11 * mu11
     disc = math.sqrt(max(tr * tr / 4.0 - det, 0.0))
     d0 = None
-    if len(bnd.other) >= 3:
-        d0 = np.median(bnd.other, axis=0) - centre
+    med_other = _median_rows(bnd.other) if len(bnd.other) >= 3 else None
+    if med_other is not None:
+        d0 = med_other - centre
     elif tr / 2.0 + disc < 9.0 * max(tr / 2.0 - disc, 1e-9):
         if border.any():
             d0 = centre - pix[border].mean(axis=0)
-    if d0 is not None and np.linalg.norm(d0) > 2.0:
-        e = d0 / np.linalg.norm(d0)
+    nd0 = math.hypot(d0[0], d0[1]) if d0 is not None else 0.0
+    if nd0 > 2.0:
+        e = d0 / nd0
     s_pix = (pix - centre) @ e
 
     # which end is distal: toward the other parts, else away from the image border
     if len(bnd.other) >= 3:
-        distal = 1 if float(np.mean((bnd.other - centre) @ e)) >= 0 else -1
+        distal = 1 if float(((bnd.other - centre) @ e).sum()) >= 0 else -1
     else:
         lo, hi = s_pix.min(), s_pix.max()
         t_lo = bool(np.any(border & (s_pix <= lo + 2.0)))
@@ -361,8 +396,8 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
             for j, c in enumerate("abc"):
                 row[f"aux_l{k + 1}{c}"] = float(line[j])
     # the joint's pixel (for a later trocar-constrained solve)
-    if len(bnd.other) >= 3:
-        jpx = np.median(bnd.other, axis=0)
+    if med_other is not None:
+        jpx = med_other
     elif distal != 0 and not dist_at_border:
         jpx = pix[s_pix >= s_max - 1.0].mean(axis=0)
     else:
@@ -496,6 +531,12 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
 _TIP_LENGTH_FACTOR = 1.0
 _TIP_LENGTH_SIGMA = 0.05  # relative
 _TIP_BEND_SIGMA_RAD = math.radians(45.0)
+#: Jaw-end search: two jaw ends are distinct when more than this many jaw widths apart;
+#: an end's jaw axis is estimated from the clasper pixels within this many jaw widths.
+_JAW_SEP = 1.0
+_JAW_RAD = 2.5
+#: Fraction of the end-cap overshoot (jaw image radius x |cos(jaw, ray)|) removed.
+_TIP_CAP = 1.0
 
 
 def _jaw_tips(mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray,
@@ -504,10 +545,10 @@ def _jaw_tips(mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray,
 
     The jaw ends are the local maxima of the distance from J's pixel along the clasper's
     outline (a window of about one jaw width), at least half as far as the farthest;
-    the two farthest that are more than two jaw widths apart are the two open jaws,
-    a single one is closed jaws. Each end is moved onto its jaw's axis: the farthest
-    extent, along the principal direction of the clasper pixels within 2.5 jaw widths
-    (at most half the ends' separation), of those pixels, through their centroid.
+    the two farthest that are more than ``_JAW_SEP`` jaw widths apart are the two open
+    jaws, a single one is closed jaws. Each end is moved onto its jaw's axis: the farthest
+    extent, along the principal direction of the clasper pixels within ``_JAW_RAD`` jaw
+    widths (at most half the ends' separation), of those pixels, through their centroid.
 
     Args:
         mask_u8: (h, w) uint8 clasper crop; offset: its (x0, y0).
@@ -515,33 +556,36 @@ def _jaw_tips(mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray,
         width_px: expected jaw width in the image (px).
 
     Returns:
-        (jaw-end pixels (2,), the outline points near each end (M, 2)).
+        (jaw-end pixels (2,), the outline points near each end (M, 2), each end's jaw
+        direction (2,) (unit, away from J), each jaw's half-width in the image (px)).
     """
     contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return [], []
     c = max(contours, key=len).reshape(-1, 2).astype(np.float64) + offset
-    d = np.linalg.norm(c - jpx, axis=1)
+    dj = c - jpx
+    d = np.sqrt(np.einsum("ij,ij->i", dj, dj))
     n = len(c)
     win = int(max(2, min(n // 4, round(width_px))))
     padded = np.concatenate([d[-win:], d, d[:win]])
-    local = np.lib.stride_tricks.sliding_window_view(padded, 2 * win + 1).max(axis=1)
+    local = _window_max(padded, 2 * win + 1)
     cand = np.flatnonzero((d >= local) & (d >= 0.5 * d.max()))
     cand = cand[np.argsort(-d[cand])]
     picks: list[int] = []
     for i in cand:
-        if all(np.linalg.norm(c[i] - c[j]) > 2.0 * width_px for j in picks):
+        if all(math.hypot(*(c[i] - c[j])) > _JAW_SEP * width_px for j in picks):
             picks.append(int(i))
         if len(picks) == 2:
             break
     ys, xs = np.nonzero(mask_u8)
     area = np.stack([xs + float(offset[0]), ys + float(offset[1])], axis=1)
-    rad = 2.5 * width_px
+    rad = _JAW_RAD * width_px
     if len(picks) == 2:
-        rad = min(rad, 0.5 * float(np.linalg.norm(c[picks[0]] - c[picks[1]])))
-    ends, nears = [], []
+        rad = min(rad, 0.5 * math.hypot(*(c[picks[0]] - c[picks[1]])))
+    ends, nears, dirs, halfw = [], [], [], []
     for i in picks:
-        nb = area[np.linalg.norm(area - c[i], axis=1) <= rad]
+        dc = area - c[i]
+        nb = area[np.einsum("ij,ij->i", dc, dc) <= rad * rad]
         if len(nb) < 3:
             continue
         m = nb.mean(axis=0)
@@ -552,8 +596,11 @@ def _jaw_tips(mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray,
         if e @ (c[i] - jpx) < 0:
             e = -e
         ends.append(m + (float((dd @ e).max()) + 0.5) * e)
-        nears.append(c[np.linalg.norm(c - c[i], axis=1) <= rad])
-    return ends, nears
+        dirs.append(e)
+        halfw.append(min(0.5 * float(np.ptp(dd @ np.array([-e[1], e[0]]))) + 0.5, width_px))
+        dc = c - c[i]
+        nears.append(c[np.einsum("ij,ij->i", dc, dc) <= rad * rad])
+    return ends, nears, dirs, halfw
 
 
 def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
@@ -561,7 +608,9 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
          ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Tip (3,), clasper axis (3,) and the tip's pixel (2,) (or Nones).
 
-    The tip's pixel is the mid-point of the jaw ends (:func:`_jaw_tips`). Its depth along
+    The tip's pixel is the mid-point of the jaw ends (:func:`_jaw_tips`), each end
+    pulled back by its end cap's overshoot (the truth's jaw end is the cap's centre, the
+    image ends at the cap's rim: a jaw's image radius x |cos(jaw, viewing ray)|). Its depth along
     the pixel's ray minimises a two-term cost: the joint-to-tip distance near the
     clasper length (well conditioned when the clasper is foreshortened) and a small bend
     from the shaft axis (well conditioned when the clasper is seen side-on). When the
@@ -571,25 +620,44 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
     mask_u8 = _as_u8(clasper.mask)
     jpx = project(joint[None], K)[0]
     width_px = K[0, 0] * 0.25 * diameter / max(float(joint[2]), 1.0)
-    ends, nears = _jaw_tips(mask_u8, clasper.offset, jpx, max(width_px, 2.0))
+    ends, nears, dirs, halfw = _jaw_tips(mask_u8, clasper.offset, jpx, max(width_px, 2.0))
     if not ends:
         return None, None, None
-    tip_px = np.mean(ends, axis=0)
-    if np.linalg.norm(tip_px - jpx) < 2.0:
-        return None, None, None
-    u = (tip_px - jpx) / np.linalg.norm(tip_px - jpx)
+    tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
     hidden = any(bool(np.any(_on_border(nb, image_shape))) for nb in nears)
+    tip, c_axis, tip_px = _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
+    if tip is None or hidden or not _TIP_CAP:
+        return tip, c_axis, tip_px
+    # a jaw's image ends at its end cap's rim, which reaches beyond the cap's centre (the
+    # truth's jaw end) by the jaw's image radius x |cos(jaw, viewing ray)|: pull each end
+    # back by that (the clasper axis stands in for each jaw's direction) and solve again
+    cos_v = abs(float(c_axis @ tip)) / math.sqrt(float(tip @ tip))
+    ends = [e - _TIP_CAP * hw * cos_v * dr for e, dr, hw in zip(ends, dirs, halfw, strict=True)]
+    tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
+    return _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
+
+
+def _tip_solve(tip_px: np.ndarray, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
+               length: float | None, hidden: bool, jpx: np.ndarray
+               ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """The tip (3,) and clasper axis (3,) from the tip's pixel (see :func:`_tip`)."""
+    dist = math.hypot(*(tip_px - jpx))
+    if dist < 2.0:
+        return None, None, None
+    u = (tip_px - jpx) / dist
     l_nom = _TIP_LENGTH_FACTOR * length if length is not None else None
     # least-bent direction in the plane of the camera centre, J and the tip's ray
     ray = pixel_rays(tip_px[None], K)[0]
     nc = cross3(joint, ray if not hidden else pixel_rays((jpx + 10.0 * u)[None], K)[0])
-    if np.linalg.norm(nc) < 1e-9:
+    nn = math.sqrt(float(nc @ nc))
+    if nn < 1e-9:
         return None, None, tip_px
-    nc /= np.linalg.norm(nc)
+    nc /= nn
     c = a - (a @ nc) * nc
-    if np.linalg.norm(c) < 1e-6:
+    ncl = math.sqrt(float(c @ c))
+    if ncl < 1e-6:
         return None, None, tip_px
-    c /= np.linalg.norm(c)
+    c /= ncl
     st = project(np.stack([joint, joint + c]), K)
     if float((st[1] - st[0]) @ u) < 0:
         c = -c
@@ -602,8 +670,8 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
     s = np.linspace(max(s_j - span, 1.0), s_j + span, 81)
     X = s[:, None] * ray
     d = X - joint
-    ln = np.linalg.norm(d, axis=1)
-    cosb = np.clip((d @ a) / np.maximum(ln, 1e-9), -1.0, 1.0)
+    ln = np.sqrt(np.einsum("ij,ij->i", d, d))
+    cosb = np.minimum(np.maximum((d @ a) / np.maximum(ln, 1e-9), -1.0), 1.0)
     cost = (np.arccos(cosb) / _TIP_BEND_SIGMA_RAD) ** 2
     if l_nom is not None:
         cost += ((ln - l_nom) / (_TIP_LENGTH_SIGMA * l_nom)) ** 2
@@ -612,12 +680,12 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
         c0, c1, c2 = cost[k - 1], cost[k], cost[k + 1]
         den = c0 - 2.0 * c1 + c2
         off = 0.5 * (c0 - c2) / den if den > 0 else 0.0
-        sk = s[k] + float(np.clip(off, -1.0, 1.0)) * (s[1] - s[0])
+        sk = s[k] + min(max(float(off), -1.0), 1.0) * (s[1] - s[0])
     else:
         sk = s[k]
     tip = sk * ray
     dv = tip - joint
-    nd = np.linalg.norm(dv)
+    nd = math.sqrt(float(dv @ dv))
     if nd < 1e-6:
         return None, None, tip_px
     return tip, dv / nd, tip_px

@@ -13,6 +13,8 @@ lower (typically 0.5-0.8); compare clasper scores with each other, not with the 
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -28,7 +30,7 @@ def perpendicular_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (3,) completing the unit vector ``a`` to an orthonormal basis."""
     ref = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = cross3(a, ref)
-    e1 /= np.linalg.norm(e1)
+    e1 /= math.sqrt(float(e1 @ e1))
     return e1, cross3(a, e1)
 
 
@@ -46,8 +48,8 @@ def hull_of_cylinder(p_a: np.ndarray, p_b: np.ndarray, r_a: float, r_b: float,
         (M, 2) float32 convex polygon (px), or None.
     """
     d = p_b - p_a
-    nd = np.linalg.norm(d)
-    if not np.isfinite(nd) or nd < 1e-6:
+    nd = math.sqrt(float(d @ d))
+    if not math.isfinite(nd) or nd < 1e-6:
         return None
     e1, e2 = perpendicular_basis(d / nd)
     ring = _COS[:, None] * e1 + _SIN[:, None] * e2
@@ -88,7 +90,8 @@ def iou_polygon_mask(poly: np.ndarray | None, mask: np.ndarray, offset: tuple[in
     x0, y0 = x0 - x0 % st, y0 - y0 % st
     hc, wc = -(-(y1 - y0) // st), -(-(x1 - x0) // st)
     canvas = np.zeros((hc, wc), dtype=np.uint8)
-    shifted = np.round((poly - [x0, y0]) * (16.0 / st)).astype(np.int32)
+    shifted = np.round((poly - np.array([x0, y0], dtype=np.float64)) * (16.0 / st)
+                       ).astype(np.int32)
     cv2.fillConvexPoly(canvas, shifted, 1, lineType=cv2.LINE_8, shift=4)
     rend = canvas.view(bool)
     obs = np.zeros_like(rend)

@@ -94,38 +94,37 @@ def boundary_points(canvas: Canvas, outline: np.ndarray) -> Boundary:
     """
     lab = canvas.labels
     h, w = lab.shape
-    ij = np.asarray(outline, dtype=np.int64) - [canvas.x0, canvas.y0]
-    x, y = ij[:, 0], ij[:, 1]
-    pts_bg: list[np.ndarray] = []
-    pts_ot: list[np.ndarray] = []
-    for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        nx, ny = x + dx, y + dy
-        inside = (nx >= 0) & (nx < w) & (ny >= 0) & (ny < h)
-        nb = np.full(len(x), SHAFT, dtype=np.uint8)
-        nb[inside] = lab[ny[inside], nx[inside]]
-        for other_val, sink in ((BG, pts_bg), (OTHER, pts_ot)):
-            m = nb == other_val
-            if m.any():
-                sink.append(np.stack([x[m] + (canvas.x0 + 0.5 * dx),
-                                      y[m] + (canvas.y0 + 0.5 * dy)], axis=1))
-    bg = np.concatenate(pts_bg) if pts_bg else np.empty((0, 2))
-    ot = np.concatenate(pts_ot) if pts_ot else np.empty((0, 2))
-    return Boundary(bg, ot)
+    # pad by one pixel of the part's own label: pairs leaving the canvas give no point
+    pad = np.full((h + 2, w + 2), SHAFT, dtype=np.uint8)
+    pad[1:-1, 1:-1] = lab
+    ij = np.asarray(outline, dtype=np.int64)
+    x = ij[:, 0] - (canvas.x0 - 1)
+    y = ij[:, 1] - (canvas.y0 - 1)
+    nb = pad[y[None, :] + _DY[:, None], x[None, :] + _DX[:, None]]  # (4, N) neighbours
+    fx = x[None, :] + (canvas.x0 - 1 + 0.5 * _DX[:, None])
+    fy = y[None, :] + (canvas.y0 - 1 + 0.5 * _DY[:, None])
+    out = []
+    for val in (BG, OTHER):
+        m = nb == val  # direction-major order, as the pairs are examined
+        out.append(np.stack([fx[m], fy[m]], axis=1))
+    return Boundary(out[0], out[1])
 
 
-def _tls(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None
-         ) -> tuple[float, float, float]:
-    """Weighted total-least-squares line ``(a, b, c)`` with ``hypot(a, b) = 1``."""
-    if w is None:
-        w = np.ones(len(x))
-    sw = float(w.sum())
-    mx, my = float(w @ x) / sw, float(w @ y) / sw
-    dx, dy = x - mx, y - my
-    wdx = w * dx
-    sxx, sxy, syy = float(wdx @ dx), float(wdx @ dy), float((w * dy) @ dy)
+_DX = np.array([1, -1, 0, 0])
+_DY = np.array([0, 0, 1, -1])
+
+
+def _tls_moments(m: np.ndarray) -> np.ndarray:
+    """Weighted total-least-squares line from the (3, 3) moment matrix ``(X w) X^T`` of
+    homogeneous points ``X = (x, y, 1)``: (3,) ``(a, b, c)`` with ``hypot(a, b) = 1``."""
+    sw = m[2, 2]
+    mx, my = m[0, 2] / sw, m[1, 2] / sw
+    sxx = m[0, 0] - sw * mx * mx
+    sxy = m[0, 1] - sw * mx * my
+    syy = m[1, 1] - sw * my * my
     phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # direction of the line
     nx, ny = -math.sin(phi), math.cos(phi)
-    return nx, ny, -(nx * mx + ny * my)
+    return np.array([nx, ny, -(nx * mx + ny * my)])
 
 
 def _median(v: np.ndarray) -> float:
@@ -162,10 +161,17 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
         return None
     keep = None
     if n > max_points:  # a regular subsample: the fit's precision is already ~0.03 px
-        keep = np.linspace(0, n - 1, max_points).astype(np.int64)
+        keep = np.arange(max_points) * (n - 1) // (max_points - 1)
         pts, along = pts[keep], along[keep]
         n = max_points
-    x, y = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+    # homogeneous coordinates relative to the points' mean (well conditioned moments):
+    # a line (a, b, c) has residuals (a, b, c) @ X
+    ox, oy = pts.mean(axis=0)
+    X = np.empty((3, n))
+    X[0] = pts[:, 0] - ox
+    X[1] = pts[:, 1] - oy
+    X[2] = 1.0
+    x, y = X[0], X[1]
     order = np.argsort(along)
     half = n // 2
     if rng is None:
@@ -174,32 +180,38 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
         u1, u2 = rng.random(iters), rng.random(iters)
     i = order[(u1 * half).astype(np.int64)]
     j = order[n - half + (u2 * half).astype(np.int64)]
-    nx, ny = y[i] - y[j], x[j] - x[i]
-    ln = np.hypot(nx, ny)
+    H = np.empty((len(i), 3))
+    H[:, 0] = y[i] - y[j]
+    H[:, 1] = x[j] - x[i]
+    ln = np.sqrt(H[:, 0] * H[:, 0] + H[:, 1] * H[:, 1])
     ok = ln > 1e-9
-    if not ok.any():
-        return None
-    nx, ny = nx[ok] / ln[ok], ny[ok] / ln[ok]
-    c = -(nx * x[i[ok]] + ny * y[i[ok]])
-    res = np.abs(np.outer(nx, x) + np.outer(ny, y) + c[:, None])  # (iters, n)
+    if not ok.all():
+        if not ok.any():
+            return None
+        H, ln, i = H[ok], ln[ok], i[ok]
+    H[:, :2] /= ln[:, None]
+    H[:, 2] = -(H[:, 0] * x[i] + H[:, 1] * y[i])
+    res = np.abs(H @ X)  # (iters, n)
     best = int(np.argmin(np.minimum(res, thresh_px).sum(axis=1)))  # MSAC
     inl = res[best] < thresh_px
     if np.count_nonzero(inl) < 6:
         return None
-    a, b, c0 = _tls(x[inl], y[inl], np.ones(np.count_nonzero(inl)))
+    line = _tls_moments(X[:, inl] @ X[:, inl].T)
     scale = thresh_px
     for _ in range(2):
-        r = a * x + b * y + c0
-        u = r / (2.5 * scale)
-        w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+        u = (line @ X) * (1.0 / (2.5 * scale))
+        w = np.maximum(1.0 - u * u, 0.0)
+        w *= w  # Tukey's biweight, zero beyond 2.5 scale
         if w.sum() < 6:
             break
-        a, b, c0 = _tls(x, y, w)
-        r = np.abs(a * x + b * y + c0)
+        line = _tls_moments((X * w) @ X.T)
+        r = np.abs(line @ X)
         core = r[r < 2.5 * scale]
-        scale = float(np.clip(1.4826 * _median(core), 0.3, thresh_px)) if len(core) else scale
-    line = np.array([a, b, c0])
-    r = a * x + b * y + c0
+        if len(core):
+            scale = min(max(1.4826 * _median(core), 0.3), thresh_px)
+    r = line @ X
     inl = np.flatnonzero(np.abs(r) < max(2.5 * scale, 0.75))
-    sigma = float(np.sqrt(np.mean(r[inl] ** 2))) if len(inl) else float("inf")
+    ri = r[inl]
+    sigma = math.sqrt(float(ri @ ri) / len(inl)) if len(inl) else float("inf")
+    line[2] -= line[0] * ox + line[1] * oy  # back to image coordinates
     return line, (inl if keep is None else keep[inl]), sigma
