@@ -52,7 +52,9 @@ HEAD_GAP_FRAC = 0.8
 #: jaws of an open clasper entering the view).
 HEAD_HEAD_GAP_PX = 60.0
 #: ... and a head that does not touch the image border (its shaft cannot be beyond it)
-#: joins a shaft component up to this many px away (an occluder hides what joins them).
+#: joins a shaft component up to this many sqrt(its area) px away, at most
+#: :data:`HEAD_ORPHAN_GAP_PX` (an occluder hides what joins them; a speck reaches little).
+HEAD_ORPHAN_FRAC = 2.5
 HEAD_ORPHAN_GAP_PX = 100.0
 
 
@@ -369,7 +371,7 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
       :data:`HEAD_HEAD_GAP_PX`).
     - A head left alone that does not touch the image border (``border[i]`` False) has
       lost its shaft to an occluder: it joins the nearest group with a shaft within
-      :data:`HEAD_ORPHAN_GAP_PX` (or twice its own head reach).
+      :data:`HEAD_ORPHAN_FRAC` x sqrt(its area), at most :data:`HEAD_ORPHAN_GAP_PX`.
     """
     labels = [i for i in range(1, len(counts)) if counts[i] >= min_area]
     labels.sort(key=lambda i: -counts[i])
@@ -424,7 +426,7 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
     for i in list(todo):  # a head inside the view cut off from its shaft by an occluder
         if border is not None and border[i]:
             continue  # a head at the border: its shaft may be beyond it
-        lim = max(HEAD_ORPHAN_GAP_PX, 2.0 * HEAD_GAP_FRAC * math.sqrt(area[i]))
+        lim = min(HEAD_ORPHAN_GAP_PX, HEAD_ORPHAN_FRAC * math.sqrt(area[i]))
         near = [(gap(i, j, lim), j) for j in members if j in hosts]
         near = [(g, j) for g, j in near if g <= lim]
         if near:
@@ -560,6 +562,9 @@ class IdentityTracker:
     #: An instrument unseen for more than 5 frames is searched for within a distance
     #: that grows by this many of its sizes per second unseen.
     LOST_SEARCH_GROWTH = 0.25
+    #: ... starting from at most this fraction of the image diagonal (an instrument comes
+    #: back near where it left, through its trocar; a large one is no wider gate).
+    LOST_SCALE_FRAC = 0.1
 
     def __init__(self, config: Config, *, max_gap_s: float = 2.0) -> None:
         self._config = config
@@ -767,10 +772,15 @@ class IdentityTracker:
         # scale: the instrument's full size, also when it was last seen only partly
         scale = max(t.size, math.sqrt(inst.area_px), 10.0)
         if gap > 5 and not t.merged:  # unseen: the search area grows with time
+            if inst.image_shape is not None:  # from where it left, whatever its size
+                scale = min(scale, self.LOST_SCALE_FRAC * math.hypot(*inst.image_shape))
             scale *= 1.0 + self.LOST_SEARCH_GROWTH * (gap - 5) / self._config.fps
         cost = float(np.hypot(*(c - pred))) / scale
         angle, elong = _appearance(inst)
-        if angle is not None and t.angle is not None:
+        lost = gap > 5 and not t.merged
+        # an instrument coming back shows its head first: its direction is no shaft's
+        if angle is not None and t.angle is not None and not (lost and "shaft" not in
+                                                                  inst.parts):
             w = min(elong, t.elongation)
             cost += self.ANGLE_WEIGHT * w * _angle_diff(angle, t.angle) / 90.0
         if not t.merged and gap <= 5:  # not a blob's area, nor an exit's partial one
