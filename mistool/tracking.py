@@ -511,6 +511,7 @@ class _Track:
     boxes: dict[str, RotatedBox] | None = None  # last part boxes seen apart from others
     boxes_frame: int = 0  # ... and their frame
     seen: int = 1
+    entry: np.ndarray | None = None  # (2,) px where its shaft last entered the view alone
 
 
 def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
@@ -565,6 +566,10 @@ class IdentityTracker:
     #: ... starting from at most this fraction of the image diagonal (an instrument comes
     #: back near where it left, through its trocar; a large one is no wider gate).
     LOST_SCALE_FRAC = 0.1
+    #: Splitting a blob on its shafts' entries: an instrument known in it takes the piece
+    #: entering the view nearest to where its own shaft last entered, at a cost of one per
+    #: this fraction of the image diagonal.
+    ENTRY_SCALE_FRAC = 0.1
 
     def __init__(self, config: Config, *, max_gap_s: float = 2.0) -> None:
         self._config = config
@@ -680,11 +685,17 @@ class IdentityTracker:
                     continue
                 cands = group + spare_b
                 cost = np.full((len(cands), len(got)), np.inf)
+                diag = math.hypot(*inst.image_shape) if inst.image_shape else 1000.0
                 for r, a in enumerate(cands):
+                    t = live[a]
                     for c, piece in enumerate(got):
-                        # the blob's own instruments: their state is the blob's, looser
-                        cost[r, c] = self._cost(live[a], piece, frame_index) * (
-                            0.5 if r < len(group) else 1.0)
+                        if r >= len(group):
+                            cost[r, c] = self._cost(t, piece, frame_index)
+                        elif t.entry is not None:  # where its shaft entered the view
+                            cost[r, c] = float(np.hypot(*(t.entry - entries[c][0]))) / (
+                                self.ENTRY_SCALE_FRAC * diag)
+                        else:  # the blob's own instruments: their state is the blob's
+                            cost[r, c] = 0.5 * self._cost(t, piece, frame_index)
                 pairs_b = _assignment(cost, self.MAX_COST)
                 taken = {cands[r] for r, _ in pairs_b}
                 spare = [a for a in spare if a not in taken and a not in group]
@@ -811,10 +822,17 @@ class IdentityTracker:
             if apart and "shaft" in inst.parts:  # a split piece is no reference shape
                 t.boxes = {p: o.box for p, o in inst.parts.items()}
                 t.boxes_frame = frame
+            self._set_entry(t, inst)
             t.merged = False
         t.hidden = False
         t.last_frame = frame
         t.seen += 1
+
+    @staticmethod
+    def _set_entry(t: _Track, inst: InstanceObservation) -> None:
+        runs = _border_runs(inst)
+        if len(runs) == 1:  # one shaft entering: this instrument's (not a blob's)
+            t.entry = runs[0][0][1]
 
     def _new_track(self, inst: InstanceObservation, frame: int) -> _Track:
         angle, elong = _appearance(inst)
@@ -825,6 +843,7 @@ class IdentityTracker:
         if "shaft" in inst.parts:
             t.boxes = {p: o.box for p, o in inst.parts.items()}
             t.boxes_frame = frame
+        self._set_entry(t, inst)
         self._next += 1
         self._tracks.append(t)
         return t
@@ -876,12 +895,11 @@ def _distal_axis(boxes: dict[str, RotatedBox]) -> tuple[np.ndarray, np.ndarray, 
 ENTRY_MIN_PX = 6
 
 
-def _border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """Where the instance's shaft pixels cross the image border, one entry per run of
-    border pixels (runs around a corner are one): ``(point, inward direction, width)``,
-    px. The direction is the principal axis of the shaft pixels near the run; the width
-    the run's length across that direction. Empty unless there are two entries or more
-    (one instrument per entry, unless two touch at the border)."""
+def _border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
+    """Where the instance's shaft pixels lie on the image border: one run of border
+    pixels per shaft entering the view (runs around a corner are one), as ``(ends,
+    length)``: (3, 2) px of the run's first, middle and last pixel, and its length (px;
+    at least :data:`ENTRY_MIN_PX`)."""
     shaft = inst.parts.get("shaft")
     if shaft is None or inst.image_shape is None:
         return []
@@ -889,6 +907,8 @@ def _border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndar
     m = shaft.mask
     x0, y0 = shaft.offset
     h, w = m.shape
+    if x0 > 0 and y0 > 0 and x0 + w < ww and y0 + h < hh:
+        return []
     n = 2 * (ww - 1) + 2 * (hh - 1)  # the border as a loop: top, right, bottom, left
     on = np.zeros(n, bool)
     xs, ys = np.arange(x0, x0 + w), np.arange(y0, y0 + h)
@@ -900,19 +920,14 @@ def _border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndar
         on[(ww - 1) + (hh - 1) + (ww - 1 - xs[m[-1]])] = True
     if x0 == 0:
         on[(2 * (ww - 1) + (hh - 1) + (hh - 1 - ys[m[:, 0]])) % n] = True
-    if on.sum() < 2 * ENTRY_MIN_PX:
-        return []
-    if on.all():
+    if on.sum() < ENTRY_MIN_PX or on.all():
         return []
     start = int(np.argmin(on))  # a border pixel off the shaft: runs do not wrap from here
     roll = np.roll(on, -start).astype(np.int8)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], roll, [0]])))
-    runs = [((a + start) % n, b - a) for a, b in zip(edges[::2], edges[1::2], strict=True)
-            if b - a >= ENTRY_MIN_PX]
-    if len(runs) < 2:
-        return []
 
     def xy(i: int) -> tuple[float, float]:
+        i %= n
         if i < ww - 1:
             return float(i), 0.0
         i -= ww - 1
@@ -924,12 +939,30 @@ def _border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndar
         i -= ww - 1
         return 0.0, float(hh - 1 - i)
 
-    yy, xx = np.nonzero(m)
-    pts = np.stack([xx + x0, yy + y0], 1).astype(np.float64)
+    out = []
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        length = int(b - a)
+        if length >= ENTRY_MIN_PX:
+            first = int(a) + start
+            ends = np.array([xy(first), xy(first + length // 2), xy(first + length - 1)])
+            out.append((ends, length))
+    return out
+
+
+def _border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """The shafts entering the view at the image border (:func:`_border_runs`), as
+    ``(point, inward direction, width)``, px: the direction is the principal axis of the
+    shaft pixels near the run, the width the run's length across it. Empty unless there
+    are two entries or more (one instrument per entry, unless two touch at the border)."""
+    runs = _border_runs(inst)
+    if len(runs) < 2:
+        return []
+    shaft = inst.parts["shaft"]
+    yy, xx = np.nonzero(shaft.mask)
+    pts = np.stack([xx + shaft.offset[0], yy + shaft.offset[1]], 1).astype(np.float64)
     pts = pts[::max(1, len(pts) // 20000)]
     out = []
-    for a, length in runs:
-        ends = np.array([xy((a + k) % n) for k in (0, length // 2, length - 1)])
+    for ends, length in runs:
         mid = ends[1]
         r = max(3.0 * length, 30.0)
         near = pts[np.einsum("nd,nd->n", pts - mid, pts - mid) <= r * r]
