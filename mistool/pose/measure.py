@@ -133,6 +133,24 @@ def _median1(v: np.ndarray) -> float:
     return 0.5 * float(part[k - 1] + part[k])
 
 
+def _ray(px: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Unit viewing ray (3,) of one pixel (2,) (``pixel_rays`` for a single pixel)."""
+    x = (float(px[0]) - K[0, 2]) / K[0, 0]
+    y = (float(px[1]) - K[1, 2]) / K[1, 1]
+    n = math.sqrt(x * x + y * y + 1.0)
+    return np.array([x / n, y / n, 1.0 / n])
+
+
+_UNIT_GRID = np.linspace(0.0, 1.0, 81)
+
+
+def _closest1(px: np.ndarray, K: np.ndarray, p0: np.ndarray, a: np.ndarray) -> float:
+    """``closest_on_axis`` for a single pixel's ray (mm)."""
+    d = _ray(px, K)
+    da, dp, ap = float(d @ a), float(d @ p0), float(a @ p0)
+    return (da * dp - ap) / max(1.0 - da * da, 1e-12)
+
+
 def _window_max(x: np.ndarray, size: int) -> np.ndarray:
     """Sliding maximum: ``out[i] = x[i:i + size].max()`` for every full window."""
     m, w = x, 1
@@ -412,7 +430,7 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         if sol is None:
             return None
         p0, a = sol
-        tc = float(closest_on_axis(pixel_rays(centre[None], K), p0, a)[0])
+        tc = _closest1(centre, K, p0, a)
         xc = p0 + tc * a
         if xc[2] <= 0:
             return None
@@ -489,10 +507,10 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         return out
     if sig_a <= MAX_SIGMA_DEG:
         # proximal end: where the shaft leaves the view (or its proximal end)
-        t_start = float(closest_on_axis(pixel_rays(prox[None], K), p0, a)[0])
+        t_start = _closest1(prox, K, p0, a)
         start = p0 + t_start * a
         far = pix[s_pix >= s_max - 1.0].mean(axis=0)
-        t_far = float(closest_on_axis(pixel_rays(far[None], K), p0, a)[0])
+        t_far = _closest1(far, K, p0, a)
         t_end = float((joint - p0) @ a) if joint is not None else t_far
         if start[2] <= 0 or t_end <= t_start:
             start = None
@@ -647,8 +665,8 @@ def _tip_solve(tip_px: np.ndarray, joint: np.ndarray, a: np.ndarray, K: np.ndarr
     u = (tip_px - jpx) / dist
     l_nom = _TIP_LENGTH_FACTOR * length if length is not None else None
     # least-bent direction in the plane of the camera centre, J and the tip's ray
-    ray = pixel_rays(tip_px[None], K)[0]
-    nc = cross3(joint, ray if not hidden else pixel_rays((jpx + 10.0 * u)[None], K)[0])
+    ray = _ray(tip_px, K)
+    nc = cross3(joint, ray if not hidden else _ray(jpx + 10.0 * u, K))
     nn = math.sqrt(float(nc @ nc))
     if nn < 1e-9:
         return None, None, tip_px
@@ -658,8 +676,10 @@ def _tip_solve(tip_px: np.ndarray, joint: np.ndarray, a: np.ndarray, K: np.ndarr
     if ncl < 1e-6:
         return None, None, tip_px
     c /= ncl
-    st = project(np.stack([joint, joint + c]), K)
-    if float((st[1] - st[0]) @ u) < 0:
+    j2 = joint + c  # image direction of c at the joint (joint[2] > 0 here)
+    du = K[0, 0] * (j2[0] / j2[2] - joint[0] / joint[2])
+    dv_ = K[1, 1] * (j2[1] / j2[2] - joint[1] / joint[2])
+    if du * u[0] + dv_ * u[1] < 0:
         c = -c
     if hidden:
         if l_nom is None:
@@ -667,7 +687,8 @@ def _tip_solve(tip_px: np.ndarray, joint: np.ndarray, a: np.ndarray, K: np.ndarr
         return joint + l_nom * c, c, tip_px
     s_j = float(ray @ joint)
     span = 3.0 * (l_nom if l_nom is not None else 16.0)
-    s = np.linspace(max(s_j - span, 1.0), s_j + span, 81)
+    lo = max(s_j - span, 1.0)
+    s = lo + (s_j + span - lo) * _UNIT_GRID
     X = s[:, None] * ray
     d = X - joint
     ln = np.sqrt(np.einsum("ij,ij->i", d, d))

@@ -117,11 +117,11 @@ _DY = np.array([0, 0, 1, -1])
 def _tls_moments(m: np.ndarray) -> np.ndarray:
     """Weighted total-least-squares line from the (3, 3) moment matrix ``(X w) X^T`` of
     homogeneous points ``X = (x, y, 1)``: (3,) ``(a, b, c)`` with ``hypot(a, b) = 1``."""
-    sw = m[2, 2]
-    mx, my = m[0, 2] / sw, m[1, 2] / sw
-    sxx = m[0, 0] - sw * mx * mx
-    sxy = m[0, 1] - sw * mx * my
-    syy = m[1, 1] - sw * my * my
+    (m00, m01, m02), (_, m11, m12), (_, _, sw) = m.tolist()
+    mx, my = m02 / sw, m12 / sw
+    sxx = m00 - sw * mx * mx
+    sxy = m01 - sw * mx * my
+    syy = m11 - sw * my * my
     phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # direction of the line
     nx, ny = -math.sin(phi), math.cos(phi)
     return np.array([nx, ny, -(nx * mx + ny * my)])
@@ -166,7 +166,7 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
         n = max_points
     # homogeneous coordinates relative to the points' mean (well conditioned moments):
     # a line (a, b, c) has residuals (a, b, c) @ X
-    ox, oy = pts.mean(axis=0)
+    ox, oy = (pts.sum(axis=0) * (1.0 / n)).tolist()
     X = np.empty((3, n))
     X[0] = pts[:, 0] - ox
     X[1] = pts[:, 1] - oy
