@@ -101,13 +101,11 @@ def boundary_points(canvas: Canvas, outline: np.ndarray) -> Boundary:
     x = ij[:, 0] - (canvas.x0 - 1)
     y = ij[:, 1] - (canvas.y0 - 1)
     nb = pad[y[None, :] + _DY[:, None], x[None, :] + _DX[:, None]]  # (4, N) neighbours
-    fx = x[None, :] + (canvas.x0 - 1 + 0.5 * _DX[:, None])
-    fy = y[None, :] + (canvas.y0 - 1 + 0.5 * _DY[:, None])
-    out = []
-    for val in (BG, OTHER):
-        m = nb == val  # direction-major order, as the pairs are examined
-        out.append(np.stack([fx[m], fy[m]], axis=1))
-    return Boundary(out[0], out[1])
+    f = np.empty((4, len(x), 2))  # the pairs' mid-points (full-image px)
+    f[:, :, 0] = x[None, :] + (canvas.x0 - 1 + 0.5 * _DX[:, None])
+    f[:, :, 1] = y[None, :] + (canvas.y0 - 1 + 0.5 * _DY[:, None])
+    # direction-major order, as the pairs are examined
+    return Boundary(f[nb == BG], f[nb == OTHER])
 
 
 _DX = np.array([1, -1, 0, 0])
