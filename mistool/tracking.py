@@ -278,11 +278,16 @@ def _host_for(piece: InstanceObservation, found: list[InstanceObservation], k: i
             if j == k or "shaft" not in other.parts:
                 continue
             a = other.parts["shaft"].box
-            if _angle_diff(a.angle_deg, b.angle_deg) > CUT_SHAFT_ANGLE_DEG:
+            # a short stub's box has no reliable direction: the longer piece's axis is the
+            # reference, and directions must agree only when the other is long too (twice
+            # the shaft's width)
+            ref, q = (a, b) if a.length >= b.length else (b, a)
+            if q.length >= 2.0 * ref.width and \
+                    _angle_diff(a.angle_deg, b.angle_deg) > CUT_SHAFT_ANGLE_DEG:
                 continue
-            u = _unit(a.angle_deg)
-            off = abs((b.cx - a.cx) * u[1] - (b.cy - a.cy) * u[0])  # distance to a's axis
-            if off <= 0.5 * max(a.width, b.width):
+            u = _unit(ref.angle_deg)
+            off = abs((q.cx - ref.cx) * u[1] - (q.cy - ref.cy) * u[0])  # to ref's axis
+            if off <= 0.5 * max(ref.width, min(q.width, q.length)):
                 return j
         return None
     if "shaft" in piece.parts:
@@ -292,9 +297,11 @@ def _host_for(piece: InstanceObservation, found: list[InstanceObservation], k: i
     for j, other in enumerate(found):
         if j == k or "shaft" not in other.parts:
             continue
-        # the host must not already show a head part of this piece's size
-        if any(p in other.parts and piece.parts[p].area_px >= FRAGMENT_AREA_FRAC
-               * other.parts[p].area_px for p in piece.parts):
+        # the host must not already show a head part of this piece's size (its own
+        # head): a crumb of a head (< FRAGMENT_AREA_FRAC of the host's) joins, and so
+        # does a head larger than the stub of it the host shows beside the occluder
+        if any(p in other.parts and FRAGMENT_AREA_FRAC * other.parts[p].area_px
+               <= piece.parts[p].area_px <= other.parts[p].area_px for p in piece.parts):
             continue
         a = other.parts["shaft"].box
         u = _unit(a.angle_deg) * _distal_sign(other, shape)
@@ -994,7 +1001,7 @@ def _split_entries(inst: InstanceObservation,
         angle = math.degrees(math.atan2(d[1], d[0])) % 180.0
         expected.append({"shaft": RotatedBox(float(c[0]), float(c[1]), reach, width, angle)})
         axes.append((p + reach * d, d, math.inf))
-    got = _split(inst, expected, min_area_px, axes)
+    got = _split(inst, expected, min_area_px, axes, contiguous=True)
     return None if got is None else got[1]
 
 
@@ -1027,11 +1034,13 @@ def split_instance(inst: InstanceObservation, expected: list[dict[str, RotatedBo
 
 def _split(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
            min_area_px: int,
-           axes: list[tuple[np.ndarray, np.ndarray, float]] | None = None
-           ) -> tuple[float, list[InstanceObservation]] | None:
+           axes: list[tuple[np.ndarray, np.ndarray, float]] | None = None,
+           contiguous: bool = False) -> tuple[float, list[InstanceObservation]] | None:
     """:func:`split_instance` and its score (the worst RMS distance of a shaft's pixels
     to its axis, in half-widths; lower is better). ``axes``: the shafts' (distal end,
-    distal direction, back length) when not from ``expected`` (:func:`_distal_axis`)."""
+    distal direction, back length) when not from ``expected`` (:func:`_distal_axis`);
+    ``contiguous``: each shaft ends at the first gap of two widths in its pixels along
+    its axis (shafts entering from the border, their ends unknown)."""
     shaft = inst.parts.get("shaft")
     k = len(expected)
     if shaft is None or k < 2 or any("shaft" not in e for e in expected):
@@ -1061,7 +1070,14 @@ def _split(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
             dirs[j] = d if d @ dirs[j] >= 0 else -d
             # the distal end: the pixels' reach, never beyond the expected end + margin
             limit = float((ends0[j] + margin[j] * dirs[j] - c) @ dirs[j])
-            ends[j] = c + min(float(((q - c) @ dirs[j]).max()), limit) * dirs[j]
+            proj = (q - c) @ dirs[j]
+            reach = float(proj.max())
+            if contiguous:  # up to the first gap along the axis: beyond is another's
+                sp = np.sort(proj)
+                gaps = np.flatnonzero(np.diff(sp) > 4.0 * radius[j])
+                if len(gaps):
+                    reach = float(sp[gaps[0]])
+            ends[j] = c + min(reach, limit) * dirs[j]
     d = _segment_distance(fit_pts, ends, dirs, back, radius)
     lab = d.argmin(1)
     score = 0.0

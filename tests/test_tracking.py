@@ -431,3 +431,74 @@ def test_shaft_cut_by_an_occluder_is_one_instrument(offset, expected):
         got = insts[0].parts["shaft"].box
         assert got.length == pytest.approx(full.length, abs=1.0)
         assert got.angle_deg == pytest.approx(full.angle_deg, abs=0.5)
+
+
+def _open_tool(img: np.ndarray, joint: tuple[float, float], angle_deg: float,
+               open_deg: float = 25.0, width: float = 30.0, jaw_len: float = 70.0) -> None:
+    """A shaft from beyond the image border to ``joint`` and two open jaws from there
+    (``angle_deg`` distal, from +x towards +y)."""
+    t = math.radians(angle_deg)
+    d = np.array([math.cos(t), math.sin(t)])
+    c = np.asarray(joint, float) - 400.0 * d
+    fill_box(img, RotatedBox(c[0], c[1], 800.0, width, angle_deg % 180.0), SHAFT)
+    for s in (-1.0, 1.0):
+        a = angle_deg + s * open_deg
+        u = np.array([math.cos(math.radians(a)), math.sin(math.radians(a))])
+        c = np.asarray(joint, float) + jaw_len / 2 * u
+        fill_box(img, RotatedBox(c[0], c[1], jaw_len, 10.0, a % 180.0), CLASPER)
+
+
+@pytest.mark.parametrize("band_x, angle", [(520.0, 180.0), (520.0, 160.0), (560.0, 180.0),
+                                           (560.0, 200.0), (560.0, 160.0)])
+def test_tool_cut_by_a_band_keeps_one_name(band_x, angle):
+    """A tool entering from the right slides under a 30 px band of tissue (background
+    value) across its axis: the band cuts its shaft, its jaws, or the shaft just behind
+    the jaws (a short stub left with the head); the pieces stay one instrument, one name."""
+    tracker = IdentityTracker(MERGED)
+    t = math.radians(angle)
+    yy, xx = np.mgrid[0:H, 0:W]
+    band = np.abs((xx - band_x) * math.cos(t) + (yy - 300.0) * math.sin(t)) < 15.0
+    for k in range(25):
+        img = np.zeros((H, W), np.uint8)
+        _open_tool(img, (700.0 - 10 * k, 300.0 + 4 * k), angle)
+        img[band] = 0
+        insts, names = tracker.resolve(k, observe_frame(img, MERGED))
+        assert names == ["1"], k
+    assert tracker.names == ("1",)
+
+
+def _meeting(n_tools: int, k: int) -> np.ndarray:
+    """Tools entering from the left, the right (and the bottom), their jaws meeting near
+    the image centre at k = 0 and drawing apart, 4 px per frame, afterwards."""
+    img = np.zeros((H, W), np.uint8)
+    for angle, start in [(10.0, (330.0, 270.0)), (165.0, (400.0, 300.0)),
+                         (280.0, (370.0, 340.0))][:n_tools]:
+        t = math.radians(angle)
+        joint = (start[0] - 4.0 * k * math.cos(t), start[1] - 4.0 * k * math.sin(t))
+        _open_tool(img, joint, angle)
+    return img
+
+
+@pytest.mark.parametrize("n_tools", [2, 3])
+def test_tools_touching_when_they_appear_are_split(n_tools):
+    """Tools whose jaws touch from the first frame they are seen form one blob; resolve()
+    splits it on the shafts entering the view, names each, and the names stay with their
+    tools while they touch and after they draw apart."""
+    tracker = IdentityTracker(MERGED)
+    by_side: dict[str, set[str]] = {}
+    merged_frames = 0
+    for k in range(30):
+        insts = observe_frame(_meeting(n_tools, k), MERGED)
+        merged_frames += len(insts) < n_tools
+        out, names = tracker.resolve(k, insts)
+        assert len(out) == n_tools, k
+        for inst, name in zip(out, names, strict=True):
+            s = inst.parts["shaft"].box
+            side = ("left" if s.cx < 250 and abs(s.angle_deg - 10) < 5 else
+                    "right" if s.cx > 450 and abs(s.angle_deg - 165) < 5 else
+                    "bottom" if s.cy > 400 and abs(s.angle_deg - 100) < 5 else "?")
+            by_side.setdefault(side, set()).add(name)
+    assert merged_frames >= 5  # they do touch for a while
+    assert "?" not in by_side
+    assert all(len(v) == 1 for v in by_side.values()), by_side
+    assert len(by_side) == n_tools and len(tracker.names) == n_tools
