@@ -124,6 +124,35 @@ def test_clean_render_gives_pose_back(J, a):
     assert np.linalg.norm(np.cross(st - J, a)) < 0.5
 
 
+@pytest.mark.parametrize("J,a", [
+    ([-20.0, 0.0, 80.0], [1.0, 0.0, 0.8]),
+    ([10.0, 10.0, 70.0], [-0.3, 0.5, 0.8]),
+    ([0.0, -10.0, 90.0], [0.2, 1.0, 0.3]),
+])
+def test_tip_is_the_jaw_end_centre_not_its_rim(J, a, monkeypatch):
+    """A thick clasper (2 mm radius) receding from the camera: its image ends at the end
+    cap's rim, several px beyond the cap's centre (the tip); the tip's pixel is pulled
+    back onto the centre."""
+    import mistool.pose.measure as measure
+
+    J, a = np.asarray(J), unit(a)
+    tip = J + 16.0 * a
+    labels = render_instrument(SHAPE, K, J - 400.0 * a, J, tip, R, 2.0)
+    uv = K @ tip
+    uv = uv[:2] / uv[2]
+
+    def tip_px(cap: float) -> tuple[float, float]:
+        monkeypatch.setattr(measure, "_TIP_CAP", cap)
+        cl = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 16.0)["clasper"]
+        return (float(np.linalg.norm([cl["aux_u_px"] - uv[0], cl["aux_v_px"] - uv[1]])),
+                float(np.linalg.norm(vec(cl, "end") - tip)))
+
+    px_raw, _ = tip_px(0.0)
+    px, mm = tip_px(1.0)
+    assert px_raw > 4.0  # the rim overshoots the centre
+    assert px < 3.0 and mm < 1.5
+
+
 def test_quaternion_rotates_z_onto_axis():
     for a in (unit([1, 2, 3]), unit([0, 0, -1]), unit([0.2, -0.9, -0.1]), np.array([0, 0, 1.0])):
         w, x, y, z = quat_from_z(a)
