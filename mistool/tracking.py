@@ -9,16 +9,20 @@ Two ways to tell instruments apart, chosen by the config:
   instrument (shaft + wrist + clasper pixels together), bridged over gaps of up to
   :data:`MERGE_GAP_PX` pixels so a clasper one pixel away from its shaft stays one
   instrument. Components smaller than ``config.min_area_px`` are specks and are dropped;
-  a component without shaft pixels (open jaws, a clasper cut by an occluder) joins a
-  nearby component with a shaft (:data:`HEAD_GAP_FRAC`), a small shaft piece close to a
-  much larger one joins it (:data:`FRAGMENT_AREA_FRAC`, :data:`FRAGMENT_GAP_PX`), and
-  pieces an occluder cut off join by shaft geometry: a shaft-only piece continuing
-  another's shaft axis, a head on the distal extension of a shaft's axis
-  (:data:`HEAD_AXIS_REACH`).
+  a component without shaft pixels (open jaws, a clasper cut by an occluder) joins the
+  nearest group with a shaft within reach (:data:`HEAD_GAP_FRAC`; distances between the
+  pixels, groups growing as heads join), or, if it does not touch the image border (no
+  shaft can reach it but under an occluder), within :data:`HEAD_ORPHAN_FRAC`; a small
+  shaft piece close to a much larger one joins it (:data:`FRAGMENT_AREA_FRAC`,
+  :data:`FRAGMENT_GAP_PX`), and pieces an occluder cut off join by shaft geometry: a
+  shaft-only piece continuing another's shaft axis (also a short stub's), a head on the
+  distal extension of a shaft's axis (:data:`HEAD_AXIS_REACH`).
   :class:`IdentityTracker` then keeps each instance's name across frames, also through
   crossings (instruments touching form one instance: ``assign`` keeps one name for it and
-  lets the other coast; ``resolve`` splits it between the instruments' shaft axes) and
-  when one leaves the view and comes back.
+  lets the other coast; ``resolve`` splits it between the instruments' shaft axes), when
+  instruments already touch as they come into view (``resolve`` splits a blob on the
+  shafts entering at the image border when it holds more of them than instruments known
+  in it) and when one leaves the view and comes back (looked for near where it left).
 
 Every part's box is Algorithm 1 (:mod:`mistool.geometry`) over all of that part's
 pixels in the instance, after dropping specks smaller than ``config.min_area_px``.
@@ -549,10 +553,16 @@ class IdentityTracker:
       that instance, is kept alive, and both *coast* on their predicted motion (their
       state is not polluted by the merged blob's centroid) until they separate, when
       position and shaft direction tell them apart again.
+    - Touching since they appeared (``resolve`` only): a blob whose shaft pixels enter
+      the view at more places on the image border than instruments known in it is split
+      on those shafts (half-lines from the border, refitted as for a crossing, refused
+      when ambiguous); each known instrument takes the piece entering nearest to where
+      its own shaft last entered, the others get new names.
     - Leaving and coming back: an instrument unseen for up to ``max_gap_s`` seconds is
-      remembered; a new instance near where it was last seen (and similar in direction)
-      gets its old name back; after that gap it is forgotten and a newcomer gets a new
-      name.
+      remembered; a new instance near where it was last seen (within
+      :attr:`LOST_SCALE_FRAC` of the image diagonal, growing with time, and similar in
+      shaft direction) gets its old name back; after that gap it is forgotten and a
+      newcomer gets a new name.
 
     ``assign`` must be called in frame order (it keeps state); it is not thread-safe.
     """
