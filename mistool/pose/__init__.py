@@ -25,11 +25,13 @@ sequence, is not applied); ``"none"`` per-frame estimates (with the trocar const
 
 Known limits (measured by ``scripts/eval_metric.py``): the depth comes from the shaft's
 apparent width, so a segmentation that is uniformly too fat or too thin by ``b`` px
-scales the depth by about ``1 - b * z / (f r)`` (1 px of dilation: ~2.4 mm median J
-error at 50-150 mm); the tip's depth along its viewing ray relies on priors (the
-clasper's length and a small bend from the shaft), so strong wrist bends out of the
-image plane cost millimetres; two tools touching in a merged mask yield the larger
-shaft's pose and no clasper pose.
+scales the depth by about ``1 - b * z / (f r)`` (median J error at 50-150 mm with mild
+corruption: ~1.2 mm for 0.5 px, ~2.3 mm for 1 px, either sign; ``mistool synth --bias``
+renders such a bias sub-pixel exactly); the tip's depth along its viewing ray relies on
+priors (the clasper's length and a small bend from the shaft), so strong wrist bends out
+of the image plane and open jaws (shorter than the nominal length) cost a millimetre or
+more; two tools touching in a merged mask yield the larger shaft's pose and no clasper
+pose.
 """
 
 from mistool.pose.measure import measure_instance
