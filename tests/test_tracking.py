@@ -502,3 +502,31 @@ def test_tools_touching_when_they_appear_are_split(n_tools):
     assert "?" not in by_side
     assert all(len(v) == 1 for v in by_side.values()), by_side
     assert len(by_side) == n_tools and len(tracker.names) == n_tools
+
+
+def test_newcomer_far_from_where_a_large_tool_left_gets_a_new_name():
+    """A large tool (120 px wide) retracts out through the right border; 10 frames later
+    another tool comes in through that border 340 px lower: a new name (an instrument
+    comes back near where it left, however large it is: the search starts within a tenth
+    of the image diagonal, not within the tool's own size); the first tool, coming back
+    where it left, gets its own name back."""
+    tracker = IdentityTracker(MERGED)
+    seen: list[list[str]] = []
+
+    def step(k: int, tools: list[tuple[tuple[float, float], float]]) -> None:
+        img = np.zeros((800, W), np.uint8)
+        for tip, angle in tools:
+            draw_tool(img, tip, angle, shaft_len=700.0, width=120.0, clasper_len=120.0)
+        seen.append(tracker.resolve(k, observe_frame(img, MERGED))[1])
+
+    for k in range(12):  # A retracts out of view
+        step(k, [((300.0 + 40 * k, 300.0), 180.0)])
+    for k in range(12, 22):
+        step(k, [])
+    for k in range(22, 30):  # B enters
+        step(k, [((740.0 - 20 * (k - 22), 640.0), 180.0)])
+    for k in range(30, 36):  # A comes back where it left
+        step(k, [((580.0, 640.0), 180.0), ((740.0 - 20 * (k - 30), 310.0), 180.0)])
+    assert seen[0] == ["1"] and seen[11] == []
+    assert {n for s in seen[22:30] for n in s} == {"2"}
+    assert set(seen[-1]) == {"1", "2"}
