@@ -196,18 +196,19 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
         return None
     line = _tls_moments(X[:, inl] @ X[:, inl].T)
     scale = thresh_px
+    r = line @ X  # signed residuals of the current line
     for _ in range(2):
-        u = (line @ X) * (1.0 / (2.5 * scale))
+        u = r * (1.0 / (2.5 * scale))
         w = np.maximum(1.0 - u * u, 0.0)
         w *= w  # Tukey's biweight, zero beyond 2.5 scale
         if w.sum() < 6:
             break
         line = _tls_moments((X * w) @ X.T)
-        r = np.abs(line @ X)
-        core = r[r < 2.5 * scale]
+        r = line @ X
+        ra = np.abs(r)
+        core = ra[ra < 2.5 * scale]
         if len(core):
             scale = min(max(1.4826 * _median(core), 0.3), thresh_px)
-    r = line @ X
     inl = np.flatnonzero(np.abs(r) < max(2.5 * scale, 0.75))
     ri = r[inl]
     sigma = math.sqrt(float(ri @ ri) / len(inl)) if len(inl) else float("inf")
