@@ -78,11 +78,19 @@ def main() -> None:
     args = parser.parse_args()
     print(f"{'sequence':<28} {'method':<8} {'names':>9} {'purity':>7} {'coverage':>9} "
           f"{'shaft err':>10}")
+    totals: dict[str, list[dict[str, float]]] = {"assign": [], "resolve": []}
     for folder in args.folders:
         for method in ("assign", "resolve"):
             r = evaluate(folder, method)
+            totals[method].append(r)
             print(f"{str(folder)[-28:]:<28} {method:<8} {r['names']:>4} / {r['true']:<2} "
                   f"{r['purity']:>7.1%} {r['coverage']:>9.1%} {r['shaft_err']:>8.2f} px")
+    if len(args.folders) > 1:  # names summed, the rest averaged over the sequences
+        for method, rs in totals.items():
+            n, t = sum(r["names"] for r in rs), sum(r["true"] for r in rs)
+            pur = float(np.mean([r["purity"] for r in rs]))
+            cov = float(np.mean([r["coverage"] for r in rs]))
+            print(f"{'all (mean)':<28} {method:<8} {n:>4} / {t:<2} {pur:>7.1%} {cov:>9.1%}")
 
 
 if __name__ == "__main__":
