@@ -239,12 +239,6 @@ def _fit_limbs(pts: np.ndarray, s: np.ndarray, q: np.ndarray, keep: np.ndarray,
     return lines, stats
 
 
-def _rotated(line: np.ndarray, about: np.ndarray, angle: float) -> np.ndarray:
-    c, s_ = math.cos(angle), math.sin(angle)
-    n = np.array([c * line[0] - s_ * line[1], s_ * line[0] + c * line[1]])
-    return np.array([n[0], n[1], -float(n @ about)])
-
-
 def _uncertainty(lines: list[np.ndarray], stats: list[_LineStats], K: np.ndarray,
                  radius: float, ref: np.ndarray, a: np.ndarray) -> tuple[float, float]:
     """1-sigma error of a reference axis point (mm) and of the axis direction (deg),
@@ -255,38 +249,53 @@ def _uncertainty(lines: list[np.ndarray], stats: list[_LineStats], K: np.ndarray
     over a few pixels: ``n_eff <= span / 2``), plus ``_PX_BIAS`` of unknown systematic
     offset (e.g. segmentation bias).
     """
-    rref = ref / math.sqrt(float(ref @ ref))
-    l1 = np.repeat(lines[0][None], 4, axis=0)
-    l2 = np.repeat(lines[1][None], 4, axis=0)
-    for k, ln in ((0, l1), (1, l2)):
+    # plain floats: four solves of 3-vectors are much cheaper without numpy's overhead
+    (k00, k01, k02), (k10, k11, k12), (k20, k21, k22) = K.tolist()
+    rx, ry, rz = ref.tolist()
+    nr = math.sqrt(rx * rx + ry * ry + rz * rz)
+    ux, uy, uz = rx / nr, ry / nr, rz / nr
+    ax_, ay_, az_ = a.tolist()
+    base = [lines[0].tolist(), lines[1].tolist()]
+    variants = []
+    for k in (0, 1):
         st = stats[k]
         n_eff = max(2.0, min(float(st.n), st.span / 2.0))
         sig = max(st.sigma, _PX_NOISE)
-        ln[2 * k, 2] -= math.hypot(sig / math.sqrt(n_eff), _PX_BIAS)  # offset
-        ln[2 * k + 1] = _rotated(ln[2 * k + 1], st.centre,  # angle
-                                 sig * math.sqrt(12.0 / n_eff) / max(st.span, 1.0))
-    # batched closed form (see cylinder.axis_from_lines)
-    n1 = l1 @ K
-    n2 = l2 @ K
-    n1 /= np.sqrt(np.einsum("ij,ij->i", n1, n1))[:, None]
-    n2 /= np.sqrt(np.einsum("ij,ij->i", n2, n2))[:, None]
-    c = np.einsum("ij,ij->i", n1, n2)
-    ax = np.empty_like(n1)  # n1 x n2, row-wise (np.cross is slow on small arrays)
-    ax[:, 0] = n1[:, 1] * n2[:, 2] - n1[:, 2] * n2[:, 1]
-    ax[:, 1] = n1[:, 2] * n2[:, 0] - n1[:, 0] * n2[:, 2]
-    ax[:, 2] = n1[:, 0] * n2[:, 1] - n1[:, 1] * n2[:, 0]
-    sn = np.sqrt(np.einsum("ij,ij->i", ax, ax))
-    if sn.min() < 1e-9 or c.min() <= -0.999999:
-        return math.inf, math.inf
-    ax /= sn[:, None]
-    p0 = radius * (n1 + n2) / (1.0 + c)[:, None]
-    # closest axis points to the reference ray
-    da = ax @ rref
-    dp = p0 @ rref
-    ap = np.einsum("ij,ij->i", ax, p0)
-    t = (da * dp - ap) / np.maximum(1.0 - da * da, 1e-12)
-    var_p = float(np.sum((p0 + t[:, None] * ax - ref) ** 2))
-    var_a = float(np.sum(np.degrees(np.arccos(np.minimum(1.0, np.abs(ax @ a)))) ** 2))
+        la, lb, lc = base[k]
+        shifted = [la, lb, lc - math.hypot(sig / math.sqrt(n_eff), _PX_BIAS)]  # offset
+        ang = sig * math.sqrt(12.0 / n_eff) / max(st.span, 1.0)  # angle, about the centre
+        co, si = math.cos(ang), math.sin(ang)
+        na, nb = co * la - si * lb, si * la + co * lb
+        cx_, cy_ = st.centre.tolist()
+        turned = [na, nb, -(na * cx_ + nb * cy_)]
+        for ln in (shifted, turned):
+            variants.append((ln, base[1]) if k == 0 else (base[0], ln))
+    var_p = var_a = 0.0
+    for la, lb in variants:  # closed form of cylinder.axis_from_lines
+        normals = []
+        for l0, l1, l2 in (la, lb):
+            m0 = l0 * k00 + l1 * k10 + l2 * k20  # K^T l
+            m1 = l0 * k01 + l1 * k11 + l2 * k21
+            m2 = l0 * k02 + l1 * k12 + l2 * k22
+            mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+            normals.append((m0 / mn, m1 / mn, m2 / mn))
+        (p, q, r), (u, v, w) = normals
+        c = p * u + q * v + r * w
+        cx, cy, cz = q * w - r * v, r * u - p * w, p * v - q * u
+        sn = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if sn < 1e-9 or c <= -0.999999:
+            return math.inf, math.inf
+        cx, cy, cz = cx / sn, cy / sn, cz / sn
+        f = radius / (1.0 + c)
+        px, py, pz = f * (p + u), f * (q + v), f * (r + w)
+        # the axis point closest to the reference ray
+        da = cx * ux + cy * uy + cz * uz
+        dp = px * ux + py * uy + pz * uz
+        ap = cx * px + cy * py + cz * pz
+        t = (da * dp - ap) / max(1.0 - da * da, 1e-12)
+        ex, ey, ez = px + t * cx - rx, py + t * cy - ry, pz + t * cz - rz
+        var_p += ex * ex + ey * ey + ez * ez
+        var_a += math.degrees(math.acos(min(1.0, abs(cx * ax_ + cy * ay_ + cz * az_)))) ** 2
     return math.sqrt(var_p), math.sqrt(var_a)
 
 
