@@ -405,6 +405,8 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
     def reach(j: int) -> float:
         return max(FRAGMENT_GAP_PX, HEAD_GAP_FRAC * math.sqrt(area[j]))
 
+    memo: dict[tuple[int, int, int, int, int], float] = {}
+
     def gap(i: int, j: int, limit: float) -> float:
         bi, bj = box[i], box[j]
         dx = max(bi[0] - bj[2] + 1, bj[0] - bi[2] + 1, 0)
@@ -412,7 +414,10 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
         g = math.hypot(dx, dy)
         if g > limit or cc is None:
             return g
-        return _pixel_gap(cc, members[i], members[j], bi, int(math.ceil(limit)))
+        key = (i, j, len(members[i]), len(members[j]), int(math.ceil(limit)))
+        if key not in memo:  # the groups have not grown since: same pixels, same gap
+            memo[key] = _pixel_gap(cc, members[i], members[j], bi, key[4])
+        return memo[key]
 
     for k, i in enumerate(hosts):  # small shaft pieces next to a much larger one
         for j in hosts[:k]:
@@ -466,7 +471,7 @@ def _pixel_gap(cc: np.ndarray, a: list[int], b: list[int], box_a: list[int],
     if not in_b.any():
         return math.inf
     not_a = (win != a[0] if len(a) == 1 else ~np.isin(win, a)).astype(np.uint8)
-    dist = cv2.distanceTransform(not_a, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dist = cv2.distanceTransform(not_a, cv2.DIST_L2, cv2.DIST_MASK_3)  # ~2% off: a gate
     return float(dist[in_b].min())
 
 
