@@ -33,7 +33,6 @@ import numpy as np
 from mistool.pose.cylinder import (
     axis_from_lines,
     closest_on_axis,
-    cross3,
     pixel_rays,
     project,
     quat_from_z,
@@ -668,54 +667,62 @@ def _tip_solve(tip_px: np.ndarray, joint: np.ndarray, a: np.ndarray, K: np.ndarr
                length: float | None, hidden: bool, jpx: np.ndarray
                ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """The tip (3,) and clasper axis (3,) from the tip's pixel (see :func:`_tip`)."""
-    dist = math.hypot(*(tip_px - jpx))
+    # plain floats for the 3-vectors (numpy's per-call overhead dominates at this size)
+    tu, tv = tip_px.tolist()
+    ju, jv = jpx.tolist()
+    dist = math.hypot(tu - ju, tv - jv)
     if dist < 2.0:
         return None, None, None
-    u = (tip_px - jpx) / dist
+    uu, uv = (tu - ju) / dist, (tv - jv) / dist
     l_nom = _TIP_LENGTH_FACTOR * length if length is not None else None
     # least-bent direction in the plane of the camera centre, J and the tip's ray
     ray = _ray(tip_px, K)
-    nc = cross3(joint, ray if not hidden else _ray(jpx + 10.0 * u, K))
-    nn = math.sqrt(float(nc @ nc))
+    jx, jy, jz = joint.tolist()
+    ax, ay, az = a.tolist()
+    wx, wy, wz = (ray if not hidden else _ray(np.array([ju + 10.0 * uu, jv + 10.0 * uv]), K)
+                  ).tolist()
+    nx, ny, nz = jy * wz - jz * wy, jz * wx - jx * wz, jx * wy - jy * wx
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
     if nn < 1e-9:
         return None, None, tip_px
-    nc /= nn
-    c = a - (a @ nc) * nc
-    ncl = math.sqrt(float(c @ c))
+    nx, ny, nz = nx / nn, ny / nn, nz / nn
+    an = ax * nx + ay * ny + az * nz
+    cx, cy, cz = ax - an * nx, ay - an * ny, az - an * nz
+    ncl = math.sqrt(cx * cx + cy * cy + cz * cz)
     if ncl < 1e-6:
         return None, None, tip_px
-    c /= ncl
-    j2 = joint + c  # image direction of c at the joint (joint[2] > 0 here)
-    du = K[0, 0] * (j2[0] / j2[2] - joint[0] / joint[2])
-    dv_ = K[1, 1] * (j2[1] / j2[2] - joint[1] / joint[2])
-    if du * u[0] + dv_ * u[1] < 0:
-        c = -c
+    cx, cy, cz = cx / ncl, cy / ncl, cz / ncl
+    # image direction of c at the joint (jz > 0 here)
+    du = K[0, 0] * ((jx + cx) / (jz + cz) - jx / jz)
+    dv_ = K[1, 1] * ((jy + cy) / (jz + cz) - jy / jz)
+    if du * uu + dv_ * uv < 0:
+        cx, cy, cz = -cx, -cy, -cz
     if hidden:
         if l_nom is None:
             return None, None, tip_px
+        c = np.array([cx, cy, cz])
         return joint + l_nom * c, c, tip_px
-    s_j = float(ray @ joint)
+    rx, ry, rz = ray.tolist()
+    s_j = rx * jx + ry * jy + rz * jz
     span = 3.0 * (l_nom if l_nom is not None else 16.0)
     lo = max(s_j - span, 1.0)
     s = lo + (s_j + span - lo) * _UNIT_GRID
-    X = s[:, None] * ray
-    d = X - joint
-    ln = np.sqrt(np.einsum("ij,ij->i", d, d))
-    cosb = np.minimum(np.maximum((d @ a) / np.maximum(ln, 1e-9), -1.0), 1.0)
+    # X(s) = s ray: |X - J|^2 = s^2 - 2 s (ray . J) + |J|^2, (X - J) . a = s (ray . a) - J . a
+    ln = np.sqrt(np.maximum((s - 2.0 * s_j) * s + (jx * jx + jy * jy + jz * jz), 0.0))
+    da = s * (rx * ax + ry * ay + rz * az) - (jx * ax + jy * ay + jz * az)
+    cosb = np.minimum(np.maximum(da / np.maximum(ln, 1e-9), -1.0), 1.0)
     cost = (np.arccos(cosb) / _TIP_BEND_SIGMA_RAD) ** 2
     if l_nom is not None:
         cost += ((ln - l_nom) / (_TIP_LENGTH_SIGMA * l_nom)) ** 2
     k = int(np.argmin(cost))
+    sk = float(s[k])
     if 0 < k < len(s) - 1:  # parabolic refinement
-        c0, c1, c2 = cost[k - 1], cost[k], cost[k + 1]
+        c0, c1, c2 = cost[k - 1:k + 2].tolist()
         den = c0 - 2.0 * c1 + c2
         off = 0.5 * (c0 - c2) / den if den > 0 else 0.0
-        sk = s[k] + min(max(float(off), -1.0), 1.0) * (s[1] - s[0])
-    else:
-        sk = s[k]
-    tip = sk * ray
-    dv = tip - joint
-    nd = math.sqrt(float(dv @ dv))
+        sk += min(max(off, -1.0), 1.0) * float(s[1] - s[0])
+    dx, dy, dz = sk * rx - jx, sk * ry - jy, sk * rz - jz
+    nd = math.sqrt(dx * dx + dy * dy + dz * dz)
     if nd < 1e-6:
         return None, None, tip_px
-    return tip, dv / nd, tip_px
+    return sk * ray, np.array([dx / nd, dy / nd, dz / nd]), tip_px
