@@ -416,7 +416,7 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
             return g
         key = (i, j, len(members[i]), len(members[j]), int(math.ceil(limit)))
         if key not in memo:  # the groups have not grown since: same pixels, same gap
-            memo[key] = _pixel_gap(cc, members[i], members[j], bi, key[4])
+            memo[key] = _pixel_gap(cc, members[i], members[j], bi, bj, key[4])
         return memo[key]
 
     for k, i in enumerate(hosts):  # small shaft pieces next to a much larger one
@@ -459,13 +459,15 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
 
 
 def _pixel_gap(cc: np.ndarray, a: list[int], b: list[int], box_a: list[int],
-               reach: int) -> float:
+               box_b: list[int], reach: int) -> float:
     """Smallest distance (px) from a pixel labelled in ``a`` to one labelled in ``b`` in the
     component label image ``cc``, looked for within ``reach`` px of ``a``'s bounds
-    ``box_a`` (x0, y0, x1, y1 exclusive); ``inf`` beyond."""
-    h, w = cc.shape
-    x0, y0 = max(box_a[0] - reach, 0), max(box_a[1] - reach, 0)
-    x1, y1 = min(box_a[2] + reach, w), min(box_a[3] + reach, h)
+    ``box_a`` (``box_b``: ``b``'s bounds; both x0, y0, x1, y1 exclusive); ``inf`` beyond."""
+    # all of a, and the part of b's bounds within reach of a's
+    x0 = min(box_a[0], max(box_a[0] - reach, box_b[0]))
+    y0 = min(box_a[1], max(box_a[1] - reach, box_b[1]))
+    x1 = max(box_a[2], min(box_a[2] + reach, box_b[2]))
+    y1 = max(box_a[3], min(box_a[3] + reach, box_b[3]))
     win = cc[y0:y1, x0:x1]
     in_b = win == b[0] if len(b) == 1 else np.isin(win, b)
     if not in_b.any():
