@@ -31,13 +31,11 @@ import cv2
 import numpy as np
 
 from mistool.pose.cylinder import (
-    axis_from_lines,
     closest_on_axis,
     pixel_rays,
     project,
     quat_from_z,
     ray_cylinder,
-    tangent_plane,
 )
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask
 from mistool.pose.silhouette import boundary_points, fit_line_robust, make_canvas
@@ -141,6 +139,30 @@ def _ray(px: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 _UNIT_GRID = np.linspace(0.0, 1.0, 81)
+
+
+def _axis_from_lines_f(l1: np.ndarray, l2: np.ndarray, K: np.ndarray, radius: float
+                       ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``axis_from_lines(tangent_plane(l1, K), tangent_plane(l2, K), radius)`` in plain
+    floats (numpy's per-call overhead dominates for 3-vectors)."""
+    (k00, k01, k02), (k10, k11, k12), (k20, k21, k22) = K.tolist()
+    normals = []
+    for a0, a1, a2 in (l1.tolist(), l2.tolist()):
+        m0 = a0 * k00 + a1 * k10 + a2 * k20  # K^T l
+        m1 = a0 * k01 + a1 * k11 + a2 * k21
+        m2 = a0 * k02 + a1 * k12 + a2 * k22
+        mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        normals.append((m0 / mn, m1 / mn, m2 / mn))
+    (p, q, r), (u, v, w) = normals
+    c = p * u + q * v + r * w
+    if c <= -0.999999:
+        return None
+    cx, cy, cz = q * w - r * v, r * u - p * w, p * v - q * u
+    sn = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if sn < 1e-9:
+        return None
+    f = radius / (1.0 + c)
+    return np.array([f * (p + u), f * (q + v), f * (r + w)]), np.array([cx / sn, cy / sn, cz / sn])
 
 
 def _closest1(px: np.ndarray, K: np.ndarray, p0: np.ndarray, a: np.ndarray) -> float:
@@ -434,16 +456,20 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         return out  # one limb line: refine_sequence may solve it with the trocar
 
     def solve(lines: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        sol = axis_from_lines(tangent_plane(lines[0], K), tangent_plane(lines[1], K), radius)
+        sol = _axis_from_lines_f(lines[0], lines[1], K, radius)
         if sol is None:
             return None
         p0, a = sol
         tc = _closest1(centre, K, p0, a)
         xc = p0 + tc * a
-        if xc[2] <= 0:
+        x0, y0, z0 = xc.tolist()
+        if z0 <= 0:
             return None
-        step = project(np.stack([xc, xc + a]), K)
-        if float((step[1] - step[0]) @ e) < 0:
+        ax, ay, az = a.tolist()
+        z1 = z0 + az  # the image direction of a at xc, by a 1 mm step
+        du = K[0, 0] * ((x0 + ax) / z1 - x0 / z0)
+        dv = K[1, 1] * ((y0 + ay) / z1 - y0 / z0)
+        if du * e[0] + dv * e[1] < 0:
             a = -a
         if distal == 0 and a[2] < 0:  # no distal cue: by convention, into the scene
             a = -a
