@@ -190,12 +190,12 @@ def _on_border(px: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
 def _fill_pose(row: dict[str, float], end: np.ndarray | None, axis: np.ndarray | None,
                start: np.ndarray | None) -> None:
     if end is not None:
-        row["end_x_mm"], row["end_y_mm"], row["end_z_mm"] = (float(v) for v in end)
+        row["end_x_mm"], row["end_y_mm"], row["end_z_mm"] = end.tolist()
     if axis is not None:
-        row["axis_x"], row["axis_y"], row["axis_z"] = (float(v) for v in axis)
-        row["qw"], row["qx"], row["qy"], row["qz"] = (float(v) for v in quat_from_z(axis))
+        row["axis_x"], row["axis_y"], row["axis_z"] = axis.tolist()
+        row["qw"], row["qx"], row["qy"], row["qz"] = quat_from_z(axis).tolist()
     if start is not None:
-        row["start_x_mm"], row["start_y_mm"], row["start_z_mm"] = (float(v) for v in start)
+        row["start_x_mm"], row["start_y_mm"], row["start_z_mm"] = start.tolist()
 
 
 def _joint_t(pts: np.ndarray, is_other: np.ndarray, p0: np.ndarray, a: np.ndarray,
