@@ -10,6 +10,7 @@ inside the part (specular highlights) never produce points.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -134,6 +135,25 @@ def _median(v: np.ndarray) -> float:
 _DRAWS = np.random.default_rng(12345).random((2, 64))
 
 
+@functools.lru_cache(maxsize=1024)
+def _subsample(n: int, m: int) -> np.ndarray:
+    """Indices of a regular subsample of ``m`` of ``n`` points (read-only, cached)."""
+    keep = np.arange(m) * (n - 1) // (m - 1)
+    keep.flags.writeable = False
+    return keep
+
+
+@functools.lru_cache(maxsize=1024)
+def _draw_indices(n: int, iters: int) -> tuple[np.ndarray, np.ndarray]:
+    """Ranks (along the line) of the RANSAC pairs from the fixed draws (cached)."""
+    half = n // 2
+    pick_i = (_DRAWS[0, :iters] * half).astype(np.int64)
+    pick_j = n - half + (_DRAWS[1, :iters] * half).astype(np.int64)
+    pick_i.flags.writeable = False
+    pick_j.flags.writeable = False
+    return pick_i, pick_j
+
+
 def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator | None = None,
                     thresh_px: float = 1.5, iters: int = 12, max_points: int = 192
                     ) -> tuple[np.ndarray, np.ndarray, float] | None:
@@ -159,31 +179,31 @@ def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator
         return None
     keep = None
     if n > max_points:  # a regular subsample: the fit's precision is already ~0.03 px
-        keep = np.arange(max_points) * (n - 1) // (max_points - 1)
+        keep = _subsample(n, max_points)
         pts, along = pts[keep], along[keep]
         n = max_points
     # homogeneous coordinates relative to the points' mean (well conditioned moments):
     # a line (a, b, c) has residuals (a, b, c) @ X
     ox, oy = (pts.sum(axis=0) * (1.0 / n)).tolist()
     X = np.empty((3, n))
-    X[0] = pts[:, 0] - ox
-    X[1] = pts[:, 1] - oy
+    X[:2] = (pts - (ox, oy)).T
     X[2] = 1.0
     x, y = X[0], X[1]
     order = np.argsort(along)
     half = n // 2
     if rng is None:
-        u1, u2 = _DRAWS[0, :iters], _DRAWS[1, :iters]
+        pick_i, pick_j = _draw_indices(n, iters)
     else:
         u1, u2 = rng.random(iters), rng.random(iters)
-    i = order[(u1 * half).astype(np.int64)]
-    j = order[n - half + (u2 * half).astype(np.int64)]
+        pick_i, pick_j = (u1 * half).astype(np.int64), n - half + (u2 * half).astype(np.int64)
+    i = order[pick_i]
+    j = order[pick_j]
     H = np.empty((len(i), 3))
     H[:, 0] = y[i] - y[j]
     H[:, 1] = x[j] - x[i]
     ln = np.sqrt(H[:, 0] * H[:, 0] + H[:, 1] * H[:, 1])
-    ok = ln > 1e-9
-    if not ok.all():
+    if ln.min() <= 1e-9:
+        ok = ln > 1e-9
         if not ok.any():
             return None
         H, ln, i = H[ok], ln[ok], i[ok]
