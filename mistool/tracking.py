@@ -917,6 +917,8 @@ def _distal_axis(boxes: dict[str, RotatedBox]) -> tuple[np.ndarray, np.ndarray, 
 
 #: A shaft entering the view is seen on the image border over at least this many px.
 ENTRY_MIN_PX = 6
+#: Border runs of shaft pixels this close (px) are one shaft's entry (a hole, jitter).
+ENTRY_MAX_GAP_PX = 8
 
 
 def _border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
@@ -963,9 +965,17 @@ def _border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
         i -= ww - 1
         return 0.0, float(hh - 1 - i)
 
-    out = []
+    # a gap of a few pixels in one shaft's contact (a specular hole, boundary jitter) is
+    # not a second shaft: runs that close are one entry
+    runs: list[list[int]] = []
     for a, b in zip(edges[::2], edges[1::2], strict=True):
-        length = int(b - a)
+        if runs and int(a) - runs[-1][1] <= ENTRY_MAX_GAP_PX:
+            runs[-1][1] = int(b)
+        else:
+            runs.append([int(a), int(b)])
+    out = []
+    for a, b in runs:
+        length = b - a
         if length >= ENTRY_MIN_PX:
             first = int(a) + start
             ends = np.array([xy(first), xy(first + length // 2), xy(first + length - 1)])
