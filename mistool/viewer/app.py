@@ -496,7 +496,10 @@ class ReplayViewer:
         of view (call holding ``self._lock``)."""
         clients = [only] if only is not None else [c for c, _ in self._endoscope.values()]
         intrinsics = self.replay.view_intrinsics(self.scene.mode)
+        connected = self.server.get_clients()
         for client in clients:
+            if client.client_id not in connected:  # left: viser would only warn
+                continue
             cam = client.camera
             aspect = _aspect(cam)
             image, fov = endoscope_backdrop(rgb, aspect, intrinsics, self.replay.image_wh)
