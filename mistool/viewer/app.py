@@ -335,7 +335,8 @@ class ReplayViewer:
 
     def close(self) -> None:
         """Stop playback and the server."""
-        self._closing = True
+        with self._lock:  # a draw in progress finishes first; later ones see _closing
+            self._closing = True
         self.timeline.stop()
         if self.overlays is not None:
             self.overlays.close()
@@ -494,6 +495,8 @@ class ReplayViewer:
         """Send the overlay ``rgb`` as the background of the browsers looking through the
         endoscope (or of ``only``), laid out for each one's window, with the matching field
         of view (call holding ``self._lock``)."""
+        if self._closing:  # the server is stopping: nothing can be delivered
+            return
         clients = [only] if only is not None else [c for c, _ in self._endoscope.values()]
         intrinsics = self.replay.view_intrinsics(self.scene.mode)
         connected = self.server.get_clients()
