@@ -13,8 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
-__all__ = ["Config", "MistoolError", "RotatedBox", "TrackTable", "Tracker", "load_config",
-           "track"]
+__all__ = ["Config", "MistoolError", "RotatedBox", "TrackTable", "Tracker", "load_config", "track"]
 
 # name -> module that defines it
 _LAZY = {

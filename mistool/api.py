@@ -50,9 +50,26 @@ MAX_DEFAULT_WORKERS = 8
 SMOOTHING = ("none", "offline", "online")
 
 # Columns every table built here has, in order (the rest come from the metric pose).
-_BASE = ("frame", "time_s", "instrument", "part", "cx_px", "cy_px", "length_px",
-         "width_px", "angle_deg", "area_px", "x1_px", "y1_px", "x2_px", "y2_px", "x3_px",
-         "y3_px", "x4_px", "y4_px")
+_BASE = (
+    "frame",
+    "time_s",
+    "instrument",
+    "part",
+    "cx_px",
+    "cy_px",
+    "length_px",
+    "width_px",
+    "angle_deg",
+    "area_px",
+    "x1_px",
+    "y1_px",
+    "x2_px",
+    "y2_px",
+    "x3_px",
+    "y3_px",
+    "x4_px",
+    "y4_px",
+)
 
 
 class MistoolWarning(UserWarning):
@@ -108,8 +125,9 @@ def _resolve_config(config: Config | str | Path | None) -> Config | None:
         return config
     if isinstance(config, (str, os.PathLike)):
         return load_config(config)
-    raise ConfigError(f"config: expected a Config, a path to mistool.toml or None, got "
-                      f"{type(config).__name__}")
+    raise ConfigError(
+        f"config: expected a Config, a path to mistool.toml or None, got {type(config).__name__}"
+    )
 
 
 def _check_smoothing(smoothing: str) -> None:
@@ -128,8 +146,9 @@ class _FrameResult:
     shape: tuple[int, int]
 
 
-def _process(labels: np.ndarray, config: Config, pose: ModuleType | None,
-             lossy: bool = False) -> _FrameResult:
+def _process(
+    labels: np.ndarray, config: Config, pose: ModuleType | None, lossy: bool = False
+) -> _FrameResult:
     """The per-frame work (thread-safe): observations, metric pose, unknown values
     (``lossy``: a mask video, see :func:`_unknown_values`)."""
     instances = tracking.observe_frame(labels, config)
@@ -139,16 +158,20 @@ def _process(labels: np.ndarray, config: Config, pose: ModuleType | None,
     return _FrameResult(instances, metrics, unknown, shape)
 
 
-def _measure(inst: Any, shape: tuple[int, int], config: Config, pose: ModuleType | None
-             ) -> dict[str, dict[str, float]] | None:
+def _measure(
+    inst: Any, shape: tuple[int, int], config: Config, pose: ModuleType | None
+) -> dict[str, dict[str, float]] | None:
     """The per-frame metric pose of one instance, or None without a camera/pose step."""
     if pose is None or config.camera is None:
         return None
     name = inst.label
     return pose.measure_instance(
-        inst, shape, config.camera,
+        inst,
+        shape,
+        config.camera,
         config.shaft_diameter_for(name) if name else config.shaft_diameter_mm,
-        config.clasper_length_for(name) if name else config.clasper_length_mm)
+        config.clasper_length_for(name) if name else config.clasper_length_mm,
+    )
 
 
 def _unknown_values(labels: np.ndarray, config: Config, lossy: bool = False) -> np.ndarray:
@@ -167,8 +190,13 @@ def _unknown_values(labels: np.ndarray, config: Config, lossy: bool = False) -> 
     return np.asarray(tracking.unknown_values(labels, config))
 
 
-def _identify(tracker: tracking.IdentityTracker, index: int, result: _FrameResult,
-              config: Config, pose: ModuleType | None) -> tuple[list[str], _FrameResult]:
+def _identify(
+    tracker: tracking.IdentityTracker,
+    index: int,
+    result: _FrameResult,
+    config: Config,
+    pose: ModuleType | None,
+) -> tuple[list[str], _FrameResult]:
     """Instrument names for a frame's instances, in frame order (sequential).
 
     Uses :meth:`~mistool.tracking.IdentityTracker.resolve`, which splits a blob holding
@@ -181,8 +209,9 @@ def _identify(tracker: tracking.IdentityTracker, index: int, result: _FrameResul
     return list(names), _FrameResult(list(instances), metrics, result.unknown, result.shape)
 
 
-def _load_and_process(frame: Frame, config: Config, pose: ModuleType | None,
-                      lossy: bool) -> _FrameResult:
+def _load_and_process(
+    frame: Frame, config: Config, pose: ModuleType | None, lossy: bool
+) -> _FrameResult:
     return _process(frame.load(), config, pose, lossy)
 
 
@@ -203,12 +232,22 @@ class _Rows:
                     continue
                 self._add(index, name, part, obs, (metric or {}).get(part, {}))
 
-    def _add(self, index: int, name: str, part: str, obs: Any,
-             metric: dict[str, float]) -> None:
+    def _add(self, index: int, name: str, part: str, obs: Any, metric: dict[str, float]) -> None:
         b, base = obs.box, self.base
         corners = np.asarray(obs.corners, dtype=np.float64).reshape(4, 2)
-        values = (index, index / self.fps, name, part, b.cx, b.cy, b.length, b.width,
-                  b.angle_deg, float(obs.area_px), *corners.ravel().tolist())
+        values = (
+            index,
+            index / self.fps,
+            name,
+            part,
+            b.cx,
+            b.cy,
+            b.length,
+            b.width,
+            b.angle_deg,
+            float(obs.area_px),
+            *corners.ravel().tolist(),
+        )
         for col, v in zip(_BASE, values, strict=True):
             base[col].append(v)
         for col, v in metric.items():
@@ -232,8 +271,9 @@ class _Rows:
         return TrackTable(cols)
 
 
-def _finish(table: TrackTable, config: Config, pose: ModuleType | None,
-            smoothing: str) -> TrackTable:
+def _finish(
+    table: TrackTable, config: Config, pose: ModuleType | None, smoothing: str
+) -> TrackTable:
     """Sequence-level steps: paper motion (Algorithm 2), metric refinement, sort."""
     table = table.sorted()
     focal = config.camera.fx if config.camera is not None else 1.0
@@ -243,9 +283,13 @@ def _finish(table: TrackTable, config: Config, pose: ModuleType | None,
     return table.sorted()
 
 
-def _ordered_results(frames: Iterator[Frame], config: Config, pose: ModuleType | None,
-                     workers: int, lossy: bool = False
-                     ) -> Iterator[tuple[Frame, _FrameResult]]:
+def _ordered_results(
+    frames: Iterator[Frame],
+    config: Config,
+    pose: ModuleType | None,
+    workers: int,
+    lossy: bool = False,
+) -> Iterator[tuple[Frame, _FrameResult]]:
     """``(frame, result)`` in frame order; at most ``2 * workers`` frames in flight."""
     if workers <= 1:
         for frame in frames:
@@ -260,8 +304,7 @@ def _ordered_results(frames: Iterator[Frame], config: Config, pose: ModuleType |
     cv2.setNumThreads(1)
     try:
         for frame in frames:
-            pending.append((frame, pool.submit(_load_and_process, frame, config, pose,
-                                               lossy)))
+            pending.append((frame, pool.submit(_load_and_process, frame, config, pose, lossy)))
             if len(pending) >= 2 * workers:
                 done, fut = pending.popleft()
                 yield done, fut.result()
@@ -273,20 +316,29 @@ def _ordered_results(frames: Iterator[Frame], config: Config, pose: ModuleType |
         cv2.setNumThreads(cv_threads)
 
 
-def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
-        config: Config | str | Path | None = None, *, progress: bool = False,
-        workers: int | None = None, metric: bool = True,
-        smoothing: str = "offline") -> TrackResult:
+def run(
+    source: str | Path | Iterable[np.ndarray] | MaskSequence,
+    config: Config | str | Path | None = None,
+    *,
+    progress: bool = False,
+    workers: int | None = None,
+    metric: bool = True,
+    smoothing: str = "offline",
+) -> TrackResult:
     """Like :func:`track`, but returns a :class:`TrackResult` (table + run summary) and
     does not warn: unknown label values are in ``result.unknown_values``."""
     _check_smoothing(smoothing)
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
-                                or workers < 1):
+    if workers is not None and (
+        isinstance(workers, bool) or not isinstance(workers, int) or workers < 1
+    ):
         raise ConfigError(f"workers = {workers!r}: must be an integer >= 1")
     n_workers = workers or min(MAX_DEFAULT_WORKERS, max(1, os.cpu_count() or 1))
     start = time.perf_counter()
-    seq = source if isinstance(source, MaskSequence) else open_sequence(
-        source, _resolve_config(config))
+    seq = (
+        source
+        if isinstance(source, MaskSequence)
+        else open_sequence(source, _resolve_config(config))
+    )
     cfg = seq.config
     pose = _pose_module() if metric and cfg.camera is not None else None
     tracker = tracking.IdentityTracker(cfg)
@@ -296,12 +348,17 @@ def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
     if progress:
         from tqdm import tqdm  # only when a progress bar is wanted
 
-        bar = tqdm(total=seq.num_frames, unit="frame", desc=seq.name, delay=0.5,
-                   dynamic_ncols=True, leave=False)
+        bar = tqdm(
+            total=seq.num_frames,
+            unit="frame",
+            desc=seq.name,
+            delay=0.5,
+            dynamic_ncols=True,
+            leave=False,
+        )
     num_frames = 0
     try:
-        for frame, result in _ordered_results(seq.frames(), cfg, pose, n_workers,
-                                              lossy=seq.lossy):
+        for frame, result in _ordered_results(seq.frames(), cfg, pose, n_workers, lossy=seq.lossy):
             seq.check_shape(frame, result.shape)
             names, result = _identify(tracker, frame.index, result, cfg, pose)
             rows.add_frame(frame.index, names, result)
@@ -313,10 +370,16 @@ def run(source: str | Path | Iterable[np.ndarray] | MaskSequence,
         if bar is not None:
             bar.close()
     table = _finish(rows.table(), cfg, pose, smoothing)
-    return TrackResult(table=table, num_frames=num_frames, shape=seq.shape,
-                       unknown_values=tuple(sorted(unknown)),
-                       seconds=time.perf_counter() - start, name=seq.name,
-                       metric=pose is not None, config=cfg)
+    return TrackResult(
+        table=table,
+        num_frames=num_frames,
+        shape=seq.shape,
+        unknown_values=tuple(sorted(unknown)),
+        seconds=time.perf_counter() - start,
+        name=seq.name,
+        metric=pose is not None,
+        config=cfg,
+    )
 
 
 def unknown_values_message(values: Iterable[int], colour: bool = False) -> str:
@@ -324,14 +387,21 @@ def unknown_values_message(values: Iterable[int], colour: bool = False) -> str:
     vals = sorted(values)
     fmt = (lambda v: f"#{v:06x}") if colour else str
     shown = ", ".join(fmt(v) for v in vals[:20]) + (", ..." if len(vals) > 20 else "")
-    return (f"{len(vals)} label value(s) not in mistool.toml were ignored: {shown} "
-            "(set them in [parts] or [[instrument]] if they are instrument parts)")
+    return (
+        f"{len(vals)} label value(s) not in mistool.toml were ignored: {shown} "
+        "(set them in [parts] or [[instrument]] if they are instrument parts)"
+    )
 
 
-def track(source: str | Path | Iterable[np.ndarray],
-          config: Config | str | Path | None = None, *, progress: bool = False,
-          workers: int | None = None, metric: bool = True,
-          smoothing: str = "offline") -> TrackTable:
+def track(
+    source: str | Path | Iterable[np.ndarray],
+    config: Config | str | Path | None = None,
+    *,
+    progress: bool = False,
+    workers: int | None = None,
+    metric: bool = True,
+    smoothing: str = "offline",
+) -> TrackTable:
     """Track every instrument part through a mask sequence.
 
     Args:
@@ -356,12 +426,15 @@ def track(source: str | Path | Iterable[np.ndarray],
     Warns:
         MistoolWarning: once, listing label values the config does not know.
     """
-    result = run(source, config, progress=progress, workers=workers, metric=metric,
-                 smoothing=smoothing)
+    result = run(
+        source, config, progress=progress, workers=workers, metric=metric, smoothing=smoothing
+    )
     if result.unknown_values:
-        warnings.warn(unknown_values_message(result.unknown_values,
-                                             result.config.colour_masks),
-                      MistoolWarning, stacklevel=2)
+        warnings.warn(
+            unknown_values_message(result.unknown_values, result.config.colour_masks),
+            MistoolWarning,
+            stacklevel=2,
+        )
     return result.table
 
 
@@ -381,14 +454,18 @@ class Tracker:
     whole sequence as :func:`track` would (with ``smoothing``).
     """
 
-    def __init__(self, config: Config | str | Path | None = None, *, metric: bool = True,
-                 smoothing: str = "online") -> None:
+    def __init__(
+        self,
+        config: Config | str | Path | None = None,
+        *,
+        metric: bool = True,
+        smoothing: str = "online",
+    ) -> None:
         _check_smoothing(smoothing)
         self.config: Config = _resolve_config(config) or Config()
         """The config the pixels are read with."""
         self.smoothing = smoothing
-        self._pose = (_pose_module() if metric and self.config.camera is not None
-                      else None)
+        self._pose = _pose_module() if metric and self.config.camera is not None else None
         self._tracker = tracking.IdentityTracker(self.config)
         self._frames: list[TrackTable] = []
         self._last: dict[tuple[str, str], tuple[TrackTable, ...]] = {}
@@ -412,16 +489,17 @@ class Tracker:
         """
         index = len(self._frames)
         where = f"frame {index}"
-        arr = to_labels(np.asarray(labels), where, colour=self.config.colour_masks,
-                        order="rgb")
+        arr = to_labels(np.asarray(labels), where, colour=self.config.colour_masks, order="rgb")
         shape = (int(arr.shape[0]), int(arr.shape[1]))
         if self._shape is None:
             self._shape = shape
         elif shape != self._shape:
             from mistool.errors import MaskFormatError
 
-            raise MaskFormatError(f"{where}: frame size changed: {shape[1]}x{shape[0]} px, "
-                                  f"earlier frames are {self._shape[1]}x{self._shape[0]} px")
+            raise MaskFormatError(
+                f"{where}: frame size changed: {shape[1]}x{shape[0]} px, "
+                f"earlier frames are {self._shape[1]}x{self._shape[0]} px"
+            )
         result = _process(arr, self.config, self._pose)
         names, result = _identify(self._tracker, index, result, self.config, self._pose)
         rows = _Rows(self.config.fps)
@@ -431,8 +509,9 @@ class Tracker:
         new = {int(v) for v in result.unknown.ravel()} - self._unknown
         if new:
             self._unknown |= new
-            warnings.warn(unknown_values_message(new, self.config.colour_masks),
-                          MistoolWarning, stacklevel=2)
+            warnings.warn(
+                unknown_values_message(new, self.config.colour_masks), MistoolWarning, stacklevel=2
+            )
         focal = self.config.camera.fx if self.config.camera is not None else 1.0
         if raw.num_rows == 0:
             return paper.paper_motion(raw, focal_px=focal)
@@ -442,12 +521,11 @@ class Tracker:
         moved = paper.paper_motion(TrackTable.concat([*previous, raw]), focal_px=focal)
         current = moved[moved["frame"] == index]
         for i, k in enumerate(keys):
-            self._last[k] = (*self._last.get(k, ())[-1:], raw[i:i + 1])
+            self._last[k] = (*self._last.get(k, ())[-1:], raw[i : i + 1])
         return current.sorted()
 
     def table(self) -> TrackTable:
         """Every frame so far as one table (paper motion and metric refinement applied)."""
         if not self._frames:
             return _finish(_Rows(self.config.fps).table(), self.config, None, "none")
-        return _finish(TrackTable.concat(self._frames), self.config, self._pose,
-                       self.smoothing)
+        return _finish(TrackTable.concat(self._frames), self.config, self._pose, self.smoothing)

@@ -112,7 +112,8 @@ class Config:
     labels: str = "endovis15"
     """Name of the label preset the shared part values came from."""
     parts: dict[str, ValueRange] = field(
-        default_factory=lambda: {p: (v, v) for p, v in PRESETS["endovis15"].items()})
+        default_factory=lambda: {p: (v, v) for p, v in PRESETS["endovis15"].items()}
+    )
     """Shared part values (merged masks): part -> inclusive range."""
     camera: Camera | None = None
     """Camera intrinsics, or None (then no metric 3D)."""
@@ -156,9 +157,17 @@ class Config:
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
 
 
-
-_TOP_KEYS = {"fps", "source", "labels", "min_area_px", "shaft_diameter_mm",
-             "clasper_length_mm", "parts", "camera", "instrument"}
+_TOP_KEYS = {
+    "fps",
+    "source",
+    "labels",
+    "min_area_px",
+    "shaft_diameter_mm",
+    "clasper_length_mm",
+    "parts",
+    "camera",
+    "instrument",
+}
 _INSTRUMENT_KEYS = {"name", "shaft_diameter_mm", "clasper_length_mm", *PARTS}
 
 
@@ -180,27 +189,32 @@ def _value_range(value: Any, key: str, where: str) -> tuple[ValueRange, bool]:
         text = value.strip()
         if len(text) == 7 and text[0] == "#":
             try:
-                r, g, b = (int(text[i:i + 2], 16) for i in (1, 3, 5))
+                r, g, b = (int(text[i : i + 2], 16) for i in (1, 3, 5))
             except ValueError:
                 pass
             else:
                 packed = pack_rgb(r, g, b)
                 return (packed, packed), True
-        raise ConfigError(f"{where}: {key} = {value!r} is not a label value, [lo, hi] range "
-                          "or \"#rrggbb\" colour")
+        raise ConfigError(
+            f'{where}: {key} = {value!r} is not a label value, [lo, hi] range or "#rrggbb" colour'
+        )
     if isinstance(value, int) and not isinstance(value, bool):
         lo = hi = value
-    elif (isinstance(value, list) and len(value) == 2
-          and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
+    elif (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+    ):
         lo, hi = value
     else:
-        raise ConfigError(f"{where}: {key} must be an integer label value, an inclusive "
-                          f"[lo, hi] range or a \"#rrggbb\" colour, got {value!r}")
+        raise ConfigError(
+            f"{where}: {key} must be an integer label value, an inclusive "
+            f'[lo, hi] range or a "#rrggbb" colour, got {value!r}'
+        )
     if lo < 0 or hi > 65535:
         raise ConfigError(f"{where}: {key} = {value!r} is outside the label range 0..65535")
     if lo > hi:
-        raise ConfigError(f"{where}: {key} = [{lo}, {hi}] is a reversed range; "
-                          f"write [{hi}, {lo}]")
+        raise ConfigError(f"{where}: {key} = [{lo}, {hi}] is a reversed range; write [{hi}, {lo}]")
     return (lo, hi), False
 
 
@@ -220,8 +234,9 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
     where = _where(path)
     unknown = sorted(set(data) - _TOP_KEYS)
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; "
-                          f"allowed: {', '.join(sorted(_TOP_KEYS))}")
+        raise ConfigError(
+            f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_TOP_KEYS))}"
+        )
     kwargs: dict[str, Any] = {"path": path}
     if "fps" in data:
         kwargs["fps"] = _number(data["fps"], "fps", where, positive=True)
@@ -242,8 +257,9 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         kwargs["source"] = src
     labels = data.get("labels", "endovis15")
     if labels not in PRESETS:
-        raise ConfigError(f"{where}: labels = {labels!r} is not a preset; "
-                          f"choose one of {', '.join(PRESETS)}")
+        raise ConfigError(
+            f"{where}: labels = {labels!r} is not a preset; choose one of {', '.join(PRESETS)}"
+        )
     kwargs["labels"] = labels
     parts = {p: (v, v) for p, v in PRESETS[labels].items()}
     colour = False
@@ -252,8 +268,10 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
             raise ConfigError(f"{where}: [parts] must be a table")
         extra = sorted(set(data["parts"]) - set(PARTS))
         if extra:
-            raise ConfigError(f"{where}: unknown key(s) in [parts]: {', '.join(extra)}; "
-                              f"allowed: {', '.join(PARTS)}")
+            raise ConfigError(
+                f"{where}: unknown key(s) in [parts]: {', '.join(extra)}; "
+                f"allowed: {', '.join(PARTS)}"
+            )
         override, colour = _parts(data["parts"], where, "parts.")
         parts.update(override)
     kwargs["parts"] = parts
@@ -264,15 +282,17 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         extra = sorted(set(cam) - {"fx", "fy", "cx", "cy"})
         missing = sorted({"fx", "fy", "cx", "cy"} - set(cam))
         if extra:
-            raise ConfigError(f"{where}: unknown key(s) in [camera]: {', '.join(extra)}; "
-                              "allowed: fx, fy, cx, cy")
+            raise ConfigError(
+                f"{where}: unknown key(s) in [camera]: {', '.join(extra)}; allowed: fx, fy, cx, cy"
+            )
         if missing:
             raise ConfigError(f"{where}: [camera] is missing {', '.join(missing)}")
         kwargs["camera"] = Camera(
             fx=_number(cam["fx"], "camera.fx", where, positive=True),
             fy=_number(cam["fy"], "camera.fy", where, positive=True),
             cx=_number(cam["cx"], "camera.cx", where),
-            cy=_number(cam["cy"], "camera.cy", where))
+            cy=_number(cam["cy"], "camera.cy", where),
+        )
     instruments: list[InstrumentSpec] = []
     tables = data.get("instrument", [])
     if not isinstance(tables, list):
@@ -283,8 +303,10 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
             raise ConfigError(f"{where}: {tag} must be a table")
         extra = sorted(set(table) - _INSTRUMENT_KEYS)
         if extra:
-            raise ConfigError(f"{where}: unknown key(s) in {tag}: {', '.join(extra)}; "
-                              f"allowed: {', '.join(sorted(_INSTRUMENT_KEYS))}")
+            raise ConfigError(
+                f"{where}: unknown key(s) in {tag}: {', '.join(extra)}; "
+                f"allowed: {', '.join(sorted(_INSTRUMENT_KEYS))}"
+            )
         name = table.get("name", str(i + 1))
         if not isinstance(name, (str, int)) or isinstance(name, bool) or str(name) == "":
             raise ConfigError(f"{where}: {tag}.name must be a non-empty string, got {name!r}")
@@ -294,10 +316,15 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         inst_parts, inst_colour = _parts(table, where, f"{tag}.")
         colour |= inst_colour
         if not inst_parts:
-            raise ConfigError(f"{where}: {tag} ({name}) gives no part values; "
-                              f"set at least one of {', '.join(PARTS)}")
-        dims = {k: _number(table[k], f"{tag}.{k}", where, positive=True)
-                for k in ("shaft_diameter_mm", "clasper_length_mm") if k in table}
+            raise ConfigError(
+                f"{where}: {tag} ({name}) gives no part values; "
+                f"set at least one of {', '.join(PARTS)}"
+            )
+        dims = {
+            k: _number(table[k], f"{tag}.{k}", where, positive=True)
+            for k in ("shaft_diameter_mm", "clasper_length_mm")
+            if k in table
+        }
         instruments.append(InstrumentSpec(name=name, parts=inst_parts, **dims))
     kwargs["instruments"] = tuple(instruments)
     kwargs["colour_masks"] = colour

@@ -102,14 +102,19 @@ def match_instruments(pred: TrackTable, truth: TrackTable) -> dict[str, str]:
     t_names = sorted({str(x) for x in truth["instrument"]})
     if not p_names or not t_names:
         return {}
-    t_index = {(int(f), str(i), str(p)): k for k, (f, i, p) in
-               enumerate(zip(truth["frame"], truth["instrument"], truth["part"], strict=True))}
+    t_index = {
+        (int(f), str(i), str(p)): k
+        for k, (f, i, p) in enumerate(
+            zip(truth["frame"], truth["instrument"], truth["part"], strict=True)
+        )
+    }
     sums = np.zeros((len(p_names), len(t_names)))
     counts = np.zeros((len(p_names), len(t_names)))
     pi = {n: k for k, n in enumerate(p_names)}
     tx, ty = truth["cx_px"], truth["cy_px"]
-    for r, (f, inst, part) in enumerate(zip(pred["frame"], pred["instrument"], pred["part"],
-                                            strict=True)):
+    for r, (f, inst, part) in enumerate(
+        zip(pred["frame"], pred["instrument"], pred["part"], strict=True)
+    ):
         px, py = pred["cx_px"][r], pred["cy_px"][r]
         if not (math.isfinite(px) and math.isfinite(py)):
             continue
@@ -122,16 +127,20 @@ def match_instruments(pred: TrackTable, truth: TrackTable) -> dict[str, str]:
         mean = np.where(counts > 0, sums / np.maximum(counts, 1), np.inf)
     big = (np.nanmax(mean[np.isfinite(mean)]) + 1.0) * 1e3 if np.isfinite(mean).any() else 1.0
     cost = np.where(np.isfinite(mean), mean, big)
-    mapping = {p_names[a]: t_names[b] for a, b in linear_assignment(cost)
-               if np.isfinite(mean[a, b])}
+    mapping = {
+        p_names[a]: t_names[b] for a, b in linear_assignment(cost) if np.isfinite(mean[a, b])
+    }
     # fragments: a predicted instrument left over (the tracker changed the identity of a
     # tool, e.g. after a crossing) joins its nearest truth instrument if it never shares a
     # frame with the predicted instruments already matched to it
     frames: dict[str, set[int]] = {}
     for f, inst in zip(pred["frame"], pred["instrument"], strict=True):
         frames.setdefault(str(inst), set()).add(int(f))
-    left = sorted((float(mean[pi[n]].min()), n) for n in p_names
-                  if n not in mapping and np.isfinite(mean[pi[n]]).any())
+    left = sorted(
+        (float(mean[pi[n]].min()), n)
+        for n in p_names
+        if n not in mapping and np.isfinite(mean[pi[n]]).any()
+    )
     for _, name in left:
         for tj in np.argsort(mean[pi[name]]):
             if not np.isfinite(mean[pi[name], tj]):
@@ -147,11 +156,14 @@ def _stats(values: np.ndarray) -> dict[str, float]:
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
     if len(v) == 0:
-        return {"n": 0, "mean": math.nan, "sd": math.nan, "median": math.nan,
-                "p90": math.nan}
-    return {"n": int(len(v)), "mean": float(v.mean()),
-            "sd": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
-            "median": float(np.median(v)), "p90": float(np.percentile(v, 90))}
+        return {"n": 0, "mean": math.nan, "sd": math.nan, "median": math.nan, "p90": math.nan}
+    return {
+        "n": int(len(v)),
+        "mean": float(v.mean()),
+        "sd": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
+        "median": float(np.median(v)),
+        "p90": float(np.percentile(v, 90)),
+    }
 
 
 @dataclass
@@ -188,16 +200,26 @@ class EvalReport:
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (NaN -> None)."""
+
         def clean(x: Any) -> Any:
             if isinstance(x, dict):
                 return {k: clean(v) for k, v in x.items()}
             if isinstance(x, float) and not math.isfinite(x):
                 return None
             return x
-        return {"min_area_px": self.min_area_px,
-                "methods": [{"name": m.name, "instrument_map": m.instrument_map,
-                             "fragments": m.fragments, "parts": clean(m.parts)}
-                            for m in self.methods]}
+
+        return {
+            "min_area_px": self.min_area_px,
+            "methods": [
+                {
+                    "name": m.name,
+                    "instrument_map": m.instrument_map,
+                    "fragments": m.fragments,
+                    "parts": clean(m.parts),
+                }
+                for m in self.methods
+            ],
+        }
 
     def per_frame(self) -> TrackTable:
         """Every method's per-row errors stacked, with a leading ``method`` column."""
@@ -214,26 +236,31 @@ def _angle_diff_mod180(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.minimum(d, 180.0 - d)
 
 
-def evaluate_one(pred: TrackTable, truth: TrackTable, name: str = "pred",
-                 min_area_px: int = 20) -> MethodReport:
+def evaluate_one(
+    pred: TrackTable, truth: TrackTable, name: str = "pred", min_area_px: int = 20
+) -> MethodReport:
     """Score one prediction against the truth (see the module docstring)."""
     for t, what in ((pred, f"prediction {name}"), (truth, "truth")):
-        require_columns(t, ("frame", "instrument", "part", "cx_px", "cy_px", "angle_deg"),
-                        what)
+        require_columns(t, ("frame", "instrument", "part", "cx_px", "cy_px", "angle_deg"), what)
     if "area_px" in truth and min_area_px > 0:
         area = truth["area_px"]
         truth = truth[~(np.isfinite(area) & (area < min_area_px))]
     mapping = match_instruments(pred, truth)
     p_index: dict[tuple[int, str, str], int] = {}
-    for r, (f, inst, part) in enumerate(zip(pred["frame"], pred["instrument"], pred["part"],
-                                            strict=True)):
+    for r, (f, inst, part) in enumerate(
+        zip(pred["frame"], pred["instrument"], pred["part"], strict=True)
+    ):
         tname = mapping.get(str(inst))
         if tname is not None:
             p_index.setdefault((int(f), tname, str(part)), r)
     n = truth.num_rows
-    j = np.array([p_index.get((int(f), str(i), str(p)), -1) for f, i, p in
-                  zip(truth["frame"], truth["instrument"], truth["part"], strict=True)],
-                 dtype=np.int64)
+    j = np.array(
+        [
+            p_index.get((int(f), str(i), str(p)), -1)
+            for f, i, p in zip(truth["frame"], truth["instrument"], truth["part"], strict=True)
+        ],
+        dtype=np.int64,
+    )
     has = j >= 0
 
     def take(col: str) -> np.ndarray:
@@ -271,22 +298,32 @@ def evaluate_one(pred: TrackTable, truth: TrackTable, name: str = "pred",
         nm = int((sel & metric).sum())
         extra = int(((pred["part"] == part) & ~matched_pred).sum())
         rep: dict[str, Any] = {
-            "n_truth": nt, "n_estimated": ne, "coverage": ne / nt if nt else math.nan,
-            "n_metric": nm, "metric_coverage": nm / nt if nt else math.nan, "extra": extra}
-        for key in ("x_px", "y_px", "theta_deg", "x_mm", "y_mm", "z_mm", "end_mm",
-                    "axis_deg"):
+            "n_truth": nt,
+            "n_estimated": ne,
+            "coverage": ne / nt if nt else math.nan,
+            "n_metric": nm,
+            "metric_coverage": nm / nt if nt else math.nan,
+            "extra": extra,
+        }
+        for key in ("x_px", "y_px", "theta_deg", "x_mm", "y_mm", "z_mm", "end_mm", "axis_deg"):
             rep[key] = _stats(err[f"err_{key}"][sel])
         parts[part] = rep
-    per_row = TrackTable({"frame": truth["frame"], "instrument": truth["instrument"],
-                          "part": truth["part"],
-                          "pred_instrument": [str(pred["instrument"][k]) if k >= 0 else ""
-                                              for k in j],
-                          "estimated": has.astype(np.int64), **err})
+    per_row = TrackTable(
+        {
+            "frame": truth["frame"],
+            "instrument": truth["instrument"],
+            "part": truth["part"],
+            "pred_instrument": [str(pred["instrument"][k]) if k >= 0 else "" for k in j],
+            "estimated": has.astype(np.int64),
+            **err,
+        }
+    )
     return MethodReport(name, mapping, parts, per_row)
 
 
-def evaluate(preds: Mapping[str, TrackTable], truth: TrackTable,
-             min_area_px: int = 20) -> EvalReport:
+def evaluate(
+    preds: Mapping[str, TrackTable], truth: TrackTable, min_area_px: int = 20
+) -> EvalReport:
     """Score several predictions against one truth.
 
     Args:
@@ -301,8 +338,9 @@ def evaluate(preds: Mapping[str, TrackTable], truth: TrackTable,
         raise TableError("evaluate: no prediction given")
     if truth.num_rows == 0:
         raise TableError("truth table has no rows: nothing to score against")
-    return EvalReport([evaluate_one(t, truth, name, min_area_px) for name, t in preds.items()],
-                      min_area_px)
+    return EvalReport(
+        [evaluate_one(t, truth, name, min_area_px) for name, t in preds.items()], min_area_px
+    )
 
 
 def _pm(s: dict[str, float], digits: int = 2) -> str:
@@ -333,25 +371,67 @@ def format_report(report: EvalReport) -> str:
             if s is None:
                 continue
             label = part if k == 0 else ""
-            rows1.append([label, m.name, _pct(s["coverage"]), str(s["extra"]),
-                          _pm(s["x_px"]), _pm(s["y_px"]), _pm(s["theta_deg"])])
+            rows1.append(
+                [
+                    label,
+                    m.name,
+                    _pct(s["coverage"]),
+                    str(s["extra"]),
+                    _pm(s["x_px"]),
+                    _pm(s["y_px"]),
+                    _pm(s["theta_deg"]),
+                ]
+            )
             ax = s["axis_deg"]
-            rows2.append([label, m.name, _pct(s["metric_coverage"]), _pm(s["x_mm"]),
-                          _pm(s["y_mm"]), _pm(s["z_mm"]),
-                          "-" if not s["end_mm"]["n"] else f"{s['end_mm']['median']:.2f}",
-                          "-" if not ax["n"] else f"{ax['median']:.2f}",
-                          "-" if not ax["n"] else f"{ax['p90']:.2f}"])
-    out = [f"Table 1 - 2D box error per part, mean ± sd of |error| (truth rows with "
-           f"area >= {report.min_area_px} px)"]
-    out += _table(["part", "method", "coverage", "extra", "x (px)", "y (px)", "θ (deg)"],
-                  rows1)
-    out += ["", "Table 2 - 3D error per part (distal end: shaft J, wrist W, clasper tip), "
-            "mean ± sd of |error|"]
-    out += _table(["part", "method", "coverage", "x (mm)", "y (mm)", "z (mm)",
-                   "3D med (mm)", "axis med (deg)", "axis p90 (deg)"], rows2)
-    maps = [f"  {m.name}: " + (", ".join(f"{p}->{t}" for p, t in sorted(
-        m.instrument_map.items())) or "no instrument matched")
-        + (f"  ({m.fragments} fragment(s): the tracker changed a tool's identity)"
-           if m.fragments else "") for m in report.methods]
+            rows2.append(
+                [
+                    label,
+                    m.name,
+                    _pct(s["metric_coverage"]),
+                    _pm(s["x_mm"]),
+                    _pm(s["y_mm"]),
+                    _pm(s["z_mm"]),
+                    "-" if not s["end_mm"]["n"] else f"{s['end_mm']['median']:.2f}",
+                    "-" if not ax["n"] else f"{ax['median']:.2f}",
+                    "-" if not ax["n"] else f"{ax['p90']:.2f}",
+                ]
+            )
+    out = [
+        f"Table 1 - 2D box error per part, mean ± sd of |error| (truth rows with "
+        f"area >= {report.min_area_px} px)"
+    ]
+    out += _table(["part", "method", "coverage", "extra", "x (px)", "y (px)", "θ (deg)"], rows1)
+    out += [
+        "",
+        "Table 2 - 3D error per part (distal end: shaft J, wrist W, clasper tip), "
+        "mean ± sd of |error|",
+    ]
+    out += _table(
+        [
+            "part",
+            "method",
+            "coverage",
+            "x (mm)",
+            "y (mm)",
+            "z (mm)",
+            "3D med (mm)",
+            "axis med (deg)",
+            "axis p90 (deg)",
+        ],
+        rows2,
+    )
+    maps = [
+        f"  {m.name}: "
+        + (
+            ", ".join(f"{p}->{t}" for p, t in sorted(m.instrument_map.items()))
+            or "no instrument matched"
+        )
+        + (
+            f"  ({m.fragments} fragment(s): the tracker changed a tool's identity)"
+            if m.fragments
+            else ""
+        )
+        for m in report.methods
+    ]
     out += ["", "Instruments matched (Hungarian on mean box-centre distance):", *maps]
     return "\n".join(out) + "\n"

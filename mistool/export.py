@@ -39,8 +39,9 @@ def atomic_write(path: str | Path, mode: str = "w", **kwargs: Any) -> Iterator[I
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
     except OSError as exc:
-        raise InputPathError(f"{target}: cannot write in {directory}: "
-                             f"{exc.strerror or exc}") from None
+        raise InputPathError(
+            f"{target}: cannot write in {directory}: {exc.strerror or exc}"
+        ) from None
     try:
         with os.fdopen(fd, mode, **kwargs) as f:
             yield f
@@ -96,8 +97,10 @@ def write_csv(table: TrackTable, path: str | Path) -> Path:
     return Path(path)
 
 
-def read_csv(path: str | Path, required: tuple[str, ...] = ("frame", "instrument", "part"),
-             ) -> TrackTable:
+def read_csv(
+    path: str | Path,
+    required: tuple[str, ...] = ("frame", "instrument", "part"),
+) -> TrackTable:
     """Read a motion table written by mistool (or any CSV with the contract columns).
 
     Known columns get their dtypes; extra columns are numeric when every cell parses as a
@@ -112,14 +115,14 @@ def read_csv(path: str | Path, required: tuple[str, ...] = ("frame", "instrument
     except (OSError, UnicodeDecodeError) as exc:
         raise TableError(f"{p}: cannot read as a CSV text file: {exc}") from None
     if not rows:
-        raise TableError(f"{p}: empty file; expected a header row with "
-                         "frame, instrument, part, ...")
+        raise TableError(
+            f"{p}: empty file; expected a header row with frame, instrument, part, ..."
+        )
     header, body = rows[0], rows[1:]
     require_columns({h: None for h in header}, required, str(p))
     for lineno, row in enumerate(body, start=2):
         if len(row) != len(header):
-            raise TableError(f"{p}: line {lineno} has {len(row)} cells, header has "
-                             f"{len(header)}")
+            raise TableError(f"{p}: line {lineno} has {len(row)} cells, header has {len(header)}")
     columns: dict[str, Any] = {}
     for j, name in enumerate(header):
         cells = [row[j] for row in body]
@@ -128,20 +131,23 @@ def read_csv(path: str | Path, required: tuple[str, ...] = ("frame", "instrument
             columns[name] = cells
             continue
         try:
-            values = np.array([float(c) if c.strip() != "" else np.nan for c in cells],
-                              dtype=np.float64)
+            values = np.array(
+                [float(c) if c.strip() != "" else np.nan for c in cells], dtype=np.float64
+            )
         except ValueError:
             if dtype is not None:
                 bad = next(i for i, c in enumerate(cells) if not _is_number(c))
-                raise TableError(f"{p}: line {bad + 2}, column {name!r}: expected a number, "
-                                 f"got {cells[bad]!r}") from None
+                raise TableError(
+                    f"{p}: line {bad + 2}, column {name!r}: expected a number, got {cells[bad]!r}"
+                ) from None
             columns[name] = cells
             continue
         if dtype is np.int64:
             if np.isnan(values).any() or not np.all(values == np.round(values)):
                 bad = int(np.flatnonzero(np.isnan(values) | (values != np.round(values)))[0])
-                raise TableError(f"{p}: line {bad + 2}, column {name!r}: expected an "
-                                 f"integer, got {cells[bad]!r}")
+                raise TableError(
+                    f"{p}: line {bad + 2}, column {name!r}: expected an integer, got {cells[bad]!r}"
+                )
             values = values.astype(np.int64)
         columns[name] = values
     return TrackTable(columns)

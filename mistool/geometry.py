@@ -73,8 +73,10 @@ def box_points(rect: tuple) -> np.ndarray:
     b, a = math.cos(t) * 0.5, math.sin(t) * 0.5
     p0 = (cx - a * h - b * w, cy + b * h - a * w)
     p1 = (cx + a * h - b * w, cy - b * h - a * w)
-    return np.array([p0, p1, (2 * cx - p0[0], 2 * cy - p0[1]),
-                     (2 * cx - p1[0], 2 * cy - p1[1])], dtype=np.float64)
+    return np.array(
+        [p0, p1, (2 * cx - p0[0], 2 * cy - p0[1]), (2 * cx - p1[0], 2 * cy - p1[1])],
+        dtype=np.float64,
+    )
 
 
 def _as_cv_points(points: np.ndarray) -> np.ndarray:
@@ -104,8 +106,7 @@ def _canonical(rect: tuple) -> RotatedBox:
     direction %= 180.0
     if direction >= 180.0 - _ANGLE_SNAP_DEG or length == 0.0:
         direction = 0.0
-    return RotatedBox(cx=float(cx), cy=float(cy), length=length, width=width,
-                      angle_deg=direction)
+    return RotatedBox(cx=float(cx), cy=float(cy), length=length, width=width, angle_deg=direction)
 
 
 def as_cv_labels(labels: np.ndarray) -> np.ndarray:
@@ -133,8 +134,9 @@ def as_cv_labels(labels: np.ndarray) -> np.ndarray:
         return labels.view(np.int32)
     if kind not in "iu":
         raise ValueError(f"expected an integer label image, got dtype {labels.dtype}")
-    if labels.size and (int(labels.min()) < np.iinfo(np.int32).min
-                        or int(labels.max()) > np.iinfo(np.int32).max):
+    if labels.size and (
+        int(labels.min()) < np.iinfo(np.int32).min or int(labels.max()) > np.iinfo(np.int32).max
+    ):
         raise ValueError("label values do not fit in int32")
     return labels.astype(np.int32)
 
@@ -173,8 +175,7 @@ def remove_specks(mask: np.ndarray, min_area_px: int) -> tuple[np.ndarray, int]:
     return kept, area
 
 
-def _clean(mask: np.ndarray, min_area_px: int
-           ) -> tuple[np.ndarray, int, list[np.ndarray] | None]:
+def _clean(mask: np.ndarray, min_area_px: int) -> tuple[np.ndarray, int, list[np.ndarray] | None]:
     """:func:`remove_specks`, also returning the kept components' external contours
     (None when they are not at hand).
 
@@ -261,8 +262,13 @@ class PartFit:
     """(x0, y0) full-image px of ``mask``'s top-left pixel."""
 
 
-def fit_part(mask: np.ndarray, min_area_px: int = 0, offset: tuple[int, int] = (0, 0), *,
-             pixel_edges: bool = True) -> PartFit | None:
+def fit_part(
+    mask: np.ndarray,
+    min_area_px: int = 0,
+    offset: tuple[int, int] = (0, 0),
+    *,
+    pixel_edges: bool = True,
+) -> PartFit | None:
     """Algorithm 1 for one part: drop specks, contours, one ``minAreaRect`` over all of
     the part's contour points, ``boxPoints``.
 
@@ -298,8 +304,9 @@ def fit_part(mask: np.ndarray, min_area_px: int = 0, offset: tuple[int, int] = (
 _GAP_WALK = 64
 
 
-def _lattice_gaps(normals: np.ndarray, h: np.ndarray, t_lo: np.ndarray, t_hi: np.ndarray
-                  ) -> np.ndarray:
+def _lattice_gaps(
+    normals: np.ndarray, h: np.ndarray, t_lo: np.ndarray, t_hi: np.ndarray
+) -> np.ndarray:
     """Distance from each box side to the next row of pixel centres beyond it.
 
     Side ``s`` is the line ``n_s . p = h_s`` (``n_s`` its unit outward normal) between
@@ -343,8 +350,9 @@ def _lattice_gaps(normals: np.ndarray, h: np.ndarray, t_lo: np.ndarray, t_hi: np
     return np.abs(b) * (1.0 - best) + eps
 
 
-def grow_to_pixel_edges(points: np.ndarray, box: RotatedBox | None = None
-                        ) -> tuple[RotatedBox, np.ndarray]:
+def grow_to_pixel_edges(
+    points: np.ndarray, box: RotatedBox | None = None
+) -> tuple[RotatedBox, np.ndarray]:
     """Minimum-area box of pixel centres, each side moved half-way to the next pixel row.
 
     A shape drawn on the pixel grid lights the pixels whose centres it covers; the box of
@@ -388,8 +396,9 @@ def grow_to_pixel_edges(points: np.ndarray, box: RotatedBox | None = None
     return _canonical(rect), box_points(rect)
 
 
-def mask_box(mask: np.ndarray, offset: tuple[int, int] = (0, 0), *, pixel_edges: bool = True
-             ) -> tuple[RotatedBox, np.ndarray] | None:
+def mask_box(
+    mask: np.ndarray, offset: tuple[int, int] = (0, 0), *, pixel_edges: bool = True
+) -> tuple[RotatedBox, np.ndarray] | None:
     """Rotated box of every pixel of a part mask (no speck removal).
 
     Args:
@@ -406,9 +415,13 @@ def mask_box(mask: np.ndarray, offset: tuple[int, int] = (0, 0), *, pixel_edges:
     return None if fit is None else (fit.box, fit.corners)
 
 
-def bounding_boxes(labels: np.ndarray, parts: Mapping[str, tuple[int, int]],
-                   min_area_px: int = 0, *, pixel_edges: bool = True
-                   ) -> dict[str, tuple[RotatedBox, np.ndarray]]:
+def bounding_boxes(
+    labels: np.ndarray,
+    parts: Mapping[str, tuple[int, int]],
+    min_area_px: int = 0,
+    *,
+    pixel_edges: bool = True,
+) -> dict[str, tuple[RotatedBox, np.ndarray]]:
     """Algorithm 1 on one label image: a box per part present.
 
     Args:

@@ -60,47 +60,94 @@ class RotatedBox:
         v = np.array([-math.sin(t), math.cos(t)])  # across it
         hl, hw = self.length / 2.0, self.width / 2.0
         c = np.array([self.cx, self.cy])
-        return np.stack([c - hl * u - hw * v, c + hl * u - hw * v, c + hl * u + hw * v,
-                         c - hl * u + hw * v])
+        return np.stack(
+            [c - hl * u - hw * v, c + hl * u - hw * v, c + hl * u + hw * v, c - hl * u + hw * v]
+        )
 
 
 # The motion table's columns, in their one fixed order, with their dtypes.
 # "contract" columns are required by DESIGN.md; the rest are mistool's extras.
 _F = np.float64
 COLUMNS: tuple[tuple[str, Any], ...] = (
-    ("frame", np.int64),          # 0-based index in the sequence
-    ("time_s", _F),               # frame / fps
-    ("instrument", object),       # instrument name (str)
-    ("part", object),             # "shaft" | "wrist" | "clasper"
+    ("frame", np.int64),  # 0-based index in the sequence
+    ("time_s", _F),  # frame / fps
+    ("instrument", object),  # instrument name (str)
+    ("part", object),  # "shaft" | "wrist" | "clasper"
     # Algorithm 1: the part's rotated box
-    ("cx_px", _F), ("cy_px", _F), ("length_px", _F), ("width_px", _F), ("angle_deg", _F),
-    ("area_px", _F),              # number of the part's mask pixels
-    ("x1_px", _F), ("y1_px", _F), ("x2_px", _F), ("y2_px", _F),  # boxPoints corners, in
-    ("x3_px", _F), ("y3_px", _F), ("x4_px", _F), ("y4_px", _F),  # OpenCV's order
+    ("cx_px", _F),
+    ("cy_px", _F),
+    ("length_px", _F),
+    ("width_px", _F),
+    ("angle_deg", _F),
+    ("area_px", _F),  # number of the part's mask pixels
+    ("x1_px", _F),
+    ("y1_px", _F),
+    ("x2_px", _F),
+    ("y2_px", _F),  # boxPoints corners, in
+    ("x3_px", _F),
+    ("y3_px", _F),
+    ("x4_px", _F),
+    ("y4_px", _F),  # OpenCV's order
     # Algorithm 2: the paper's frame-to-frame motion (NaN on a part's first frame)
-    ("dx_px", _F), ("dy_px", _F), ("dz", _F),
-    ("droll_deg", _F), ("dpitch_deg", _F), ("dyaw_deg", _F),
+    ("dx_px", _F),
+    ("dy_px", _F),
+    ("dz", _F),
+    ("droll_deg", _F),
+    ("dpitch_deg", _F),
+    ("dyaw_deg", _F),
     # Algorithm 2: the paper's per-frame quantities (centroid, z of Eq. 5, e_r, e_p, e_y)
-    ("paper_x_px", _F), ("paper_y_px", _F), ("paper_z", _F),
-    ("paper_roll_deg", _F), ("paper_pitch_deg", _F), ("paper_yaw_deg", _F),
+    ("paper_x_px", _F),
+    ("paper_y_px", _F),
+    ("paper_z", _F),
+    ("paper_roll_deg", _F),
+    ("paper_pitch_deg", _F),
+    ("paper_yaw_deg", _F),
     # Metric pose (camera frame, mm): distal end (shaft: joint J; clasper: tip), unit axis
-    ("end_x_mm", _F), ("end_y_mm", _F), ("end_z_mm", _F),
-    ("axis_x", _F), ("axis_y", _F), ("axis_z", _F),
+    ("end_x_mm", _F),
+    ("end_y_mm", _F),
+    ("end_z_mm", _F),
+    ("axis_x", _F),
+    ("axis_y", _F),
+    ("axis_z", _F),
     # Metric pose for the viewer: proximal end and orientation T_camera_part (wxyz),
     # the part frame's +z along the axis.
-    ("start_x_mm", _F), ("start_y_mm", _F), ("start_z_mm", _F),
-    ("qw", _F), ("qx", _F), ("qy", _F), ("qz", _F),
-    ("quality", _F),              # IoU of the re-rendered pose with the mask, [0, 1]
-    ("trocar_x_mm", _F), ("trocar_y_mm", _F), ("trocar_z_mm", _F),  # per instrument
+    ("start_x_mm", _F),
+    ("start_y_mm", _F),
+    ("start_z_mm", _F),
+    ("qw", _F),
+    ("qx", _F),
+    ("qy", _F),
+    ("qz", _F),
+    ("quality", _F),  # IoU of the re-rendered pose with the mask, [0, 1]
+    ("trocar_x_mm", _F),
+    ("trocar_y_mm", _F),
+    ("trocar_z_mm", _F),  # per instrument
 )
 COLUMN_NAMES: tuple[str, ...] = tuple(name for name, _ in COLUMNS)
 COLUMN_DTYPES: dict[str, Any] = dict(COLUMNS)
 
 #: The columns DESIGN.md requires in every motion table.
 CONTRACT_COLUMNS: tuple[str, ...] = (
-    "frame", "instrument", "part", "cx_px", "cy_px", "length_px", "width_px", "angle_deg",
-    "dx_px", "dy_px", "dz", "droll_deg", "dpitch_deg", "dyaw_deg",
-    "end_x_mm", "end_y_mm", "end_z_mm", "axis_x", "axis_y", "axis_z",
+    "frame",
+    "instrument",
+    "part",
+    "cx_px",
+    "cy_px",
+    "length_px",
+    "width_px",
+    "angle_deg",
+    "dx_px",
+    "dy_px",
+    "dz",
+    "droll_deg",
+    "dpitch_deg",
+    "dyaw_deg",
+    "end_x_mm",
+    "end_y_mm",
+    "end_z_mm",
+    "axis_x",
+    "axis_y",
+    "axis_z",
 )
 
 
@@ -205,10 +252,10 @@ class TrackTable(Mapping[str, np.ndarray]):
         """Rows ordered by (frame, instrument, part order)."""
         if self._n == 0:
             return self
-        part_rank = np.array([PARTS.index(p) if p in PARTS else len(PARTS)
-                              for p in self._cols["part"]])
-        order = np.lexsort((part_rank, self._cols["instrument"].astype(str),
-                            self._cols["frame"]))
+        part_rank = np.array(
+            [PARTS.index(p) if p in PARTS else len(PARTS) for p in self._cols["part"]]
+        )
+        order = np.lexsort((part_rank, self._cols["instrument"].astype(str), self._cols["frame"]))
         return self[order]
 
     @staticmethod

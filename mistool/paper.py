@@ -57,14 +57,32 @@ import numpy as np
 
 from mistool.model import TrackTable, require_columns
 
-CORNER_COLUMNS: tuple[str, ...] = ("x1_px", "y1_px", "x2_px", "y2_px",
-                                   "x3_px", "y3_px", "x4_px", "y4_px")
+CORNER_COLUMNS: tuple[str, ...] = (
+    "x1_px",
+    "y1_px",
+    "x2_px",
+    "y2_px",
+    "x3_px",
+    "y3_px",
+    "x4_px",
+    "y4_px",
+)
 
 #: The columns :func:`paper_motion` fills.
 PAPER_COLUMNS: tuple[str, ...] = (
-    "dx_px", "dy_px", "dz", "droll_deg", "dpitch_deg", "dyaw_deg",
-    "paper_x_px", "paper_y_px", "paper_z", "paper_roll_deg", "paper_pitch_deg",
-    "paper_yaw_deg")
+    "dx_px",
+    "dy_px",
+    "dz",
+    "droll_deg",
+    "dpitch_deg",
+    "dyaw_deg",
+    "paper_x_px",
+    "paper_y_px",
+    "paper_z",
+    "paper_roll_deg",
+    "paper_pitch_deg",
+    "paper_yaw_deg",
+)
 
 _NEXT = np.array([1, 2, 3, 0])  # 0-based index of the paper's corner i%4+1
 
@@ -111,8 +129,10 @@ def internal_angles_eq2(m: np.ndarray) -> np.ndarray:
 
 # Internals work on corner-major arrays, (4, ...): row i is the paper's corner i + 1.
 def _rows(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return (np.moveaxis(np.asarray(x, dtype=np.float64), -1, 0),
-            np.moveaxis(np.asarray(y, dtype=np.float64), -1, 0))
+    return (
+        np.moveaxis(np.asarray(x, dtype=np.float64), -1, 0),
+        np.moveaxis(np.asarray(y, dtype=np.float64), -1, 0),
+    )
 
 
 def _area(X: np.ndarray, Y: np.ndarray, *, full: bool) -> np.ndarray:
@@ -143,8 +163,7 @@ def _angles(m1: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan(t, out=t), out=t)
 
 
-def paper_quantities(x: np.ndarray, y: np.ndarray, *, area: str = "paper"
-                     ) -> dict[str, np.ndarray]:
+def paper_quantities(x: np.ndarray, y: np.ndarray, *, area: str = "paper") -> dict[str, np.ndarray]:
     """Algorithm 2's per-frame quantities from the corners (no frame-to-frame step).
 
     Args:
@@ -215,8 +234,7 @@ def _codes(values: np.ndarray) -> np.ndarray:
     return np.fromiter((index[v] for v in lst), dtype=np.int64, count=len(lst))
 
 
-def paper_motion(table: TrackTable, focal_px: float = 1.0, *, area: str = "paper"
-                 ) -> TrackTable:
+def paper_motion(table: TrackTable, focal_px: float = 1.0, *, area: str = "paper") -> TrackTable:
     """Algorithm 2 over a whole track table, vectorised.
 
     Args:
@@ -249,13 +267,22 @@ def paper_motion(table: TrackTable, focal_px: float = 1.0, *, area: str = "paper
     A = q["A"]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         S = np.where(has, A / A[j], 1.0)  # S = 1 on a part's first frame (no change yet)
-        z = np.sqrt(focal_px ** 2 * S ** 2 / A)
+        z = np.sqrt(focal_px**2 * S**2 / A)
     z = np.where((A > 0) & np.isfinite(S) & np.isfinite(z), z, np.nan)
     return table.with_columns(
-        dx_px=delta(q["cx"]), dy_px=delta(q["cy"]), dz=delta(z),
-        droll_deg=delta(q["e_r"]), dpitch_deg=delta(q["e_p"]), dyaw_deg=delta(q["e_y"]),
-        paper_x_px=q["cx"], paper_y_px=q["cy"], paper_z=z,
-        paper_roll_deg=q["e_r"], paper_pitch_deg=q["e_p"], paper_yaw_deg=q["e_y"])
+        dx_px=delta(q["cx"]),
+        dy_px=delta(q["cy"]),
+        dz=delta(z),
+        droll_deg=delta(q["e_r"]),
+        dpitch_deg=delta(q["e_p"]),
+        dyaw_deg=delta(q["e_y"]),
+        paper_x_px=q["cx"],
+        paper_y_px=q["cy"],
+        paper_z=z,
+        paper_roll_deg=q["e_r"],
+        paper_pitch_deg=q["e_p"],
+        paper_yaw_deg=q["e_y"],
+    )
 
 
 def paper_matrices(table: TrackTable) -> tuple[np.ndarray, np.ndarray]:
@@ -276,8 +303,10 @@ def paper_matrices(table: TrackTable) -> tuple[np.ndarray, np.ndarray]:
     T = np.zeros((n, 3, 3))
     T[:, 0, 0] = T[:, 1, 1] = 1.0
     T[:, 0, 2], T[:, 1, 2], T[:, 2, 2] = dx, dy, dz
-    phi, theta, psi = (np.radians(np.asarray(table[c], dtype=np.float64))
-                       for c in ("droll_deg", "dpitch_deg", "dyaw_deg"))
+    phi, theta, psi = (
+        np.radians(np.asarray(table[c], dtype=np.float64))
+        for c in ("droll_deg", "dpitch_deg", "dyaw_deg")
+    )
     R = rot_z(psi) @ rot_y(theta) @ rot_x(phi)
     return T, R
 
@@ -286,21 +315,24 @@ def rot_x(phi: np.ndarray) -> np.ndarray:
     """``R_X``: (N,) radians -> (N, 3, 3)."""
     c, s = np.cos(phi), np.sin(phi)
     o, z = np.ones_like(c), np.zeros_like(c)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1),
-                     np.stack([z, s, c], -1)], -2)
+    return np.stack(
+        [np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2
+    )
 
 
 def rot_y(theta: np.ndarray) -> np.ndarray:
     """``R_Y``: (N,) radians -> (N, 3, 3)."""
     c, s = np.cos(theta), np.sin(theta)
     o, z = np.ones_like(c), np.zeros_like(c)
-    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1),
-                     np.stack([-s, z, c], -1)], -2)
+    return np.stack(
+        [np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2
+    )
 
 
 def rot_z(psi: np.ndarray) -> np.ndarray:
     """``R_Z``: (N,) radians -> (N, 3, 3)."""
     c, s = np.cos(psi), np.sin(psi)
     o, z = np.ones_like(c), np.zeros_like(c)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1),
-                     np.stack([z, z, o], -1)], -2)
+    return np.stack(
+        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )

@@ -17,8 +17,10 @@ def _find(name: str) -> Path:
     for candidate in (_PACKAGE.parent / name, _PACKAGE / "_bundled" / name):
         if candidate.is_dir():
             return candidate
-    raise InputPathError(f"bundled folder {name!r} not found beside {_PACKAGE}; "
-                         "reinstall mistool or pass a folder explicitly")
+    raise InputPathError(
+        f"bundled folder {name!r} not found beside {_PACKAGE}; "
+        "reinstall mistool or pass a folder explicitly"
+    )
 
 
 def sample_masks_dir() -> Path:

@@ -59,9 +59,11 @@ from mistool.config import CONFIG_NAME, Config, ValueRange, load_config
 from mistool.errors import InputPathError, MaskFormatError
 
 IMAGE_EXTENSIONS: frozenset[str] = frozenset(
-    {".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".jpg", ".jpeg", ".webp"})
+    {".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".jpg", ".jpeg", ".webp"}
+)
 VIDEO_EXTENSIONS: frozenset[str] = frozenset(
-    {".avi", ".mp4", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv"})
+    {".avi", ".mp4", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv"}
+)
 #: Half-width (label units) of the range a single label value is widened to in mask videos.
 VIDEO_TOLERANCE: int = 15
 _LOSSY_EXTENSIONS = frozenset({".jpg", ".jpeg"})
@@ -94,9 +96,9 @@ def _png_palette(data: bytes) -> np.ndarray | None:
         return None
     pos = 8
     while pos + 8 <= len(data):
-        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        length, kind = struct.unpack(">I4s", data[pos : pos + 8])
         if kind == b"PLTE":
-            rgb = np.frombuffer(data[pos + 8:pos + 8 + length], dtype=np.uint8)
+            rgb = np.frombuffer(data[pos + 8 : pos + 8 + length], dtype=np.uint8)
             rgb = rgb[: len(rgb) // 3 * 3].reshape(-1, 3).astype(np.uint32)
             return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
         if kind in (b"IDAT", b"IEND"):
@@ -121,8 +123,14 @@ def _palette_indices(img: np.ndarray, palette: np.ndarray, where: str) -> np.nda
     return first[pos].astype(np.uint8)
 
 
-def to_labels(img: np.ndarray, where: str, *, colour: bool, order: str = "bgr",
-              palette: np.ndarray | None = None) -> np.ndarray:
+def to_labels(
+    img: np.ndarray,
+    where: str,
+    *,
+    colour: bool,
+    order: str = "bgr",
+    palette: np.ndarray | None = None,
+) -> np.ndarray:
     """Turn a decoded image or a caller's array into an ``(H, W)`` integer label image.
 
     Args:
@@ -143,14 +151,17 @@ def to_labels(img: np.ndarray, where: str, *, colour: bool, order: str = "bgr",
         arr = _integer_labels(arr, where)
         if colour:
             if arr.dtype != np.uint8:
-                raise MaskFormatError(f"{where}: colour masks (\"#rrggbb\" in mistool.toml) "
-                                      f"need 8-bit images, got {arr.dtype}")
+                raise MaskFormatError(
+                    f'{where}: colour masks ("#rrggbb" in mistool.toml) '
+                    f"need 8-bit images, got {arr.dtype}"
+                )
             v = arr.astype(np.uint32)
             return (v << 16) | (v << 8) | v
         return arr
     if arr.ndim != 3 or arr.shape[2] not in (3, 4) or arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise MaskFormatError(f"{where}: expected a label image of shape (H, W) or "
-                              f"(H, W, 3), got shape {arr.shape}")
+        raise MaskFormatError(
+            f"{where}: expected a label image of shape (H, W) or (H, W, 3), got shape {arr.shape}"
+        )
     arr = arr[..., :3]
     if order == "rgb":
         arr = arr[..., ::-1]
@@ -164,7 +175,8 @@ def to_labels(img: np.ndarray, where: str, *, colour: bool, order: str = "bgr",
     if not (np.array_equal(c0, arr[..., 1]) and np.array_equal(c0, arr[..., 2])):
         raise MaskFormatError(
             f"{where}: colour pixels (channels differ) but mistool.toml gives grey label "
-            "values; give the parts as \"#rrggbb\" colours in [parts] or [[instrument]]")
+            'values; give the parts as "#rrggbb" colours in [parts] or [[instrument]]'
+        )
     return _integer_labels(np.ascontiguousarray(c0), where)
 
 
@@ -176,17 +188,16 @@ def _integer_labels(arr: np.ndarray, where: str) -> np.ndarray:
         return arr.astype(np.uint8)
     if arr.dtype.kind == "f":
         if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
-            raise MaskFormatError(f"{where}: expected integer label values, got "
-                                  f"non-integer {arr.dtype} pixels")
+            raise MaskFormatError(
+                f"{where}: expected integer label values, got non-integer {arr.dtype} pixels"
+            )
     elif arr.dtype.kind not in "iu":
-        raise MaskFormatError(f"{where}: expected an integer label image, got dtype "
-                              f"{arr.dtype}")
+        raise MaskFormatError(f"{where}: expected an integer label image, got dtype {arr.dtype}")
     if arr.size == 0:
         raise MaskFormatError(f"{where}: empty image, shape {arr.shape}")
     lo, hi = arr.min(), arr.max()
     if lo < 0 or hi > 65535:
-        raise MaskFormatError(f"{where}: label values must be in 0..65535, found "
-                              f"{lo}..{hi}")
+        raise MaskFormatError(f"{where}: label values must be in 0..65535, found {lo}..{hi}")
     return arr.astype(np.uint8 if hi <= 255 else np.uint16)
 
 
@@ -234,12 +245,12 @@ def decode_grey_png_fast(data: bytes) -> np.ndarray | None:
         return None
     pos, chunks, ended = 8, [], False
     while pos + 12 <= len(data):
-        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        length, kind = struct.unpack(">I4s", data[pos : pos + 8])
         stop = pos + 12 + length
         if stop > len(data):
             return None
-        body = data[pos + 8:pos + 8 + length]
-        if _ZLIB.crc32(body, _ZLIB.crc32(kind)) != struct.unpack(">I", data[stop - 4:stop])[0]:
+        body = data[pos + 8 : pos + 8 + length]
+        if _ZLIB.crc32(body, _ZLIB.crc32(kind)) != struct.unpack(">I", data[stop - 4 : stop])[0]:
             return None
         if kind == b"IDAT":
             chunks.append(body)
@@ -326,7 +337,7 @@ def _unfilter(filters: np.ndarray, delta: np.ndarray) -> np.ndarray | None:
         k = r
         while k + 1 < n_up and ups[k + 1] == ups[k] + 1 and not busy[ups[k + 1]]:
             k += 1
-        out[y:int(ups[k]) + 1] = above
+        out[y : int(ups[k]) + 1] = above
         r = k + 1
     return out
 
@@ -352,8 +363,9 @@ class FastPathGate:
         self.declined += not decoded
 
 
-def read_label_image(path: Path, *, colour: bool = False,
-                     gate: FastPathGate | None = None) -> np.ndarray:
+def read_label_image(
+    path: Path, *, colour: bool = False, gate: FastPathGate | None = None
+) -> np.ndarray:
     """Decode one label image file into an ``(H, W)`` label image (see module docs).
 
     Raises:
@@ -369,11 +381,11 @@ def read_label_image(path: Path, *, colour: bool = False,
             gate.record(img is not None)
         if img is not None:
             return to_labels(img, str(path), colour=colour)
-    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) \
-        if data else None
+    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if img is None:
-        raise MaskFormatError(f"{path}: cannot decode as an image (corrupt, truncated or "
-                              "not an image file)")
+        raise MaskFormatError(
+            f"{path}: cannot decode as an image (corrupt, truncated or not an image file)"
+        )
     palette = _png_palette(data) if img.ndim == 3 else None
     return to_labels(img, str(path), colour=colour, palette=palette)
 
@@ -401,9 +413,16 @@ class MaskSequence:
     worker threads (then it must call :meth:`check_shape` in frame order).
     """
 
-    def __init__(self, kind: str, name: str, config: Config,
-                 frames: Callable[[], Iterator[Frame]], num_frames: int | None,
-                 path: Path | None = None, lossy: bool = False) -> None:
+    def __init__(
+        self,
+        kind: str,
+        name: str,
+        config: Config,
+        frames: Callable[[], Iterator[Frame]],
+        num_frames: int | None,
+        path: Path | None = None,
+        lossy: bool = False,
+    ) -> None:
         self.kind = kind
         """``"folder"``, ``"video"`` or ``"arrays"``."""
         self.name = name
@@ -438,7 +457,8 @@ class MaskSequence:
             name = frame.name if isinstance(frame, Frame) else frame
             raise MaskFormatError(
                 f"{name}: frame size changed mid-sequence: {shape[1]}x{shape[0]} px, "
-                f"earlier frames are {self.shape[1]}x{self.shape[0]} px")
+                f"earlier frames are {self.shape[1]}x{self.shape[0]} px"
+            )
 
     def __iter__(self) -> Iterator[tuple[int, str, np.ndarray]]:
         for frame in self.frames():
@@ -456,9 +476,13 @@ def list_frames(folder: Path) -> list[Path]:
         entries = list(os.scandir(folder))
     except OSError as exc:
         raise InputPathError(f"{folder}: cannot list folder: {exc.strerror or exc}") from None
-    files = [Path(e.path) for e in entries
-             if not e.name.startswith(".") and Path(e.name).suffix.lower() in IMAGE_EXTENSIONS
-             and e.is_file()]
+    files = [
+        Path(e.path)
+        for e in entries
+        if not e.name.startswith(".")
+        and Path(e.name).suffix.lower() in IMAGE_EXTENSIONS
+        and e.is_file()
+    ]
     return sorted(files, key=lambda p: natural_key(p.name))
 
 
@@ -473,20 +497,23 @@ def resolve(path: str | Path) -> tuple[Path, Config]:
     """
     p = Path(path).expanduser()
     if not p.exists():
-        raise InputPathError(f"{p}: no such file or folder; expected a folder of label "
-                             "images or a mask video")
+        raise InputPathError(
+            f"{p}: no such file or folder; expected a folder of label images or a mask video"
+        )
     if p.is_dir():
         return p, load_config(p)
     if p.suffix.lower() in VIDEO_EXTENSIONS:
         return p, load_config(p.parent)
     if p.name == CONFIG_NAME:
         return p.parent, load_config(p)
-    raise InputPathError(f"{p}: not a folder of label images or a mask video "
-                         f"({', '.join(sorted(VIDEO_EXTENSIONS))})")
+    raise InputPathError(
+        f"{p}: not a folder of label images or a mask video ({', '.join(sorted(VIDEO_EXTENSIONS))})"
+    )
 
 
-def open_sequence(source: str | Path | Iterable[np.ndarray],
-                  config: Config | None = None) -> MaskSequence:
+def open_sequence(
+    source: str | Path | Iterable[np.ndarray], config: Config | None = None
+) -> MaskSequence:
     """Open a sequence for streaming (nothing is decoded yet, except a video's header).
 
     Args:
@@ -508,21 +535,28 @@ def open_sequence(source: str | Path | Iterable[np.ndarray],
             return _open_folder(path, config)
         return _open_video(path, config)
     if isinstance(source, np.ndarray) and (
-            source.ndim == 2 or (source.ndim == 3 and source.shape[2] in (3, 4))):
-        raise MaskFormatError(f"source: got one array of shape {source.shape}; pass a list "
-                              "of frames, e.g. [labels], or an (N, H, W) stack")
+        source.ndim == 2 or (source.ndim == 3 and source.shape[2] in (3, 4))
+    ):
+        raise MaskFormatError(
+            f"source: got one array of shape {source.shape}; pass a list "
+            "of frames, e.g. [labels], or an (N, H, W) stack"
+        )
     return _open_arrays(source, config if config is not None else Config())
 
 
 def _open_folder(folder: Path, config: Config) -> MaskSequence:
     files = list_frames(folder)
     if not files:
-        videos = sorted(p.name for p in folder.iterdir()
-                        if p.suffix.lower() in VIDEO_EXTENSIONS)
-        hint = (f"; to read a mask video pass the file itself, e.g. {folder / videos[0]}"
-                if videos else "")
-        raise InputPathError(f"{folder}: no label images "
-                             f"({', '.join(sorted(IMAGE_EXTENSIONS))}) in this folder{hint}")
+        videos = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in VIDEO_EXTENSIONS)
+        hint = (
+            f"; to read a mask video pass the file itself, e.g. {folder / videos[0]}"
+            if videos
+            else ""
+        )
+        raise InputPathError(
+            f"{folder}: no label images "
+            f"({', '.join(sorted(IMAGE_EXTENSIONS))}) in this folder{hint}"
+        )
     colour = config.colour_masks
     gate = FastPathGate()
 
@@ -531,9 +565,15 @@ def _open_folder(folder: Path, config: Config) -> MaskSequence:
             yield Frame(i, f.name, _loader(f, colour, gate))
 
     lossy = all(f.suffix.lower() in _LOSSY_EXTENSIONS for f in files)
-    return MaskSequence("folder", folder.resolve().name or str(folder),
-                        widen_for_video(config) if lossy else config, frames, len(files),
-                        folder, lossy=lossy)
+    return MaskSequence(
+        "folder",
+        folder.resolve().name or str(folder),
+        widen_for_video(config) if lossy else config,
+        frames,
+        len(files),
+        folder,
+        lossy=lossy,
+    )
 
 
 def _loader(path: Path, colour: bool, gate: FastPathGate) -> Callable[[], np.ndarray]:
@@ -563,8 +603,10 @@ def widen_for_video(config: Config, tolerance: int = VIDEO_TOLERANCE) -> Config:
         return max(lo - t, 1 if lo > 0 else 0), hi + t
 
     parts = {p: widen(r) for p, r in config.parts.items()}
-    instruments = tuple(replace(inst, parts={p: widen(r) for p, r in inst.parts.items()})
-                        for inst in config.instruments)
+    instruments = tuple(
+        replace(inst, parts={p: widen(r) for p, r in inst.parts.items()})
+        for inst in config.instruments
+    )
     return replace(config, parts=parts, instruments=instruments)
 
 
@@ -582,8 +624,9 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
     ok = ok and cap.read()[0]
     cap.release()
     if not ok:
-        raise MaskFormatError(f"{path}: cannot read as a video (corrupt, unsupported codec "
-                              "or not a video file)")
+        raise MaskFormatError(
+            f"{path}: cannot read as a video (corrupt, unsupported codec or not a video file)"
+        )
     colour = config.colour_masks
     stem = path.stem
 
@@ -597,8 +640,7 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
                     break
                 where = f"{path}#{index}"
                 if colour:
-                    labels = _pack_bgr(img) if img.ndim == 3 else to_labels(
-                        img, where, colour=True)
+                    labels = _pack_bgr(img) if img.ndim == 3 else to_labels(img, where, colour=True)
                 elif img.ndim == 3:
                     labels = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
                 else:
@@ -610,8 +652,15 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
         finally:
             vc.release()
 
-    return MaskSequence("video", stem, widen_for_video(config), frames,
-                        count if count > 0 else None, path, lossy=True)
+    return MaskSequence(
+        "video",
+        stem,
+        widen_for_video(config),
+        frames,
+        count if count > 0 else None,
+        path,
+        lossy=True,
+    )
 
 
 def _constant(labels: np.ndarray) -> Callable[[], np.ndarray]:
@@ -622,8 +671,9 @@ def _open_arrays(source: Iterable[np.ndarray], config: Config) -> MaskSequence:
     try:
         iterator_source = iter(source)
     except TypeError:
-        raise MaskFormatError(f"source: expected a path or an iterable of label arrays, "
-                              f"got {type(source).__name__}") from None
+        raise MaskFormatError(
+            f"source: expected a path or an iterable of label arrays, got {type(source).__name__}"
+        ) from None
     try:
         count: int | None = len(source)  # type: ignore[arg-type]
     except TypeError:

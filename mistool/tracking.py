@@ -102,22 +102,30 @@ class InstanceObservation:
 def _check_labels(labels: np.ndarray, config: Config) -> np.ndarray:
     arr = np.asarray(labels)
     if arr.ndim != 2:
-        raise MaskFormatError(f"expected a single-channel (H, W) label image, got shape "
-                              f"{arr.shape}")
+        raise MaskFormatError(
+            f"expected a single-channel (H, W) label image, got shape {arr.shape}"
+        )
     try:
         return as_cv_labels(arr)
     except ValueError as exc:
         raise MaskFormatError(f"label image: {exc}") from None
 
 
-def _part_observation(part: str, mask: np.ndarray, x0: int, y0: int,
-                      min_area_px: int) -> PartObservation | None:
+def _part_observation(
+    part: str, mask: np.ndarray, x0: int, y0: int, min_area_px: int
+) -> PartObservation | None:
     """Algorithm 1 for one part's uint8 mask (a crop at (x0, y0) of the full image)."""
     fit = fit_part(mask, min_area_px, (x0, y0))
     if fit is None:
         return None
-    return PartObservation(part=part, box=fit.box, corners=fit.corners, area_px=fit.area_px,
-                           mask=fit.mask.astype(bool), offset=fit.offset)
+    return PartObservation(
+        part=part,
+        box=fit.box,
+        corners=fit.corners,
+        area_px=fit.area_px,
+        mask=fit.mask.astype(bool),
+        offset=fit.offset,
+    )
 
 
 def _foreground(img: np.ndarray) -> tuple[int, int, int, int]:
@@ -126,8 +134,9 @@ def _foreground(img: np.ndarray) -> tuple[int, int, int, int]:
     return tuple(int(v) for v in cv2.boundingRect(nz))  # type: ignore[return-value]
 
 
-def _instance(label: str | None, parts: dict[str, PartObservation],
-              shape: tuple[int, int] | None = None) -> InstanceObservation:
+def _instance(
+    label: str | None, parts: dict[str, PartObservation], shape: tuple[int, int] | None = None
+) -> InstanceObservation:
     area = sum(p.area_px for p in parts.values())
     sx = sy = 0.0
     x0 = y0 = math.inf
@@ -142,8 +151,13 @@ def _instance(label: str | None, parts: dict[str, PartObservation],
         x0, y0 = min(x0, p.offset[0]), min(y0, p.offset[1])
         x1, y1 = max(x1, p.offset[0] + w), max(y1, p.offset[1] + h)
     return InstanceObservation(
-        label=label, parts=parts, centroid_px=(sx / area, sy / area), area_px=area,
-        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)), image_shape=shape)
+        label=label,
+        parts=parts,
+        centroid_px=(sx / area, sy / area),
+        area_px=area,
+        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)),
+        image_shape=shape,
+    )
 
 
 def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservation]:
@@ -171,14 +185,15 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
     fx, fy, fw, fh = _foreground(img)
     if fw == 0 or fh == 0:
         return out
-    crop = img[fy:fy + fh, fx:fx + fw]  # every part pixel is non-zero: work on its bounds
+    crop = img[fy : fy + fh, fx : fx + fw]  # every part pixel is non-zero: work on its bounds
     if config.instruments:
         for spec in config.instruments:
             parts: dict[str, PartObservation] = {}
             for part in PARTS:
                 if part in spec.parts and spec.parts[part][1] > 0:
-                    obs = _part_observation(part, range_mask(crop, spec.parts[part]), fx, fy,
-                                            min_area)
+                    obs = _part_observation(
+                        part, range_mask(crop, spec.parts[part]), fx, fy, min_area
+                    )
                     if obs is not None:
                         parts[part] = obs
             if parts:
@@ -200,8 +215,7 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
         # the crop holds every foreground pixel, so no padding is needed for the gaps
         k = 2 * MERGE_GAP_PX + 1
         bridged = cv2.dilate(union, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
-        contours, hierarchy = cv2.findContours(bridged, cv2.RETR_CCOMP,
-                                               cv2.CHAIN_APPROX_SIMPLE)
+        contours, hierarchy = cv2.findContours(bridged, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
         n_inst = int((hierarchy[0][:, 3] < 0).sum())
     if n_inst == 0:
         return out
@@ -216,15 +230,20 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
         return out
     n, cc, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
     counts = np.bincount(cc[union > 0], minlength=n)
-    shaft_counts = (np.bincount(cc[masks["shaft"] > 0], minlength=n) if "shaft" in masks
-                    else np.zeros(n, np.int64))
+    shaft_counts = (
+        np.bincount(cc[masks["shaft"] > 0], minlength=n)
+        if "shaft" in masks
+        else np.zeros(n, np.int64)
+    )
     found = []
     h_img, w_img = img.shape[:2]
-    border = ((stats[:, 0] + fx <= 0) | (stats[:, 1] + fy <= 0)
-              | (stats[:, 0] + stats[:, 2] + fx >= w_img)
-              | (stats[:, 1] + stats[:, 3] + fy >= h_img))
-    for group in _group_fragments(counts, shaft_counts, stats, max(min_area, 1), cc,
-                                  border):
+    border = (
+        (stats[:, 0] + fx <= 0)
+        | (stats[:, 1] + fy <= 0)
+        | (stats[:, 0] + stats[:, 2] + fx >= w_img)
+        | (stats[:, 1] + stats[:, 3] + fy >= h_img)
+    )
+    for group in _group_fragments(counts, shaft_counts, stats, max(min_area, 1), cc, border):
         x0 = min(int(stats[i, 0]) for i in group)
         y0 = min(int(stats[i, 1]) for i in group)
         x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
@@ -273,8 +292,9 @@ def _distal_sign(inst: InstanceObservation, shape: tuple[int, int]) -> float:
     return 1.0 if plus >= minus else -1.0
 
 
-def _host_for(piece: InstanceObservation, found: list[InstanceObservation], k: int,
-              shape: tuple[int, int]) -> int | None:
+def _host_for(
+    piece: InstanceObservation, found: list[InstanceObservation], k: int, shape: tuple[int, int]
+) -> int | None:
     """The instance a piece belongs to by shaft geometry, or None."""
     if set(piece.parts) == {"shaft"}:  # a shaft cut in two
         b = piece.parts["shaft"].box
@@ -286,8 +306,10 @@ def _host_for(piece: InstanceObservation, found: list[InstanceObservation], k: i
             # reference, and directions must agree only when the other is long too (twice
             # the shaft's width)
             ref, q = (a, b) if a.length >= b.length else (b, a)
-            if q.length >= 2.0 * ref.width and \
-                    _angle_diff(a.angle_deg, b.angle_deg) > CUT_SHAFT_ANGLE_DEG:
+            if (
+                q.length >= 2.0 * ref.width
+                and _angle_diff(a.angle_deg, b.angle_deg) > CUT_SHAFT_ANGLE_DEG
+            ):
                 continue
             u = _unit(ref.angle_deg)
             off = abs((q.cx - ref.cx) * u[1] - (q.cy - ref.cy) * u[0])  # to ref's axis
@@ -304,8 +326,13 @@ def _host_for(piece: InstanceObservation, found: list[InstanceObservation], k: i
         # the host must not already show a head part of this piece's size (its own
         # head): a crumb of a head (< FRAGMENT_AREA_FRAC of the host's) joins, and so
         # does a head larger than the stub of it the host shows beside the occluder
-        if any(p in other.parts and FRAGMENT_AREA_FRAC * other.parts[p].area_px
-               <= piece.parts[p].area_px <= other.parts[p].area_px for p in piece.parts):
+        if any(
+            p in other.parts
+            and FRAGMENT_AREA_FRAC * other.parts[p].area_px
+            <= piece.parts[p].area_px
+            <= other.parts[p].area_px
+            for p in piece.parts
+        ):
             continue
         a = other.parts["shaft"].box
         u = _unit(a.angle_deg) * _distal_sign(other, shape)
@@ -317,8 +344,9 @@ def _host_for(piece: InstanceObservation, found: list[InstanceObservation], k: i
     return None if best is None else best[1]
 
 
-def _join_cut_shafts(found: list[InstanceObservation], min_area: int,
-                     shape: tuple[int, int]) -> list[InstanceObservation]:
+def _join_cut_shafts(
+    found: list[InstanceObservation], min_area: int, shape: tuple[int, int]
+) -> list[InstanceObservation]:
     """Join pieces cut off by an occluder to their instrument (:func:`_host_for`)."""
     if len(found) < 2:
         return found
@@ -336,8 +364,9 @@ def _join_cut_shafts(found: list[InstanceObservation], min_area: int,
     return found
 
 
-def _merge_instances(a: InstanceObservation, b: InstanceObservation, min_area: int
-                     ) -> InstanceObservation:
+def _merge_instances(
+    a: InstanceObservation, b: InstanceObservation, min_area: int
+) -> InstanceObservation:
     """One instance from two: each part refitted on both instances' pixels."""
     parts: dict[str, PartObservation] = {}
     for name in PARTS:
@@ -355,16 +384,21 @@ def _merge_instances(a: InstanceObservation, b: InstanceObservation, min_area: i
         for o in obs:
             h, w = o.mask.shape
             ox, oy = o.offset[0] - x0, o.offset[1] - y0
-            m[oy:oy + h, ox:ox + w][o.mask] = 255
+            m[oy : oy + h, ox : ox + w][o.mask] = 255
         joined = _part_observation(name, m, x0, y0, min_area)
         if joined is not None:
             parts[name] = joined
     return _instance(None, parts, a.image_shape)
 
 
-def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.ndarray,
-                     min_area: int, cc: np.ndarray | None = None,
-                     border: np.ndarray | None = None) -> list[list[int]]:
+def _group_fragments(
+    counts: np.ndarray,
+    shaft_counts: np.ndarray,
+    stats: np.ndarray,
+    min_area: int,
+    cc: np.ndarray | None = None,
+    border: np.ndarray | None = None,
+) -> list[list[int]]:
     """Components (labels 1..n-1) grouped into instruments.
 
     - A component smaller than ``min_area`` pixels is a speck and is dropped.
@@ -391,8 +425,15 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
 
     owner: dict[int, int] = {i: i for i in labels}
     members: dict[int, list[int]] = {i: [i] for i in labels}
-    box = {i: [int(stats[i, 0]), int(stats[i, 1]), int(stats[i, 0] + stats[i, 2]),
-               int(stats[i, 1] + stats[i, 3])] for i in labels}  # x0, y0, x1, y1 (excl.)
+    box = {
+        i: [
+            int(stats[i, 0]),
+            int(stats[i, 1]),
+            int(stats[i, 0] + stats[i, 2]),
+            int(stats[i, 1] + stats[i, 3]),
+        ]
+        for i in labels
+    }  # x0, y0, x1, y1 (excl.)
     area = {i: float(counts[i]) for i in labels}
 
     def join(i: int, j: int) -> None:  # group i (a root) into group j (a root)
@@ -421,8 +462,11 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
 
     for k, i in enumerate(hosts):  # small shaft pieces next to a much larger one
         for j in hosts[:k]:
-            if owner[j] == j and counts[i] < FRAGMENT_AREA_FRAC * counts[j] \
-                    and gap(i, j, FRAGMENT_GAP_PX) <= FRAGMENT_GAP_PX:
+            if (
+                owner[j] == j
+                and counts[i] < FRAGMENT_AREA_FRAC * counts[j]
+                and gap(i, j, FRAGMENT_GAP_PX) <= FRAGMENT_GAP_PX
+            ):
                 join(i, j)
                 break
     todo = list(heads)
@@ -458,8 +502,9 @@ def _group_fragments(counts: np.ndarray, shaft_counts: np.ndarray, stats: np.nda
     return list(members.values())
 
 
-def _pixel_gap(cc: np.ndarray, a: list[int], b: list[int], box_a: list[int],
-               box_b: list[int], reach: int) -> float:
+def _pixel_gap(
+    cc: np.ndarray, a: list[int], b: list[int], box_a: list[int], box_b: list[int], reach: int
+) -> float:
     """Smallest distance (px) from a pixel labelled in ``a`` to one labelled in ``b`` in the
     component label image ``cc``, looked for within ``reach`` px of ``a``'s bounds
     ``box_a`` (``box_b``: ``b``'s bounds; both x0, y0, x1, y1 exclusive); ``inf`` beyond."""
@@ -620,8 +665,9 @@ class IdentityTracker:
         """
         return self._step(frame_index, instances, split=False)[1]
 
-    def resolve(self, frame_index: int, instances: list[InstanceObservation]
-                ) -> tuple[list[InstanceObservation], list[str]]:
+    def resolve(
+        self, frame_index: int, instances: list[InstanceObservation]
+    ) -> tuple[list[InstanceObservation], list[str]]:
         """Like :meth:`assign`, but an instance holding several known instruments (two
         crossing or grasping each other in merged masks) is split between them.
 
@@ -642,13 +688,16 @@ class IdentityTracker:
         """
         return self._step(frame_index, instances, split=True)
 
-    def _step(self, frame_index: int, instances: list[InstanceObservation], *, split: bool
-              ) -> tuple[list[InstanceObservation], list[str]]:
+    def _step(
+        self, frame_index: int, instances: list[InstanceObservation], *, split: bool
+    ) -> tuple[list[InstanceObservation], list[str]]:
         if self._config.instruments and all(i.label is not None for i in instances):
             return instances, [str(i.label) for i in instances]
         if self._last_frame is not None and frame_index <= self._last_frame:
-            raise ValueError(f"IdentityTracker: frame {frame_index} after frame "
-                             f"{self._last_frame}; frames must come in increasing order")
+            raise ValueError(
+                f"IdentityTracker: frame {frame_index} after frame "
+                f"{self._last_frame}; frames must come in increasing order"
+            )
         self._last_frame = frame_index
         live = [t for t in self._tracks if frame_index - t.last_frame <= self._max_gap]
         cost = np.full((len(live), len(instances)), np.inf)
@@ -680,8 +729,11 @@ class IdentityTracker:
                     expected = [self._expected_boxes(t, frame_index, steps) for t in group]
                     if not all(e is not None for e in expected):
                         break
-                    got = _split(instances[b], expected,  # type: ignore[arg-type]
-                                 max(self._config.min_area_px, 1))
+                    got = _split(
+                        instances[b],
+                        expected,  # type: ignore[arg-type]
+                        max(self._config.min_area_px, 1),
+                    )
                     if got is not None and (best is None or got[0] < best[0]):
                         best = got
                 if best is not None:
@@ -691,8 +743,9 @@ class IdentityTracker:
         own: dict[int, list[_Track]] = {}
         if split:
             # tracks believed hidden in a blob that was not split may be found elsewhere
-            used = set(owner.values()) | {a for b, hidden in blob_of.items() if b in pieces
-                                          for a in hidden}
+            used = set(owner.values()) | {
+                a for b, hidden in blob_of.items() if b in pieces for a in hidden
+            }
             spare = [a for a in range(len(live)) if a not in used]
             for b, inst in enumerate(instances):
                 if b in pieces:
@@ -717,7 +770,8 @@ class IdentityTracker:
                             cost[r, c] = self._cost(t, piece, frame_index)
                         elif t.entry is not None:  # where its shaft entered the view
                             cost[r, c] = float(np.hypot(*(t.entry - entries[c][0]))) / (
-                                self.ENTRY_SCALE_FRAC * diag)
+                                self.ENTRY_SCALE_FRAC * diag
+                            )
                         else:  # the blob's own instruments: their state is the blob's
                             cost[r, c] = 0.5 * self._cost(t, piece, frame_index)
                 pairs_b = _assignment(cost, self.MAX_COST)
@@ -777,8 +831,9 @@ class IdentityTracker:
         return out_instances, names
 
     # internals ------------------------------------------------------------------------
-    def _expected_boxes(self, t: _Track, frame: int, steps: int | None
-                        ) -> dict[str, RotatedBox] | None:
+    def _expected_boxes(
+        self, t: _Track, frame: int, steps: int | None
+    ) -> dict[str, RotatedBox] | None:
         """The track's last part boxes seen apart from others, moved to ``frame`` by at
         most ``steps`` frames of its velocity (None: all the way); the shaft is lengthened
         by what the rest of the constant-velocity motion would add along it."""
@@ -787,8 +842,7 @@ class IdentityTracker:
         gap = frame - t.boxes_frame
         move = gap if steps is None else min(gap, steps)
         dx, dy = t.velocity * move
-        out = {p: replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy))
-               for p, b in t.boxes.items()}
+        out = {p: replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy)) for p, b in t.boxes.items()}
         s = out["shaft"]
         u = _unit(s.angle_deg)
         extra = 2.0 * abs(float(t.velocity @ u)) * (gap - move)
@@ -814,8 +868,7 @@ class IdentityTracker:
         angle, elong = _appearance(inst)
         lost = gap > 5 and not t.merged
         # an instrument coming back shows its head first: its direction is no shaft's
-        if angle is not None and t.angle is not None and not (lost and "shaft" not in
-                                                                  inst.parts):
+        if angle is not None and t.angle is not None and not (lost and "shaft" not in inst.parts):
             w = min(elong, t.elongation)
             cost += self.ANGLE_WEIGHT * w * _angle_diff(angle, t.angle) / 90.0
         if not t.merged and gap <= 5:  # not a blob's area, nor an exit's partial one
@@ -825,8 +878,9 @@ class IdentityTracker:
             cost += self.HIDDEN_PENALTY
         return cost
 
-    def _update(self, t: _Track, inst: InstanceObservation, frame: int, *,
-                merged: bool, apart: bool = True) -> None:
+    def _update(
+        self, t: _Track, inst: InstanceObservation, frame: int, *, merged: bool, apart: bool = True
+    ) -> None:
         gap = frame - t.last_frame
         c = np.asarray(inst.centroid_px, dtype=np.float64)
         if merged:  # the blob's centroid is not this instrument's: coast
@@ -860,10 +914,16 @@ class IdentityTracker:
 
     def _new_track(self, inst: InstanceObservation, frame: int) -> _Track:
         angle, elong = _appearance(inst)
-        t = _Track(name=str(self._next), last_frame=frame,
-                   centroid=np.asarray(inst.centroid_px, dtype=np.float64),
-                   velocity=np.zeros(2), area=float(inst.area_px), angle=angle,
-                   elongation=elong, size=math.sqrt(inst.area_px))
+        t = _Track(
+            name=str(self._next),
+            last_frame=frame,
+            centroid=np.asarray(inst.centroid_px, dtype=np.float64),
+            velocity=np.zeros(2),
+            area=float(inst.area_px),
+            angle=angle,
+            elongation=elong,
+            size=math.sqrt(inst.area_px),
+        )
         if "shaft" in inst.parts:
             t.boxes = {p: o.box for p, o in inst.parts.items()}
             t.boxes_frame = frame
@@ -880,8 +940,9 @@ SPLIT_MAX_SPREAD = 0.45
 SPLIT_MIN_ANGLE_DEG = 8.0
 
 
-def _segment_distance(p: np.ndarray, ends: np.ndarray, dirs: np.ndarray,
-                      back: np.ndarray, radius: np.ndarray) -> np.ndarray:
+def _segment_distance(
+    p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
+) -> np.ndarray:
     """(N, K) distances from points (N, 2) to K segments, in units of each segment's
     ``radius`` (half the part's width). Segment k runs from ``ends[k]`` backwards along
     ``-dirs[k]`` for ``back[k]`` px (``inf``: a half-line, a shaft coming from the
@@ -994,7 +1055,7 @@ def _border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndar
     shaft = inst.parts["shaft"]
     yy, xx = np.nonzero(shaft.mask)
     pts = np.stack([xx + shaft.offset[0], yy + shaft.offset[1]], 1).astype(np.float64)
-    pts = pts[::max(1, len(pts) // 20000)]
+    pts = pts[:: max(1, len(pts) // 20000)]
     out = []
     for ends, length in runs:
         mid = ends[1]
@@ -1014,9 +1075,9 @@ def _border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndar
     return out if len(out) >= 2 else []
 
 
-def _split_entries(inst: InstanceObservation,
-                   entries: list[tuple[np.ndarray, np.ndarray, float]],
-                   min_area_px: int) -> list[InstanceObservation] | None:
+def _split_entries(
+    inst: InstanceObservation, entries: list[tuple[np.ndarray, np.ndarray, float]], min_area_px: int
+) -> list[InstanceObservation] | None:
     """Split an instance between the shafts entering at ``entries`` (:func:`_split` with
     half-lines from the border, nothing known of the instruments' heads)."""
     x, y, w, h = inst.bbox_xywh
@@ -1032,8 +1093,9 @@ def _split_entries(inst: InstanceObservation,
     return None if got is None else got[1]
 
 
-def split_instance(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
-                   min_area_px: int = 1) -> list[InstanceObservation] | None:
+def split_instance(
+    inst: InstanceObservation, expected: list[dict[str, RotatedBox]], min_area_px: int = 1
+) -> list[InstanceObservation] | None:
     """Split one instance holding several instruments between them.
 
     Each instrument's shaft is a half-line from the image border to its distal end (from
@@ -1059,10 +1121,13 @@ def split_instance(inst: InstanceObservation, expected: list[dict[str, RotatedBo
     return None if got is None else got[1]
 
 
-def _split(inst: InstanceObservation, expected: list[dict[str, RotatedBox]],
-           min_area_px: int,
-           axes: list[tuple[np.ndarray, np.ndarray, float]] | None = None,
-           contiguous: bool = False) -> tuple[float, list[InstanceObservation]] | None:
+def _split(
+    inst: InstanceObservation,
+    expected: list[dict[str, RotatedBox]],
+    min_area_px: int,
+    axes: list[tuple[np.ndarray, np.ndarray, float]] | None = None,
+    contiguous: bool = False,
+) -> tuple[float, list[InstanceObservation]] | None:
     """:func:`split_instance` and its score (the worst RMS distance of a shaft's pixels
     to its axis, in half-widths; lower is better). ``axes``: the shafts' (distal end,
     distal direction, back length) when not from ``expected`` (:func:`_distal_axis`);

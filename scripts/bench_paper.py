@@ -52,10 +52,13 @@ def motion_table(frames: int = FRAMES) -> TrackTable:
         rows[f"y{i}_px"] = []
     for k in range(frames):
         s = k / frames
-        for part, box in (("shaft", RotatedBox(250 + 100 * s, 300 - 50 * s, 260 + 20 * s,
-                                               30, (25 + 40 * s) % 180)),
-                          ("clasper", RotatedBox(400 + 100 * s, 350 - 50 * s, 45, 20,
-                                                 (35 + 40 * s) % 180))):
+        for part, box in (
+            (
+                "shaft",
+                RotatedBox(250 + 100 * s, 300 - 50 * s, 260 + 20 * s, 30, (25 + 40 * s) % 180),
+            ),
+            ("clasper", RotatedBox(400 + 100 * s, 350 - 50 * s, 45, 20, (35 + 40 * s) % 180)),
+        ):
             c = cv2.boxPoints(((box.cx, box.cy), (box.length, box.width), box.angle_deg))
             rows["frame"].append(k)
             rows["instrument"].append("1")
@@ -87,9 +90,11 @@ def main() -> None:
     table = motion_table()
     paper_motion(table)  # warm-up
     t_alg2, c_alg2 = _median_time(lambda: paper_motion(table, 580.0), args.runs)
-    print(f"Algorithm 2 (paper_motion), {FRAMES} frames x 2 parts = {table.num_rows} rows: "
-          f"median {t_alg2 * 1e3:.2f} ms wall, {c_alg2 * 1e3:.2f} ms CPU over {args.runs} "
-          f"runs (paper: ~20 ms; target <= 2 ms)")
+    print(
+        f"Algorithm 2 (paper_motion), {FRAMES} frames x 2 parts = {table.num_rows} rows: "
+        f"median {t_alg2 * 1e3:.2f} ms wall, {c_alg2 * 1e3:.2f} ms CPU over {args.runs} "
+        f"runs (paper: ~20 ms; target <= 2 ms)"
+    )
 
     img = one_instrument_frame()
     cfg = config_from_dict({"labels": "endovis15"})
@@ -98,18 +103,21 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         png = str(Path(tmp) / "000000.png")
         cv2.imwrite(png, img)
-        t_read, c_read = _median_time(lambda: cv2.imread(png, cv2.IMREAD_UNCHANGED),
-                                      args.runs, 50)
-    print(f"cv2.imread (IMREAD_UNCHANGED) of the frame's PNG: {t_read * 1e3:.3f} ms wall / "
-          f"{c_read * 1e3:.3f} ms CPU")
+        t_read, c_read = _median_time(lambda: cv2.imread(png, cv2.IMREAD_UNCHANGED), args.runs, 50)
+    print(
+        f"cv2.imread (IMREAD_UNCHANGED) of the frame's PNG: {t_read * 1e3:.3f} ms wall / "
+        f"{c_read * 1e3:.3f} ms CPU"
+    )
     default_threads = cv2.getNumThreads()
     for threads in (default_threads, 1):
         cv2.setNumThreads(threads)
         t_obs, c_obs = _median_time(lambda: observe_frame(img, cfg), args.runs, 50)
-        print(f"observe_frame, 720x576, one instrument (shaft + clasper), OpenCV threads "
-              f"{threads}: median {t_obs * 1e3:.3f} ms wall / {c_obs * 1e3:.3f} ms CPU per "
-              f"frame; ratio imread/observe = {t_read / t_obs:.2f} wall, "
-              f"{c_read / c_obs:.2f} CPU")
+        print(
+            f"observe_frame, 720x576, one instrument (shaft + clasper), OpenCV threads "
+            f"{threads}: median {t_obs * 1e3:.3f} ms wall / {c_obs * 1e3:.3f} ms CPU per "
+            f"frame; ratio imread/observe = {t_read / t_obs:.2f} wall, "
+            f"{c_read / c_obs:.2f} CPU"
+        )
     cv2.setNumThreads(default_threads)
     print(f"load average: {', '.join(f'{v:.2f}' for v in os.getloadavg())}")
 

@@ -66,17 +66,25 @@ def main() -> None:
     base_ms = 1e3 * statistics.median(base_runs)
     cpu_ms = 1e3 * statistics.median(pose_cpu)
     print(f"instances: {n} (frames {len(frames)}, runs {args.runs})")
-    print(f"measure_instance: median {pose_ms:.3f} ms wall per instance "
-          f"(runs: {', '.join(f'{1e3 * r:.3f}' for r in pose_runs)}); "
-          f"CPU time median {cpu_ms:.3f} ms (process CPU time: what the step costs when "
-          "the machine is shared)")
-    print(f"baseline observe_frame (Algorithm 1, whole 720x576 frame): {base_ms:.3f} ms wall, "
-          f"{1e3 * statistics.median(base_cpu):.3f} ms CPU per frame; "
-          f"pose / baseline (wall) = {pose_ms / base_ms:.2f}")
-    print(f"fastest run: measure_instance {1e3 * min(pose_cpu):.3f} ms CPU, observe_frame "
-          f"{1e3 * min(base_cpu):.3f} ms CPU (the least disturbed by other processes)")
-    print(f"target <= 2 ms: {'met' if min(pose_ms, cpu_ms) <= 2.0 else 'NOT met'} "
-          "(on the less contended of wall and CPU time medians)")
+    print(
+        f"measure_instance: median {pose_ms:.3f} ms wall per instance "
+        f"(runs: {', '.join(f'{1e3 * r:.3f}' for r in pose_runs)}); "
+        f"CPU time median {cpu_ms:.3f} ms (process CPU time: what the step costs when "
+        "the machine is shared)"
+    )
+    print(
+        f"baseline observe_frame (Algorithm 1, whole 720x576 frame): {base_ms:.3f} ms wall, "
+        f"{1e3 * statistics.median(base_cpu):.3f} ms CPU per frame; "
+        f"pose / baseline (wall) = {pose_ms / base_ms:.2f}"
+    )
+    print(
+        f"fastest run: measure_instance {1e3 * min(pose_cpu):.3f} ms CPU, observe_frame "
+        f"{1e3 * min(base_cpu):.3f} ms CPU (the least disturbed by other processes)"
+    )
+    print(
+        f"target <= 2 ms: {'met' if min(pose_ms, cpu_ms) <= 2.0 else 'NOT met'} "
+        "(on the less contended of wall and CPU time medians)"
+    )
 
 
 if __name__ == "__main__":

@@ -31,8 +31,9 @@ from mistool.synth.scene import instrument_parts
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--instruments", type=int, default=1)
@@ -40,8 +41,14 @@ def main() -> int:
 
     cam = ImageCamera.default()
     geom = InstrumentGeometry()
-    poses = generate_motion(cam, [geom] * args.instruments, args.frames, 25.0, seed=0,
-                            options=MotionOptions(enter=False))
+    poses = generate_motion(
+        cam,
+        [geom] * args.instruments,
+        args.frames,
+        25.0,
+        seed=0,
+        options=MotionOptions(enter=False),
+    )
     caster = RayCaster(cam)
     lut = np.array([0, 160, 70, 70], dtype=np.uint8)
     frames = []
@@ -59,22 +66,28 @@ def main() -> int:
         for r in range(args.runs):
             t0 = time.perf_counter()
             for f, img in enumerate(frames):
-                cv2.imwrite(str(Path(tmp) / f"w{f:06d}.png"), img,
-                            [cv2.IMWRITE_PNG_COMPRESSION, 3])
+                cv2.imwrite(str(Path(tmp) / f"w{f:06d}.png"), img, [cv2.IMWRITE_PNG_COMPRESSION, 3])
             write_fps.append(args.frames / (time.perf_counter() - t0))
             t0 = time.perf_counter()
-            synthesize(Path(tmp) / f"s{r}", frames=args.frames, instruments=args.instruments,
-                       seed=0)
+            synthesize(
+                Path(tmp) / f"s{r}", frames=args.frames, instruments=args.instruments, seed=0
+            )
             synth_fps.append(args.frames / (time.perf_counter() - t0))
     visible = np.mean([np.count_nonzero(f) for f in frames]) / frames[0].size
     med = statistics.median
-    print(f"720x576, {args.instruments} instrument(s), {args.frames} frames x {args.runs} "
-          f"runs (median); tool pixels {100 * visible:.1f}% of the image")
-    print(f"  render only        {med(render_fps):8.1f} frames/s   "
-          f"(target >= 25: ratio {med(render_fps) / 25.0:.1f})")
+    print(
+        f"720x576, {args.instruments} instrument(s), {args.frames} frames x {args.runs} "
+        f"runs (median); tool pixels {100 * visible:.1f}% of the image"
+    )
+    print(
+        f"  render only        {med(render_fps):8.1f} frames/s   "
+        f"(target >= 25: ratio {med(render_fps) / 25.0:.1f})"
+    )
     print(f"  synthesize (all)   {med(synth_fps):8.1f} frames/s")
-    print(f"  baseline: imwrite  {med(write_fps):8.1f} frames/s   "
-          f"(render / imwrite = {med(render_fps) / med(write_fps):.2f})")
+    print(
+        f"  baseline: imwrite  {med(write_fps):8.1f} frames/s   "
+        f"(render / imwrite = {med(render_fps) / med(write_fps):.2f})"
+    )
     return 0
 
 

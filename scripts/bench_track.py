@@ -65,8 +65,10 @@ def make_frames(folder: Path, n: int, png_level: int | None = None) -> list[Path
         shaft_len, clasper_len = 420.0, 70.0
         shaft_c = tip - u * (clasper_len + shaft_len / 2)
         clasper_c = tip - u * (clasper_len / 2)
-        for centre, size, value in ((shaft_c, (shaft_len, 38.0), 160),
-                                    (clasper_c, (clasper_len, 26.0), 70)):
+        for centre, size, value in (
+            (shaft_c, (shaft_len, 38.0), 160),
+            (clasper_c, (clasper_len, 26.0), 70),
+        ):
             box = cv2.boxPoints(((float(centre[0]), float(centre[1])), size, angle))
             cv2.fillPoly(img, [np.round(box).astype(np.int32)], value)
         path = folder / f"{i:06d}.png"
@@ -94,23 +96,41 @@ def child_memory(folder: str, workers: int | None) -> None:
     result = api.run(folder, workers=workers)
     _, peak = tracemalloc.get_traced_memory()
     rss_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    print(json.dumps({"frames": result.num_frames, "rows": result.table.num_rows,
-                      "peak_rss_mb": rss_kb / 1024, "tracemalloc_peak_mb": peak / 2**20}))
+    print(
+        json.dumps(
+            {
+                "frames": result.num_frames,
+                "rows": result.table.num_rows,
+                "peak_rss_mb": rss_kb / 1024,
+                "tracemalloc_peak_mb": peak / 2**20,
+            }
+        )
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--runs", type=int, default=5)
-    parser.add_argument("--workers", type=int, default=None,
-                        help="mistool worker threads (default: CPU count)")
-    parser.add_argument("--png-level", type=int, default=None, metavar="L",
-                        help="write the PNGs with this zlib level (libpng's adaptive row "
-                        "filters, as many tools write them) instead of OpenCV's default")
-    parser.add_argument("--stdlib-zlib", action="store_true",
-                        help="inflate PNGs with the standard library's zlib, not zlib-ng")
-    parser.add_argument("--memory", action="store_true",
-                        help="also measure peak memory for N and 4N frames")
+    parser.add_argument(
+        "--workers", type=int, default=None, help="mistool worker threads (default: CPU count)"
+    )
+    parser.add_argument(
+        "--png-level",
+        type=int,
+        default=None,
+        metavar="L",
+        help="write the PNGs with this zlib level (libpng's adaptive row "
+        "filters, as many tools write them) instead of OpenCV's default",
+    )
+    parser.add_argument(
+        "--stdlib-zlib",
+        action="store_true",
+        help="inflate PNGs with the standard library's zlib, not zlib-ng",
+    )
+    parser.add_argument(
+        "--memory", action="store_true", help="also measure peak memory for N and 4N frames"
+    )
     parser.add_argument("--child-memory", metavar="DIR", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child_memory:
@@ -144,12 +164,24 @@ def main(argv: list[str] | None = None) -> int:
             assert result.num_frames == args.frames and result.table.num_rows > 0
 
         def run_cli() -> None:
-            code = cli_main(["track", str(folder), "-o", str(out), "--quiet",
-                             *(["--workers", str(args.workers)] if args.workers else [])])
+            code = cli_main(
+                [
+                    "track",
+                    str(folder),
+                    "-o",
+                    str(out),
+                    "--quiet",
+                    *(["--workers", str(args.workers)] if args.workers else []),
+                ]
+            )
             assert code == 0
 
-        tasks = {"imread": imread, "imread-unchanged": imread_unchanged, "api": run_api,
-                 "cli": run_cli}
+        tasks = {
+            "imread": imread,
+            "imread-unchanged": imread_unchanged,
+            "api": run_api,
+            "cli": run_cli,
+        }
         for fn in tasks.values():  # warm-up: page cache, imports, thread pools
             fn()
         load0 = os.getloadavg()
@@ -162,19 +194,25 @@ def main(argv: list[str] | None = None) -> int:
                 cpu[name].append(used)
         med = {k: statistics.median(v) for k, v in times.items()}
         med_cpu = {k: statistics.median(v) for k, v in cpu.items()}
-        print(f"mistool track benchmark: {args.frames} frames {W}x{H} 8-bit PNG, one "
-              f"instrument, {args.runs} runs (median), {os.cpu_count()} CPUs, "
-              f"workers={args.workers or 'auto'}, OpenCV {cv2.__version__}, PNG inflate: "
-              f"{sequence._ZLIB.__name__}, PNG level "
-              f"{'default' if args.png_level is None else args.png_level}")
+        print(
+            f"mistool track benchmark: {args.frames} frames {W}x{H} 8-bit PNG, one "
+            f"instrument, {args.runs} runs (median), {os.cpu_count()} CPUs, "
+            f"workers={args.workers or 'auto'}, OpenCV {cv2.__version__}, PNG inflate: "
+            f"{sequence._ZLIB.__name__}, PNG level "
+            f"{'default' if args.png_level is None else args.png_level}"
+        )
         for name, t in med.items():
             spread = f"{min(times[name]):.3f}-{max(times[name]):.3f}"
-            print(f"  {name:18s} {t:7.3f} s  ({args.frames / t:7.1f} frames/s, "
-                  f"runs {spread}; CPU {1e3 * med_cpu[name] / args.frames:.2f} ms/frame)")
+            print(
+                f"  {name:18s} {t:7.3f} s  ({args.frames / t:7.1f} frames/s, "
+                f"runs {spread}; CPU {1e3 * med_cpu[name] / args.frames:.2f} ms/frame)"
+            )
         for base in ("imread", "imread-unchanged"):
             for ours in ("api", "cli"):
-                print(f"  ratio {base} / {ours}: {med[base] / med[ours]:.2f} wall-clock "
-                      f"(CPU time ratio {med_cpu[base] / med_cpu[ours]:.2f})")
+                print(
+                    f"  ratio {base} / {ours}: {med[base] / med[ours]:.2f} wall-clock "
+                    f"(CPU time ratio {med_cpu[base] / med_cpu[ours]:.2f})"
+                )
         print(f"  load average before/after: {load0} / {os.getloadavg()}")
 
         if args.memory:
@@ -184,11 +222,14 @@ def main(argv: list[str] | None = None) -> int:
                 cmd = [sys.executable, __file__, "--child-memory", str(seq)]
                 if args.workers:
                     cmd += ["--workers", str(args.workers)]
-                res = json.loads(subprocess.run(cmd, check=True, capture_output=True,
-                                                text=True).stdout)
-                print(f"  memory {res['frames']:5d} frames ({res['rows']} rows): peak RSS "
-                      f"{res['peak_rss_mb']:.1f} MB, tracemalloc peak "
-                      f"{res['tracemalloc_peak_mb']:.1f} MB")
+                res = json.loads(
+                    subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+                )
+                print(
+                    f"  memory {res['frames']:5d} frames ({res['rows']} rows): peak RSS "
+                    f"{res['peak_rss_mb']:.1f} MB, tracemalloc peak "
+                    f"{res['tracemalloc_peak_mb']:.1f} MB"
+                )
     return 0
 
 

@@ -46,8 +46,15 @@ import cv2
 import numpy as np
 
 CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--disable-quic",
+]
 CLIP = {"x": 0, "y": 160, "width": 860, "height": 640}
 
 
@@ -70,12 +77,19 @@ def _sequence(args: argparse.Namespace, tmp: Path) -> tuple[Path, Path | None]:
 
 
 def _serve(seq: Path, poses: Path | None, extra: list[str]) -> tuple[subprocess.Popen, str]:
-    cmd = [sys.executable, "-c", "import sys; from mistool.cli import main; "
-           "sys.exit(main(sys.argv[1:]))", "serve", str(seq), "--port", "0", "-q"]
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from mistool.cli import main; sys.exit(main(sys.argv[1:]))",
+        "serve",
+        str(seq),
+        "--port",
+        "0",
+        "-q",
+    ]
     if poses is not None:
         cmd += ["--poses", str(poses)]
-    proc = subprocess.Popen(cmd + extra, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(cmd + extra, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     for line in proc.stdout:
         m = re.search(r"(http://\S+)", line)
@@ -93,8 +107,9 @@ def _shot(page) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
 
 
-def bench_launch(browser, seq: Path, poses: Path | None, env_map: bool,
-                 cache: bool = True) -> tuple[float, float, float]:
+def bench_launch(
+    browser, seq: Path, poses: Path | None, env_map: bool, cache: bool = True
+) -> tuple[float, float, float]:
     """Seconds from process start to the URL and to the first non-blank 3D view, and
     from opening the page to that render."""
     extra = (["--environment-map"] if env_map else []) + ([] if cache else ["--no-cache"])
@@ -154,12 +169,14 @@ def bench_updates(browser, seq: Path, poses: Path | None, passes: int) -> dict[s
                     t = time.perf_counter()
                     cv2.imread(str(files[k]), cv2.IMREAD_UNCHANGED)
                     dec.append(time.perf_counter() - t)
-        out = {"update_median_ms": 1e3 * statistics.median(upd),
-               "update_p90_ms": 1e3 * float(np.percentile(upd, 90)),
-               "update_cpu_median_ms": 1e3 * statistics.median(cpu),
-               "overlay_median_ms": 1e3 * statistics.median(full),
-               "overlay_p90_ms": 1e3 * float(np.percentile(full, 90)),
-               "frames": float(n)}
+        out = {
+            "update_median_ms": 1e3 * statistics.median(upd),
+            "update_p90_ms": 1e3 * float(np.percentile(upd, 90)),
+            "update_cpu_median_ms": 1e3 * statistics.median(cpu),
+            "overlay_median_ms": 1e3 * statistics.median(full),
+            "overlay_p90_ms": 1e3 * float(np.percentile(full, 90)),
+            "frames": float(n),
+        }
         if dec:
             out["decode_median_ms"] = 1e3 * statistics.median(dec)
             out["ratio_update_to_decode"] = statistics.median(upd) / statistics.median(dec)
@@ -175,8 +192,9 @@ def bench_updates(browser, seq: Path, poses: Path | None, passes: int) -> dict[s
             viewer.timeline.set_playing(False)
             fps = (viewer.timeline.frames_drawn - drawn0) / (time.perf_counter() - t0)
             out[f"playback_{speed}_fps"] = fps
-            out[f"playback_{speed}_update_median_ms"] = \
-                1e3 * statistics.median(list(viewer.update_seconds))
+            out[f"playback_{speed}_update_median_ms"] = 1e3 * statistics.median(
+                list(viewer.update_seconds)
+            )
         out["target_fps"] = viewer.replay.fps
         assert not viewer.timeline.draw_errors, viewer.timeline.draw_errors
         return out
@@ -215,8 +233,9 @@ def _big_sequence(seq: Path, poses: Path | None, tmp: Path, frames: int) -> tupl
     return big, out
 
 
-def bench_memory(browser, seq: Path, poses: Path | None, tmp: Path,
-                 frames: int = 10_000) -> dict[str, float]:
+def bench_memory(
+    browser, seq: Path, poses: Path | None, tmp: Path, frames: int = 10_000
+) -> dict[str, float]:
     big, big_poses = _big_sequence(seq, poses, tmp, frames)
     proc, url = _serve(big, big_poses, [])
     page = browser.new_page(viewport={"width": 1280, "height": 800})
@@ -236,11 +255,16 @@ def bench_memory(browser, seq: Path, poses: Path | None, tmp: Path,
             time.sleep(0.05)
         time.sleep(1.0)
         status = Path(f"/proc/{proc.pid}/status").read_text()
-        kb = {k: int(v.split()[0]) for k, v in
-              (line.split(":", 1) for line in status.splitlines())
-              if k in ("VmRSS", "VmHWM")}
-        return {"frames": float(frames), "rss_mb": kb["VmRSS"] / 1024,
-                "peak_rss_mb": kb["VmHWM"] / 1024}
+        kb = {
+            k: int(v.split()[0])
+            for k, v in (line.split(":", 1) for line in status.splitlines())
+            if k in ("VmRSS", "VmHWM")
+        }
+        return {
+            "frames": float(frames),
+            "rss_mb": kb["VmRSS"] / 1024,
+            "peak_rss_mb": kb["VmHWM"] / 1024,
+        }
     finally:
         page.close()
         proc.terminate()
@@ -255,8 +279,11 @@ def screenshot(browser, seq: Path, poses: Path | None, path: Path) -> None:
     try:
         g = viewer.replay.modes[viewer.replay.default_mode]
         visible = g.visible.reshape(viewer.replay.num_frames, -1).sum(axis=1)
-        frame = int(np.flatnonzero(visible == visible.max())[len(
-            np.flatnonzero(visible == visible.max())) // 2])
+        frame = int(
+            np.flatnonzero(visible == visible.max())[
+                len(np.flatnonzero(visible == visible.max())) // 2
+            ]
+        )
         page.goto(viewer.url)
         page.wait_for_selector("canvas[data-engine]", timeout=30000)
         page.get_by_role("slider").first.wait_for(timeout=30000)
@@ -289,8 +316,9 @@ def main() -> int:
     parser.add_argument("--runs", type=int, default=3, help="runs of the launch benchmark")
     parser.add_argument("--skip-memory", action="store_true")
     parser.add_argument("--skip-launch", action="store_true")
-    parser.add_argument("--screenshot", metavar="PNG",
-                        help="only save the README's screenshot of the replay to PNG")
+    parser.add_argument(
+        "--screenshot", metavar="PNG", help="only save the README's screenshot of the replay to PNG"
+    )
     args = parser.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -306,36 +334,49 @@ def main() -> int:
         if not args.skip_launch:
             if poses is None:  # cold: tracking included (the table is cached afterwards)
                 cold = bench_launch(browser, seq, poses, False, cache=False)
-                print(f"launch, tracking the sequence (--no-cache): URL after {cold[0]:.2f} s, "
-                      f"first non-blank render after {cold[1]:.2f} s")
+                print(
+                    f"launch, tracking the sequence (--no-cache): URL after {cold[0]:.2f} s, "
+                    f"first non-blank render after {cold[1]:.2f} s"
+                )
                 bench_launch(browser, seq, poses, False)  # fills the cache
             for env_map in (False, True):
                 runs = [bench_launch(browser, seq, poses, env_map) for _ in range(args.runs)]
                 med = [statistics.median(r[j] for r in runs) for j in range(3)]
-                print(f"launch, {'poses given' if poses else 'cached table'}, environment map "
-                      f"{'on ' if env_map else 'off'}: URL after {med[0]:.2f} s, first "
-                      f"non-blank render after {med[1]:.2f} s (page open to render "
-                      f"{med[2]:.2f} s; median of {args.runs}: "
-                      f"{', '.join(f'{r[1]:.2f}' for r in runs)})")
+                print(
+                    f"launch, {'poses given' if poses else 'cached table'}, environment map "
+                    f"{'on ' if env_map else 'off'}: URL after {med[0]:.2f} s, first "
+                    f"non-blank render after {med[1]:.2f} s (page open to render "
+                    f"{med[2]:.2f} s; median of {args.runs}: "
+                    f"{', '.join(f'{r[1]:.2f}' for r in runs)})"
+                )
         res = bench_updates(browser, seq, poses, passes=2)
-        print(f"per-frame update, scrubbing ({res['frames']:.0f} frames x 2, random order): "
-              f"median {res['update_median_ms']:.2f} ms wall "
-              f"({res['update_cpu_median_ms']:.2f} ms CPU), p90 {res['update_p90_ms']:.2f} ms; "
-              f"until its overlay is sent too: median {res['overlay_median_ms']:.2f} ms, "
-              f"p90 {res['overlay_p90_ms']:.2f} ms"
-              + (f"; cv2.imread of the mask: median {res['decode_median_ms']:.2f} ms, "
-                 f"ratios to it {res['ratio_update_to_decode']:.2f} (update) and "
-                 f"{res['ratio_overlay_to_decode']:.2f} (with overlay)"
-                 if "decode_median_ms" in res else ""))
-        print(f"playback: {res['playback_1x_fps']:.1f} frames/s at 1x (target "
-              f"{res['target_fps']:.0f}; update median "
-              f"{res['playback_1x_update_median_ms']:.2f} ms with prefetch), "
-              f"{res['playback_4x_fps']:.1f} frames/s at 4x (target {4 * res['target_fps']:.0f}; "
-              f"update median {res['playback_4x_update_median_ms']:.2f} ms)")
+        print(
+            f"per-frame update, scrubbing ({res['frames']:.0f} frames x 2, random order): "
+            f"median {res['update_median_ms']:.2f} ms wall "
+            f"({res['update_cpu_median_ms']:.2f} ms CPU), p90 {res['update_p90_ms']:.2f} ms; "
+            f"until its overlay is sent too: median {res['overlay_median_ms']:.2f} ms, "
+            f"p90 {res['overlay_p90_ms']:.2f} ms"
+            + (
+                f"; cv2.imread of the mask: median {res['decode_median_ms']:.2f} ms, "
+                f"ratios to it {res['ratio_update_to_decode']:.2f} (update) and "
+                f"{res['ratio_overlay_to_decode']:.2f} (with overlay)"
+                if "decode_median_ms" in res
+                else ""
+            )
+        )
+        print(
+            f"playback: {res['playback_1x_fps']:.1f} frames/s at 1x (target "
+            f"{res['target_fps']:.0f}; update median "
+            f"{res['playback_1x_update_median_ms']:.2f} ms with prefetch), "
+            f"{res['playback_4x_fps']:.1f} frames/s at 4x (target {4 * res['target_fps']:.0f}; "
+            f"update median {res['playback_4x_update_median_ms']:.2f} ms)"
+        )
         if not args.skip_memory:
             mem = bench_memory(browser, seq, poses, tmp)
-            print(f"memory, {mem['frames']:.0f}-frame sequence: peak RSS "
-                  f"{mem['peak_rss_mb']:.0f} MB (now {mem['rss_mb']:.0f} MB)")
+            print(
+                f"memory, {mem['frames']:.0f}-frame sequence: peak RSS "
+                f"{mem['peak_rss_mb']:.0f} MB (now {mem['rss_mb']:.0f} MB)"
+            )
         browser.close()
     return 0
 

@@ -47,12 +47,17 @@ CONDITIONS: dict[str, tuple[Corruptions, str | None]] = {
 }
 
 
-def paper_3d_oracle(pred: TrackTable, truth: TrackTable, fx: float, fy: float, cx: float,
-                    cy: float) -> TrackTable:
+def paper_3d_oracle(
+    pred: TrackTable, truth: TrackTable, fx: float, fy: float, cx: float, cy: float
+) -> TrackTable:
     """The paper's per-frame output turned into a 3D estimate with oracle help (see the
     module docstring): fills end_*_mm and axis_* of ``pred``."""
-    key = {(int(f), str(i), str(p)): k for k, (f, i, p) in enumerate(
-        zip(truth["frame"], truth["instrument"], truth["part"], strict=True))}
+    key = {
+        (int(f), str(i), str(p)): k
+        for k, (f, i, p) in enumerate(
+            zip(truth["frame"], truth["instrument"], truth["part"], strict=True)
+        )
+    }
     n = pred.num_rows
     tz = np.full(n, np.nan)
     ta = np.full((n, 3), np.nan)
@@ -61,8 +66,13 @@ def paper_3d_oracle(pred: TrackTable, truth: TrackTable, fx: float, fy: float, c
 
     mapping = match_instruments(pred, truth)
     for r in range(n):
-        k = key.get((int(pred["frame"][r]), mapping.get(str(pred["instrument"][r]), ""),
-                     str(pred["part"][r])))
+        k = key.get(
+            (
+                int(pred["frame"][r]),
+                mapping.get(str(pred["instrument"][r]), ""),
+                str(pred["part"][r]),
+            )
+        )
         if k is not None:
             tz[r] = truth["end_z_mm"][k]
             ta[r] = [truth["axis_x"][k], truth["axis_y"][k], truth["axis_z"][k]]
@@ -78,9 +88,14 @@ def paper_3d_oracle(pred: TrackTable, truth: TrackTable, fx: float, fy: float, c
     axis = np.stack([np.cos(theta), np.sin(theta), np.zeros(n)], axis=1)
     flip = np.sum(axis * np.nan_to_num(ta), axis=1) < 0
     axis[flip] *= -1
-    return pred.with_columns(end_x_mm=(px - cx) / fx * z, end_y_mm=(py - cy) / fy * z,
-                             end_z_mm=z, axis_x=axis[:, 0], axis_y=axis[:, 1],
-                             axis_z=axis[:, 2])
+    return pred.with_columns(
+        end_x_mm=(px - cx) / fx * z,
+        end_y_mm=(py - cy) / fy * z,
+        end_z_mm=z,
+        axis_x=axis[:, 0],
+        axis_y=axis[:, 1],
+        axis_z=axis[:, 2],
+    )
 
 
 def _pm(s: dict) -> str:
@@ -88,8 +103,9 @@ def _pm(s: dict) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--instruments", type=int, default=2)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
@@ -103,44 +119,60 @@ def main() -> int:
             truths: list[TrackTable] = []
             for seed in args.seeds:
                 out = Path(tmp) / f"{len(results)}_{seed}"
-                res = synthesize(out, frames=args.frames, instruments=args.instruments,
-                                 seed=seed, corruptions=corr, video=video)
+                res = synthesize(
+                    out,
+                    frames=args.frames,
+                    instruments=args.instruments,
+                    seed=seed,
+                    corruptions=corr,
+                    video=video,
+                )
                 src = out / "masks.avi" if video else out
                 table = track(src, workers=2)
                 cam = res.config.camera
                 # one sequence per seed: offset frames so the seeds stack into one table
                 off = seed * 100000
                 truth = res.truth.with_columns(frame=res.truth["frame"] + off)
-                table = table.with_columns(frame=table["frame"] + off,
-                                           instrument=np.array(
-                                               [f"{seed}:{i}" for i in table["instrument"]],
-                                               dtype=object))
-                truth = truth.with_columns(instrument=np.array(
-                    [f"{seed}:{i}" for i in truth["instrument"]], dtype=object))
+                table = table.with_columns(
+                    frame=table["frame"] + off,
+                    instrument=np.array([f"{seed}:{i}" for i in table["instrument"]], dtype=object),
+                )
+                truth = truth.with_columns(
+                    instrument=np.array([f"{seed}:{i}" for i in truth["instrument"]], dtype=object)
+                )
                 truths.append(truth)
                 preds["metric"].append(table)
                 preds["paper-3D (oracle)"].append(
-                    paper_3d_oracle(table, truth, cam.fx, cam.fy, cam.cx, cam.cy))
+                    paper_3d_oracle(table, truth, cam.fx, cam.fy, cam.cx, cam.cy)
+                )
             truth = TrackTable.concat(truths)
             rep = evaluate({k: TrackTable.concat(v) for k, v in preds.items()}, truth)
             results[name] = {m.name: m.parts for m in rep.methods}
             print(f"done: {name}", file=sys.stderr)
 
     parts = ("shaft", "clasper")
-    print(f"\n{args.instruments} instruments, {args.frames} frames x seeds {args.seeds}, "
-          "720x576, f = 600 px, EndoVis'15 labels\n")
+    print(
+        f"\n{args.instruments} instruments, {args.frames} frames x seeds {args.seeds}, "
+        "720x576, f = 600 px, EndoVis'15 labels\n"
+    )
     print("2D - the paper's boxes (Algorithm 1), Table 1 layout: mean ± sd |error|\n")
     print("| condition | part | coverage | x (px) | y (px) | θ (deg) |")
     print("|---|---|---|---|---|---|")
     for name, r in results.items():
         for part in parts:
             s = r["metric"][part]
-            print(f"| {name} | {part} | {100 * s['coverage']:.1f}% | {_pm(s['x_px'])} | "
-                  f"{_pm(s['y_px'])} | {_pm(s['theta_deg'])} |")
-    print("\n3D - distal end (shaft: joint J, clasper: tip), Table 2 layout: mean ± sd "
-          "|error| (mm), 3D median (mm), axis error median / p90 (deg)\n")
-    print("| condition | part | method | coverage | x (mm) | y (mm) | z (mm) | 3D med | "
-          "axis med | axis p90 |")
+            print(
+                f"| {name} | {part} | {100 * s['coverage']:.1f}% | {_pm(s['x_px'])} | "
+                f"{_pm(s['y_px'])} | {_pm(s['theta_deg'])} |"
+            )
+    print(
+        "\n3D - distal end (shaft: joint J, clasper: tip), Table 2 layout: mean ± sd "
+        "|error| (mm), 3D median (mm), axis error median / p90 (deg)\n"
+    )
+    print(
+        "| condition | part | method | coverage | x (mm) | y (mm) | z (mm) | 3D med | "
+        "axis med | axis p90 |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name, r in results.items():
         for part in parts:
@@ -150,14 +182,18 @@ def main() -> int:
                 med = "-" if not s["end_mm"]["n"] else f"{s['end_mm']['median']:.2f}"
                 axm = "-" if not ax["n"] else f"{ax['median']:.1f}"
                 axp = "-" if not ax["n"] else f"{ax['p90']:.1f}"
-                print(f"| {name} | {part} | {method} | {100 * s['metric_coverage']:.1f}% | "
-                      f"{_pm(s['x_mm'])} | {_pm(s['y_mm'])} | {_pm(s['z_mm'])} | {med} | "
-                      f"{axm} | {axp} |")
+                print(
+                    f"| {name} | {part} | {method} | {100 * s['metric_coverage']:.1f}% | "
+                    f"{_pm(s['x_mm'])} | {_pm(s['y_mm'])} | {_pm(s['z_mm'])} | {med} | "
+                    f"{axm} | {axp} |"
+                )
     if args.json:
+
         def clean(x):
             if isinstance(x, dict):
                 return {k: clean(v) for k, v in x.items()}
             return None if isinstance(x, float) and not math.isfinite(x) else x
+
         args.json.write_text(json.dumps(clean(results), indent=2) + "\n")
     return 0
 

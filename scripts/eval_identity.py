@@ -35,8 +35,14 @@ def evaluate(folder: Path, method: str) -> dict[str, float]:
     cfg = load_config(folder)
     truth = read_csv(folder / "truth.csv")
     boxes: dict[tuple[int, str], list[tuple[str, float, float]]] = {}
-    for f, i, p, x, y in zip(truth["frame"], truth["instrument"], truth["part"],
-                             truth["cx_px"], truth["cy_px"], strict=True):
+    for f, i, p, x, y in zip(
+        truth["frame"],
+        truth["instrument"],
+        truth["part"],
+        truth["cx_px"],
+        truth["cy_px"],
+        strict=True,
+    ):
         boxes.setdefault((int(f), str(p)), []).append((str(i), float(x), float(y)))
     tracker = IdentityTracker(cfg)
     rows: list[tuple[int, str, str, str | None, float]] = []
@@ -50,8 +56,10 @@ def evaluate(folder: Path, method: str) -> dict[str, float]:
         for inst, name in zip(insts, got, strict=True):
             names.add(name)
             for part, obs in inst.parts.items():
-                cands = [(math.hypot(obs.box.cx - x, obs.box.cy - y), i)
-                         for i, x, y in boxes.get((k, part), [])]
+                cands = [
+                    (math.hypot(obs.box.cx - x, obs.box.cy - y), i)
+                    for i, x, y in boxes.get((k, part), [])
+                ]
                 d, who = min(cands) if cands else (math.inf, None)
                 rows.append((k, name, part, who if d < 40 else None, d))
     votes: dict[str, dict[str, int]] = {}
@@ -63,28 +71,37 @@ def evaluate(folder: Path, method: str) -> dict[str, float]:
     attributed = [r for r in rows if r[3] is not None]
     pure = sum(mapping[r[1]] == r[3] for r in attributed)
     found = {(k, mapping.get(n), p) for k, n, p, _, _ in rows}
-    want = {(int(f), str(i), str(p)) for f, i, p in zip(truth["frame"], truth["instrument"],
-                                                         truth["part"], strict=True)}
+    want = {
+        (int(f), str(i), str(p))
+        for f, i, p in zip(truth["frame"], truth["instrument"], truth["part"], strict=True)
+    }
     shaft = [d for _, _, p, who, d in rows if p == "shaft" and who is not None]
-    return {"names": len(names), "true": len(set(truth["instrument"])),
-            "purity": pure / max(len(attributed), 1),
-            "coverage": len(found & want) / max(len(want), 1),
-            "shaft_err": float(np.median(shaft)) if shaft else math.nan}
+    return {
+        "names": len(names),
+        "true": len(set(truth["instrument"])),
+        "purity": pure / max(len(attributed), 1),
+        "coverage": len(found & want) / max(len(want), 1),
+        "shaft_err": float(np.median(shaft)) if shaft else math.nan,
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", nargs="+", type=Path)
     args = parser.parse_args()
-    print(f"{'sequence':<28} {'method':<8} {'names':>9} {'purity':>7} {'coverage':>9} "
-          f"{'shaft err':>10}")
+    print(
+        f"{'sequence':<28} {'method':<8} {'names':>9} {'purity':>7} {'coverage':>9} "
+        f"{'shaft err':>10}"
+    )
     totals: dict[str, list[dict[str, float]]] = {"assign": [], "resolve": []}
     for folder in args.folders:
         for method in ("assign", "resolve"):
             r = evaluate(folder, method)
             totals[method].append(r)
-            print(f"{str(folder)[-28:]:<28} {method:<8} {r['names']:>4} / {r['true']:<2} "
-                  f"{r['purity']:>7.1%} {r['coverage']:>9.1%} {r['shaft_err']:>8.2f} px")
+            print(
+                f"{str(folder)[-28:]:<28} {method:<8} {r['names']:>4} / {r['true']:<2} "
+                f"{r['purity']:>7.1%} {r['coverage']:>9.1%} {r['shaft_err']:>8.2f} px"
+            )
     if len(args.folders) > 1:  # names summed, the rest averaged over the sequences
         for method, rs in totals.items():
             n, t = sum(r["names"] for r in rs), sum(r["true"] for r in rs)

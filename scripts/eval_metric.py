@@ -65,18 +65,21 @@ def _tag(table: TrackTable, seed: int) -> TrackTable:
     """Offset frames and prefix instrument names so that seeds stack into one table."""
     return table.with_columns(
         frame=table["frame"] + seed * 100000,
-        instrument=np.array([f"{seed}:{i}" for i in table["instrument"]], dtype=object))
+        instrument=np.array([f"{seed}:{i}" for i in table["instrument"]], dtype=object),
+    )
 
 
-def run_condition(corr: Corruptions, frames: int, seeds: list[int], instruments: int,
-                  tmp: Path) -> dict[str, dict]:
+def run_condition(
+    corr: Corruptions, frames: int, seeds: list[int], instruments: int, tmp: Path
+) -> dict[str, dict]:
     oracle = _paper_oracle()
     preds: dict[str, list[TrackTable]] = {m: [] for m in METHODS}
     truths = []
     for seed in seeds:
         out = tmp / f"s{seed}"
-        res = synthesize(out, frames=frames, instruments=instruments, seed=seed,
-                         corruptions=corr, force=True)
+        res = synthesize(
+            out, frames=frames, instruments=instruments, seed=seed, corruptions=corr, force=True
+        )
         truth = _tag(res.truth, seed)
         truths.append(truth)
         for mode in ("offline", "online", "none"):
@@ -85,9 +88,9 @@ def run_condition(corr: Corruptions, frames: int, seeds: list[int], instruments:
             if mode == "none":
                 cam = res.config.camera
                 preds["paper-3D (oracle)"].append(
-                    oracle(table, truth, cam.fx, cam.fy, cam.cx, cam.cy))
-    rep = evaluate({k: TrackTable.concat(v) for k, v in preds.items()},
-                   TrackTable.concat(truths))
+                    oracle(table, truth, cam.fx, cam.fy, cam.cx, cam.cy)
+                )
+    rep = evaluate({k: TrackTable.concat(v) for k, v in preds.items()}, TrackTable.concat(truths))
     return {m.name: m.parts for m in rep.methods}
 
 
@@ -114,25 +117,35 @@ def main() -> int:
             d.mkdir()
             results[name] = run_condition(corr, args.frames, args.seeds, args.instruments, d)
             print(f"done: {name}", file=sys.stderr)
-    print(f"\n{args.instruments} instruments, {args.frames} frames x seeds {args.seeds}, "
-          "720x576, f = 600 px, 8 mm shaft, EndoVis'15 labels\n")
-    print("J cov / tip cov: metric coverage of the truth rows (in brackets: of the rows the "
-          "2D tracker matched to the truth, i.e. the pose step's own coverage)\n")
-    print("| condition | method | J cov | J med / p90 (mm) | shaft axis med / p90 (deg) | "
-          "tip cov | tip med / p90 (mm) |")
+    print(
+        f"\n{args.instruments} instruments, {args.frames} frames x seeds {args.seeds}, "
+        "720x576, f = 600 px, 8 mm shaft, EndoVis'15 labels\n"
+    )
+    print(
+        "J cov / tip cov: metric coverage of the truth rows (in brackets: of the rows the "
+        "2D tracker matched to the truth, i.e. the pose step's own coverage)\n"
+    )
+    print(
+        "| condition | method | J cov | J med / p90 (mm) | shaft axis med / p90 (deg) | "
+        "tip cov | tip med / p90 (mm) |"
+    )
     print("|---|---|---|---|---|---|---|")
     for name, r in results.items():
         for method in METHODS:
             sh, cl = r[method]["shaft"], r[method].get("clasper")
             tip_cov = "-" if cl is None else _cov(cl)
             tip = "-" if cl is None else _mp(cl["end_mm"])
-            print(f"| {name} | {method} | {_cov(sh)} | "
-                  f"{_mp(sh['end_mm'])} | {_mp(sh['axis_deg'], 1)} | {tip_cov} | {tip} |")
+            print(
+                f"| {name} | {method} | {_cov(sh)} | "
+                f"{_mp(sh['end_mm'])} | {_mp(sh['axis_deg'], 1)} | {tip_cov} | {tip} |"
+            )
     if args.json:
+
         def clean(x):
             if isinstance(x, dict):
                 return {k: clean(v) for k, v in x.items()}
             return None if isinstance(x, float) and not math.isfinite(x) else x
+
         args.json.write_text(json.dumps(clean(results), indent=2) + "\n")
     return 0
 

@@ -28,13 +28,22 @@ MAX_BYTES = 5_000_000
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", type=Path, default=ROOT / "sample_masks")
     args = ap.parse_args()
-    res = synthesize(args.out, frames=FRAMES, instruments=2, seed=SEED, preset="endovis15",
-                     fps=25.0, corruptions=Corruptions(jitter_px=1.0, holes=1.0, speckle=2.0),
-                     force=True, png_compression=9)
+    res = synthesize(
+        args.out,
+        frames=FRAMES,
+        instruments=2,
+        seed=SEED,
+        preset="endovis15",
+        fps=25.0,
+        corruptions=Corruptions(jitter_px=1.0, holes=1.0, speckle=2.0),
+        force=True,
+        png_compression=9,
+    )
     size = sum(p.stat().st_size for p in res.path.iterdir())
     t = res.truth
     print(f"{res.path}: {FRAMES} frames, {size / 1e6:.2f} MB")
@@ -42,15 +51,24 @@ def main() -> int:
         rows = t["instrument"] == name
         frames = t["frame"][rows]
         jaw = t["jaw_open_deg"][rows]
-        print(f"  instrument {name}: visible frames {frames.min()}..{frames.max()} "
-              f"({len(set(frames.tolist()))}), jaw opening {jaw.min():.0f}..{jaw.max():.0f} "
-              "deg")
+        print(
+            f"  instrument {name}: visible frames {frames.min()}..{frames.max()} "
+            f"({len(set(frames.tolist()))}), jaw opening {jaw.min():.0f}..{jaw.max():.0f} "
+            "deg"
+        )
     # crossing: instrument 1 comes from the right, 2 from the left; they have crossed
     # when 1's tip is left of 2's tip
     tips = t[t["part"] == "clasper"]
-    x = {n: dict(zip(tips["frame"][tips["instrument"] == n].tolist(),
-                     tips["cx_px"][tips["instrument"] == n].tolist(), strict=True))
-         for n in ("1", "2")}
+    x = {
+        n: dict(
+            zip(
+                tips["frame"][tips["instrument"] == n].tolist(),
+                tips["cx_px"][tips["instrument"] == n].tolist(),
+                strict=True,
+            )
+        )
+        for n in ("1", "2")
+    }
     common = sorted(set(x["1"]) & set(x["2"]))
     crossed = sum(x["1"][f] < x["2"][f] for f in common)
     print(f"  both tips visible in {len(common)} frames; crossed in {crossed}")

@@ -8,6 +8,7 @@ if [ ! -x /usr/bin/chromium ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
 fi
 "$VPY" -m ruff check mistool tests scripts
+"$VPY" -m ruff format --check mistool tests scripts
 set +e
 "$VPY" -m pytest -n 2 "$@"
 rc=$?

@@ -27,10 +27,10 @@ def _frame(i: int, *, two: bool = False) -> np.ndarray:
     """Axis-aligned shaft [x0, x0+50) x [50, 60) and clasper right of it; x0 = 10 + 2i."""
     img = np.zeros((H, W), np.uint8)
     x0 = 10 + 2 * i
-    img[50:60, x0:x0 + 50] = 160
-    img[48:62, x0 + 50:x0 + 62] = 70
+    img[50:60, x0 : x0 + 50] = 160
+    img[48:62, x0 + 50 : x0 + 62] = 70
     if two:  # a second, separate instrument, vertical, moving down
-        img[5 + i:45 + i, 130:138] = 160
+        img[5 + i : 45 + i, 130:138] = 160
     return img
 
 
@@ -52,7 +52,7 @@ def test_public_names() -> None:
 def test_track_arrays_rows_and_columns() -> None:
     frames = [_frame(i) for i in range(6)]
     table = track(frames, Config(fps=5.0))
-    assert table.columns[: 18] == COLUMN_NAMES[: 18]
+    assert table.columns[:18] == COLUMN_NAMES[:18]
     assert table.num_rows == 12
     assert table["frame"].tolist() == [0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5]
     assert table["part"].tolist()[:2] == ["shaft", "clasper"]
@@ -65,8 +65,11 @@ def test_track_arrays_rows_and_columns() -> None:
     assert np.all((shaft["angle_deg"] < 0.5) | (shaft["angle_deg"] > 179.5))
     np.testing.assert_array_equal(shaft["area_px"], 500.0)
     corners = np.stack([shaft[f"{a}{k}_px"] for k in range(1, 5) for a in "xy"], axis=1)
-    np.testing.assert_allclose(corners.reshape(-1, 4, 2).mean(axis=1),
-                               np.stack([shaft["cx_px"], shaft["cy_px"]], axis=1), atol=1e-6)
+    np.testing.assert_allclose(
+        corners.reshape(-1, 4, 2).mean(axis=1),
+        np.stack([shaft["cx_px"], shaft["cy_px"]], axis=1),
+        atol=1e-6,
+    )
     assert np.isnan(shaft["dx_px"][0])  # first frame: no motion
     np.testing.assert_allclose(shaft["dx_px"][1:], 2.0, atol=0.5)
     assert np.isnan(table["end_x_mm"]).all()  # no camera
@@ -122,11 +125,14 @@ def test_unknown_values_warn_once() -> None:
     assert len(msgs) == 1 and "33, 34" in msgs[0]
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"smoothing": "kalman"}, "smoothing = 'kalman'"),
-    ({"workers": 0}, "workers = 0"),
-    ({"config": 3}, "config: expected a Config"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"smoothing": "kalman"}, "smoothing = 'kalman'"),
+        ({"workers": 0}, "workers = 0"),
+        ({"config": 3}, "config: expected a Config"),
+    ],
+)
 def test_bad_arguments(kwargs: dict, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         track([_frame(0)], **kwargs)
@@ -163,8 +169,10 @@ def test_tracker_rejects_size_change() -> None:
 
 
 def test_import_does_not_pull_viser() -> None:
-    code = ("import sys, mistool, mistool.api, mistool.cli.track; mistool.track; "
-            "assert 'viser' not in sys.modules, 'viser imported'")
+    code = (
+        "import sys, mistool, mistool.api, mistool.cli.track; mistool.track; "
+        "assert 'viser' not in sys.modules, 'viser imported'"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
 
 
@@ -216,7 +224,7 @@ def _write_format(folder: Path, frames: list[np.ndarray], fmt: str) -> None:
             bgr[img == 160] = (0, 0, 255)  # red shaft
             bgr[img == 70] = (255, 128, 0)  # blue-ish clasper: #0080ff
             cv2.imwrite(str(path), bgr)
-            toml = "[parts]\nshaft = \"#ff0000\"\nclasper = \"#0080ff\"\n"
+            toml = '[parts]\nshaft = "#ff0000"\nclasper = "#0080ff"\n'
     (folder / "mistool.toml").write_text(toml)
 
 
@@ -253,6 +261,11 @@ def test_metric_columns_with_a_camera(tmp_path: Path) -> None:
 def test_benchmark_script_runs() -> None:
     """scripts/bench_track.py works (smoke test on a few frames; no timing asserted)."""
     script = Path(__file__).resolve().parents[1] / "scripts" / "bench_track.py"
-    proc = subprocess.run([sys.executable, str(script), "--frames", "4", "--runs", "1"],
-                          capture_output=True, text=True, timeout=300, check=True)
+    proc = subprocess.run(
+        [sys.executable, str(script), "--frames", "4", "--runs", "1"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
     assert "ratio imread-unchanged / api:" in proc.stdout

@@ -23,13 +23,14 @@ H, W = 96, 128
 def _frame(shift: int = 0, *, shaft: int = 160, clasper: int = 70) -> np.ndarray:
     """One instrument: an axis-aligned shaft with a clasper at its right end."""
     img = np.zeros((H, W), np.uint8)
-    img[40:52, 10 + shift:70 + shift] = shaft
-    img[38:54, 70 + shift:86 + shift] = clasper
+    img[40:52, 10 + shift : 70 + shift] = shaft
+    img[38:54, 70 + shift : 86 + shift] = clasper
     return img
 
 
-def _folder(root: Path, frames: list[np.ndarray], toml: str | None = None,
-            name: str = "seq") -> Path:
+def _folder(
+    root: Path, frames: list[np.ndarray], toml: str | None = None, name: str = "seq"
+) -> Path:
     folder = root / name
     folder.mkdir(parents=True)
     for i, img in enumerate(frames):
@@ -64,9 +65,9 @@ def test_track_writes_every_column(tmp_path: Path, capsys: pytest.CaptureFixture
     assert shaft[0]["end_x_mm"] == ""  # no camera: metric cells empty, never 0
 
 
-def test_default_output_goes_to_the_current_folder(tmp_path: Path,
-                                                   monkeypatch: pytest.MonkeyPatch,
-                                                   capsys: pytest.CaptureFixture) -> None:
+def test_default_output_goes_to_the_current_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
     seq = _folder(tmp_path / "data", [_frame(), _frame(1)], name="my seq é")
     before = sorted(os.listdir(seq))
     work = tmp_path / "work"
@@ -84,10 +85,28 @@ def test_default_output_goes_to_the_current_folder(tmp_path: Path,
 
 def test_options_override_the_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     frames = [_frame(i, shaft=10, clasper=30) for i in range(3)]
-    seq = _folder(tmp_path, frames, "fps = 10.0\nlabels = \"endovis15\"\n")
+    seq = _folder(tmp_path, frames, 'fps = 10.0\nlabels = "endovis15"\n')
     out = tmp_path / "o.csv"
-    assert main(["track", str(seq), "-o", str(out), "--fps", "2", "--labels", "endovis17",
-                 "--workers", "1", "--smoothing", "none", "--no-metric"]) == 0
+    assert (
+        main(
+            [
+                "track",
+                str(seq),
+                "-o",
+                str(out),
+                "--fps",
+                "2",
+                "--labels",
+                "endovis17",
+                "--workers",
+                "1",
+                "--smoothing",
+                "none",
+                "--no-metric",
+            ]
+        )
+        == 0
+    )
     rows = _read(out)
     assert {r["part"] for r in rows} == {"shaft", "clasper"}
     assert [float(r["time_s"]) for r in rows if r["part"] == "shaft"] == [0.0, 0.5, 1.0]
@@ -124,8 +143,11 @@ def _specks_and_pixels(root: Path) -> Path:
 
 
 NOT_ERRORS: list[tuple[str, Callable[[Path], Path], int]] = [
-    ("part absent in some frames",
-     lambda r: _folder(r, [_frame(), _frame(1, clasper=0), _frame(2)]), 5),
+    (
+        "part absent in some frames",
+        lambda r: _folder(r, [_frame(), _frame(1, clasper=0), _frame(2)]),
+        5,
+    ),
     ("tool absent in every frame", lambda r: _folder(r, [np.zeros((H, W), np.uint8)] * 3), 0),
     ("single frame", lambda r: _folder(r, [_frame()]), 2),
     ("stray specks", lambda r: _folder(r, [_frame() | _speck(i) for i in range(2)]), 4),
@@ -143,13 +165,18 @@ def _speck(i: int) -> np.ndarray:
 
 def _border(i: int) -> np.ndarray:
     img = np.zeros((H, W), np.uint8)
-    img[0:10 + i, 0:W] = 160
+    img[0 : 10 + i, 0:W] = 160
     return img
 
 
 @pytest.mark.parametrize("case, make, rows", NOT_ERRORS, ids=[c[0] for c in NOT_ERRORS])
-def test_not_errors(tmp_path: Path, capsys: pytest.CaptureFixture, case: str,
-                    make: Callable[[Path], Path], rows: int) -> None:
+def test_not_errors(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture,
+    case: str,
+    make: Callable[[Path], Path],
+    rows: int,
+) -> None:
     seq = make(tmp_path)
     out = tmp_path / "o.csv"
     assert main(["track", str(seq), "-o", str(out)]) == 0, capsys.readouterr().err
@@ -184,49 +211,97 @@ BAD_INPUTS: list[tuple[str, Callable[[Path], list[str]], str]] = [
     ("missing path", lambda r: [str(r / "nope")], "nope: no such file or folder"),
     ("empty folder", lambda r: [str(_bad_folder(r, {}))], "no label images"),
     ("only non-images", lambda r: [str(_bad_folder(r, {"a.txt": "x"}))], "no label images"),
-    ("corrupt image", lambda r: [str(_bad_folder(r, {"0.png": _OK, "1.png": b"\x89PNG\r\n"
-                                                      + bytes(200)}))],
-     "1.png: cannot decode"),
-    ("truncated image", lambda r: [str(_bad_folder(r, {"0.png": _OK, "1.png": _TRUNC}))],
-     "1.png: cannot decode"),
-    ("text file named .png", lambda r: [str(_bad_folder(r, {"0.png": "hello"}))],
-     "0.png: cannot decode"),
-    ("frame size changes", lambda r: [str(_bad_folder(r, {
-        "0.png": _OK, "1.png": _png_bytes(np.zeros((H + 1, W), np.uint8))}))],
-     "1.png: frame size changed"),
-    ("toml syntax", lambda r: [str(_bad_folder(r, {"0.png": _OK, "mistool.toml": "fps ="}))],
-     "mistool.toml: invalid TOML"),
-    ("toml unknown key", lambda r: [str(_bad_folder(r, {"0.png": _OK,
-                                                        "mistool.toml": "speed = 3"}))],
-     "mistool.toml: unknown key(s) speed"),
-    ("toml wrong type", lambda r: [str(_bad_folder(r, {"0.png": _OK,
-                                                       "mistool.toml": "fps = \"x\""}))],
-     "fps must be a number"),
-    ("toml reversed range", lambda r: [str(_bad_folder(r, {
-        "0.png": _OK, "mistool.toml": "[parts]\nshaft = [170, 150]"}))], "reversed range"),
-    ("toml focal <= 0", lambda r: [str(_bad_folder(r, {"0.png": _OK,
-                                                       "mistool.toml": _CAM.format(fx=0)}))],
-     "camera.fx must be > 0"),
-    ("unreadable video", lambda r: [str(_bad_folder(r, {"Segmentation.avi": b"RIFF" * 50})
-                                        / "Segmentation.avi")], "cannot read as a video"),
-    ("not a sequence", lambda r: [str(_bad_folder(r, {"a.txt": "x"}) / "a.txt")],
-     "not a folder of label images or a mask video"),
-    ("bad --fps", lambda r: [str(_bad_folder(r, {"0.png": _OK})), "--fps", "0"],
-     "--fps must be > 0"),
-    ("bad --min-area", lambda r: [str(_bad_folder(r, {"0.png": _OK})), "--min-area", "-3"],
-     "--min-area must be >= 0"),
-    ("missing output folder", lambda r: [str(_bad_folder(r, {"0.png": _OK})), "-o",
-                                         str(r / "no" / "x.csv")], "does not exist"),
-    ("output is a folder", lambda r: [str(_bad_folder(r, {"0.png": _OK})), "-o",
-                                      str(r / "bad seq")], "is a folder"),
+    (
+        "corrupt image",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK, "1.png": b"\x89PNG\r\n" + bytes(200)}))],
+        "1.png: cannot decode",
+    ),
+    (
+        "truncated image",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK, "1.png": _TRUNC}))],
+        "1.png: cannot decode",
+    ),
+    (
+        "text file named .png",
+        lambda r: [str(_bad_folder(r, {"0.png": "hello"}))],
+        "0.png: cannot decode",
+    ),
+    (
+        "frame size changes",
+        lambda r: [
+            str(_bad_folder(r, {"0.png": _OK, "1.png": _png_bytes(np.zeros((H + 1, W), np.uint8))}))
+        ],
+        "1.png: frame size changed",
+    ),
+    (
+        "toml syntax",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK, "mistool.toml": "fps ="}))],
+        "mistool.toml: invalid TOML",
+    ),
+    (
+        "toml unknown key",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK, "mistool.toml": "speed = 3"}))],
+        "mistool.toml: unknown key(s) speed",
+    ),
+    (
+        "toml wrong type",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK, "mistool.toml": 'fps = "x"'}))],
+        "fps must be a number",
+    ),
+    (
+        "toml reversed range",
+        lambda r: [
+            str(_bad_folder(r, {"0.png": _OK, "mistool.toml": "[parts]\nshaft = [170, 150]"}))
+        ],
+        "reversed range",
+    ),
+    (
+        "toml focal <= 0",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK, "mistool.toml": _CAM.format(fx=0)}))],
+        "camera.fx must be > 0",
+    ),
+    (
+        "unreadable video",
+        lambda r: [str(_bad_folder(r, {"Segmentation.avi": b"RIFF" * 50}) / "Segmentation.avi")],
+        "cannot read as a video",
+    ),
+    (
+        "not a sequence",
+        lambda r: [str(_bad_folder(r, {"a.txt": "x"}) / "a.txt")],
+        "not a folder of label images or a mask video",
+    ),
+    (
+        "bad --fps",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK})), "--fps", "0"],
+        "--fps must be > 0",
+    ),
+    (
+        "bad --min-area",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK})), "--min-area", "-3"],
+        "--min-area must be >= 0",
+    ),
+    (
+        "missing output folder",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK})), "-o", str(r / "no" / "x.csv")],
+        "does not exist",
+    ),
+    (
+        "output is a folder",
+        lambda r: [str(_bad_folder(r, {"0.png": _OK})), "-o", str(r / "bad seq")],
+        "is a folder",
+    ),
 ]
 
 
-@pytest.mark.parametrize("case, make_args, message", BAD_INPUTS,
-                         ids=[c[0] for c in BAD_INPUTS])
-def test_bad_input(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                   capsys: pytest.CaptureFixture, case: str,
-                   make_args: Callable[[Path], list[str]], message: str) -> None:
+@pytest.mark.parametrize("case, make_args, message", BAD_INPUTS, ids=[c[0] for c in BAD_INPUTS])
+def test_bad_input(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+    case: str,
+    make_args: Callable[[Path], list[str]],
+    message: str,
+) -> None:
     work = tmp_path / "work"
     work.mkdir()
     monkeypatch.chdir(work)
@@ -249,23 +324,40 @@ _MAIN = "import sys; from mistool.cli import main; sys.exit(main())"
 def test_corrupt_image_stderr_is_one_line_in_a_real_process(tmp_path: Path) -> None:
     """OpenCV's own C-level warnings must not reach stderr (capsys cannot see them)."""
     seq = _bad_folder(tmp_path, {"0.png": _OK, "1.png": _TRUNC})
-    proc = subprocess.run([sys.executable, "-c", _MAIN, "track", str(seq), "-o",
-                           str(tmp_path / "o.csv")], capture_output=True, text=True,
-                          timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", _MAIN, "track", str(seq), "-o", str(tmp_path / "o.csv")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 1
     assert proc.stderr.splitlines() == [
         f"mistool: error: {seq / '1.png'}: cannot decode as an image (corrupt, truncated or "
-        "not an image file)"]
+        "not an image file)"
+    ]
     assert not (tmp_path / "o.csv").exists()
 
 
-@pytest.mark.parametrize("argv, needles", [
-    (["--help"], ["track", "mistool.toml", "COMMAND --help"]),
-    (["track", "--help"], ["mistool.toml", "frame2.png before", "cx_px", "examples:",
-                           "[camera]", "_motion.csv", "--smoothing", "--workers"]),
-])
-def test_help_explains(argv: list[str], needles: list[str],
-                       capsys: pytest.CaptureFixture) -> None:
+@pytest.mark.parametrize(
+    "argv, needles",
+    [
+        (["--help"], ["track", "mistool.toml", "COMMAND --help"]),
+        (
+            ["track", "--help"],
+            [
+                "mistool.toml",
+                "frame2.png before",
+                "cx_px",
+                "examples:",
+                "[camera]",
+                "_motion.csv",
+                "--smoothing",
+                "--workers",
+            ],
+        ),
+    ],
+)
+def test_help_explains(argv: list[str], needles: list[str], capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as info:
         main(argv)
     assert info.value.code == 0

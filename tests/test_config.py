@@ -24,7 +24,8 @@ def test_defaults_without_a_file(tmp_path: Path) -> None:
 
 
 def test_full_file(tmp_path: Path) -> None:
-    (tmp_path / "mistool.toml").write_text("""
+    (tmp_path / "mistool.toml").write_text(
+        """
 fps = 30
 source = "Video.avi"
 labels = "endovis17"
@@ -43,7 +44,9 @@ clasper = [60, 80]
 shaft_diameter_mm = 5.0
 [[instrument]]
 shaft = 100
-""", encoding="utf-8")
+""",
+        encoding="utf-8",
+    )
     cfg = load_config(tmp_path)
     assert cfg.fps == 30.0 and cfg.min_area_px == 5 and cfg.labels == "endovis17"
     assert cfg.source == tmp_path / "Video.avi"  # relative to the file
@@ -66,32 +69,38 @@ def test_colours_and_overrides() -> None:
     assert over.fps == 50.0 and over.min_area_px == cfg.min_area_px
 
 
-@pytest.mark.parametrize("text, message", [
-    ("fps = ", "invalid TOML"),
-    ("fsp = 25.0", r"unknown key\(s\) fsp"),
-    ("fps = \"fast\"", "fps must be a number"),
-    ("fps = 0", "fps must be > 0"),
-    ("fps = true", "fps must be a number"),
-    ("min_area_px = -1", "min_area_px must be an integer >= 0"),
-    ("labels = \"endovis99\"", "not a preset"),
-    ("[parts]\nshaft = [200, 100]", r"reversed range; write \[100, 200\]"),
-    ("[parts]\nshaft = [1, 2, 3]", "parts.shaft must be"),
-    ("[parts]\nshaft = \"#12345\"", "not a label value"),
-    ("[parts]\nshaft = 70000", "outside the label range"),
-    ("[parts]\nhandle = 3", r"unknown key\(s\) in \[parts\]: handle"),
-    ("[camera]\nfx = 0.0\nfy = 1.0\ncx = 0.0\ncy = 0.0", "camera.fx must be > 0"),
-    ("[camera]\nfx = -5.0\nfy = 1.0\ncx = 0.0\ncy = 0.0", "camera.fx must be > 0"),
-    ("[camera]\nfx = 500.0\nfy = 500.0\ncx = 1.0", r"\[camera\] is missing cy"),
-    ("[camera]\nfx = 5.0\nfy = 5.0\ncx = 1.0\ncy = 1.0\nk1 = 0.1", r"unknown key\(s\) in"),
-    ("[[instrument]]\nname = \"a\"", "gives no part values"),
-    ("[[instrument]]\nshaft = 1\ncolour = 2", r"unknown key\(s\) in instrument\[0\]"),
-    ("[[instrument]]\nname = \"a\"\nshaft = 1\n[[instrument]]\nname = \"a\"\nshaft = 2",
-     "used twice"),
-    ("[[instrument]]\nshaft = 1\nshaft_diameter_mm = 0", "shaft_diameter_mm must be > 0"),
-    ("instrument = 3", "array of tables"),
-])
-def test_invalid_files_name_the_file_and_the_problem(tmp_path: Path, text: str,
-                                                     message: str) -> None:
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("fps = ", "invalid TOML"),
+        ("fsp = 25.0", r"unknown key\(s\) fsp"),
+        ('fps = "fast"', "fps must be a number"),
+        ("fps = 0", "fps must be > 0"),
+        ("fps = true", "fps must be a number"),
+        ("min_area_px = -1", "min_area_px must be an integer >= 0"),
+        ('labels = "endovis99"', "not a preset"),
+        ("[parts]\nshaft = [200, 100]", r"reversed range; write \[100, 200\]"),
+        ("[parts]\nshaft = [1, 2, 3]", "parts.shaft must be"),
+        ('[parts]\nshaft = "#12345"', "not a label value"),
+        ("[parts]\nshaft = 70000", "outside the label range"),
+        ("[parts]\nhandle = 3", r"unknown key\(s\) in \[parts\]: handle"),
+        ("[camera]\nfx = 0.0\nfy = 1.0\ncx = 0.0\ncy = 0.0", "camera.fx must be > 0"),
+        ("[camera]\nfx = -5.0\nfy = 1.0\ncx = 0.0\ncy = 0.0", "camera.fx must be > 0"),
+        ("[camera]\nfx = 500.0\nfy = 500.0\ncx = 1.0", r"\[camera\] is missing cy"),
+        ("[camera]\nfx = 5.0\nfy = 5.0\ncx = 1.0\ncy = 1.0\nk1 = 0.1", r"unknown key\(s\) in"),
+        ('[[instrument]]\nname = "a"', "gives no part values"),
+        ("[[instrument]]\nshaft = 1\ncolour = 2", r"unknown key\(s\) in instrument\[0\]"),
+        (
+            '[[instrument]]\nname = "a"\nshaft = 1\n[[instrument]]\nname = "a"\nshaft = 2',
+            "used twice",
+        ),
+        ("[[instrument]]\nshaft = 1\nshaft_diameter_mm = 0", "shaft_diameter_mm must be > 0"),
+        ("instrument = 3", "array of tables"),
+    ],
+)
+def test_invalid_files_name_the_file_and_the_problem(
+    tmp_path: Path, text: str, message: str
+) -> None:
     path = tmp_path / "mistool.toml"
     path.write_text(text + "\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=message) as info:

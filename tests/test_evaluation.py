@@ -15,16 +15,42 @@ from mistool.model import TrackTable
 
 def _truth(frames: int = 20) -> TrackTable:
     """Two instruments, shaft + clasper, moving on known paths."""
-    rows: dict[str, list] = {k: [] for k in (
-        "frame", "instrument", "part", "cx_px", "cy_px", "angle_deg", "area_px",
-        "end_x_mm", "end_y_mm", "end_z_mm", "axis_x", "axis_y", "axis_z")}
+    rows: dict[str, list] = {
+        k: []
+        for k in (
+            "frame",
+            "instrument",
+            "part",
+            "cx_px",
+            "cy_px",
+            "angle_deg",
+            "area_px",
+            "end_x_mm",
+            "end_y_mm",
+            "end_z_mm",
+            "axis_x",
+            "axis_y",
+            "axis_z",
+        )
+    }
     for f in range(frames):
         for inst, x0 in (("1", 150.0), ("2", 550.0)):
             for part, dy in (("shaft", 0.0), ("clasper", 60.0)):
                 ang = (170.0 + 3 * f) % 180.0
                 a = np.array([math.cos(0.1 * f), math.sin(0.1 * f), 1.0]) / math.sqrt(2)
-                vals = (f, inst, part, x0 + 5 * f, 200.0 + dy + 2 * f, ang, 500.0,
-                        x0 / 10 + f, 3.0 * f, 90.0 + f, *a)
+                vals = (
+                    f,
+                    inst,
+                    part,
+                    x0 + 5 * f,
+                    200.0 + dy + 2 * f,
+                    ang,
+                    500.0,
+                    x0 / 10 + f,
+                    3.0 * f,
+                    90.0 + f,
+                    *a,
+                )
                 for k, v in zip(rows, vals, strict=True):
                     rows[k].append(v)
     return TrackTable(rows)
@@ -47,11 +73,15 @@ def test_known_shift_is_recovered_with_renamed_instruments():
     rename = np.array(["B" if i == "1" else "A" for i in t["instrument"]], dtype=object)
     rot = math.radians(4.0)  # turn every axis by 4 degrees about the camera z axis
     ax, ay = t["axis_x"], t["axis_y"]
-    p = t.with_columns(instrument=rename, cx_px=t["cx_px"] + 3.0, cy_px=t["cy_px"] - 2.0,
-                       angle_deg=(t["angle_deg"] + 15.0) % 180.0,  # wraps past 180
-                       end_z_mm=t["end_z_mm"] + 1.25,
-                       axis_x=ax * math.cos(rot) - ay * math.sin(rot),
-                       axis_y=ax * math.sin(rot) + ay * math.cos(rot))
+    p = t.with_columns(
+        instrument=rename,
+        cx_px=t["cx_px"] + 3.0,
+        cy_px=t["cy_px"] - 2.0,
+        angle_deg=(t["angle_deg"] + 15.0) % 180.0,  # wraps past 180
+        end_z_mm=t["end_z_mm"] + 1.25,
+        axis_x=ax * math.cos(rot) - ay * math.sin(rot),
+        axis_y=ax * math.sin(rot) + ay * math.cos(rot),
+    )
     rep = evaluate({"shifted": p}, t)
     m = rep.methods[0]
     assert m.instrument_map == {"B": "1", "A": "2"}
@@ -69,13 +99,18 @@ def test_known_shift_is_recovered_with_renamed_instruments():
         assert s["axis_deg"]["median"] == pytest.approx(expect, abs=1e-4)
 
 
-@pytest.mark.parametrize("truth_deg,pred_deg,err", [
-    (179.0, 1.0, 2.0), (0.0, 179.5, 0.5), (90.0, 0.0, 90.0), (45.0, 135.0, 90.0),
-    (10.0, 10.0, 0.0),
-])
+@pytest.mark.parametrize(
+    "truth_deg,pred_deg,err",
+    [
+        (179.0, 1.0, 2.0),
+        (0.0, 179.5, 0.5),
+        (90.0, 0.0, 90.0),
+        (45.0, 135.0, 90.0),
+        (10.0, 10.0, 0.0),
+    ],
+)
 def test_angle_error_is_modulo_180(truth_deg, pred_deg, err):
-    base = {"frame": [0], "instrument": ["1"], "part": ["shaft"], "cx_px": [1.0],
-            "cy_px": [1.0]}
+    base = {"frame": [0], "instrument": ["1"], "part": ["shaft"], "cx_px": [1.0], "cy_px": [1.0]}
     t = TrackTable({**base, "angle_deg": [truth_deg]})
     p = TrackTable({**base, "angle_deg": [pred_deg]})
     s = evaluate({"p": p}, t).methods[0].parts["shaft"]
@@ -86,8 +121,16 @@ def test_coverage_counts_missing_rows_and_extra_rows():
     t = _truth(10)
     keep = ~((t["instrument"] == "1") & (t["part"] == "clasper") & (t["frame"] < 4))
     p = t[keep]
-    extra = TrackTable({"frame": [99], "instrument": ["1"], "part": ["shaft"],
-                        "cx_px": [0.0], "cy_px": [0.0], "angle_deg": [0.0]})
+    extra = TrackTable(
+        {
+            "frame": [99],
+            "instrument": ["1"],
+            "part": ["shaft"],
+            "cx_px": [0.0],
+            "cy_px": [0.0],
+            "angle_deg": [0.0],
+        }
+    )
     p = TrackTable.concat([p, extra])
     s = evaluate({"p": p}, t).methods[0].parts
     assert s["clasper"]["coverage"] == pytest.approx(16 / 20)
@@ -130,8 +173,16 @@ def test_side_by_side_report_lists_every_method_and_the_mapping():
 
 def test_unmatchable_prediction_scores_zero_coverage():
     t = _truth(3)
-    p = TrackTable({"frame": [50], "instrument": ["x"], "part": ["shaft"], "cx_px": [1.0],
-                    "cy_px": [2.0], "angle_deg": [0.0]})
+    p = TrackTable(
+        {
+            "frame": [50],
+            "instrument": ["x"],
+            "part": ["shaft"],
+            "cx_px": [1.0],
+            "cy_px": [2.0],
+            "angle_deg": [0.0],
+        }
+    )
     m = evaluate({"p": p}, t).methods[0]
     assert m.instrument_map == {}
     assert m.parts["shaft"]["coverage"] == 0.0 and m.parts["shaft"]["extra"] == 1
@@ -160,19 +211,22 @@ def test_linear_assignment_matches_brute_force(shape):
         assert len(pairs) == min(shape)
         n, m = shape
         if n <= m:
-            best = min(sum(cost[i, c] for i, c in enumerate(cols))
-                       for cols in itertools.permutations(range(m), n))
+            best = min(
+                sum(cost[i, c] for i, c in enumerate(cols))
+                for cols in itertools.permutations(range(m), n)
+            )
         else:
-            best = min(sum(cost[r, j] for j, r in enumerate(rows))
-                       for rows in itertools.permutations(range(n), m))
+            best = min(
+                sum(cost[r, j] for j, r in enumerate(rows))
+                for rows in itertools.permutations(range(n), m)
+            )
         assert sum(cost[i, j] for i, j in pairs) == pytest.approx(best)
 
 
 def test_match_instruments_by_nearest_boxes():
     t = _truth(5)
     inst = np.array(["left" if i == "1" else "right" for i in t["instrument"]], dtype=object)
-    assert match_instruments(t.with_columns(instrument=inst), t) == {"left": "1",
-                                                                      "right": "2"}
+    assert match_instruments(t.with_columns(instrument=inst), t) == {"left": "1", "right": "2"}
 
 
 def test_a_new_identity_after_a_gap_is_a_fragment_of_the_same_tool():
@@ -182,10 +236,10 @@ def test_a_new_identity_after_a_gap_is_a_fragment_of_the_same_tool():
     m = evaluate({"p": t.with_columns(instrument=inst)}, t).methods[0]
     assert m.instrument_map == {"1": "1", "2": "2", "7": "1"} and m.fragments == 1
     assert m.parts["shaft"]["coverage"] == 1.0 and m.parts["shaft"]["x_px"]["mean"] == 0.0
-    assert "1 fragment(s)" in format_report(evaluate({"p": t.with_columns(instrument=inst)},
-                                                     t))
+    assert "1 fragment(s)" in format_report(evaluate({"p": t.with_columns(instrument=inst)}, t))
     # a left-over instrument that overlaps in time with the matched one is not merged in
-    dup = TrackTable.concat([t, t[t["instrument"] == "1"].with_columns(
-        instrument=np.array(["9"] * 20, dtype=object))])
+    dup = TrackTable.concat(
+        [t, t[t["instrument"] == "1"].with_columns(instrument=np.array(["9"] * 20, dtype=object))]
+    )
     m = evaluate({"p": dup}, t).methods[0]
     assert "9" not in m.instrument_map and m.parts["shaft"]["extra"] == 10

@@ -24,15 +24,17 @@ GOLDEN_HEADER = (
 
 
 def _table() -> TrackTable:
-    return TrackTable({
-        "frame": [0, 0, 1],
-        "instrument": ["1", "1", "2"],
-        "part": ["shaft", "clasper", "shaft"],
-        "cx_px": [10.5, 20.0, 1.0 / 3.0],
-        "angle_deg": [0.0, 179.9999999, -0.0000001],
-        "end_z_mm": [math.nan, 55.25, math.nan],
-        "my_extra": [1.0, 2.0, 3.0],
-    })
+    return TrackTable(
+        {
+            "frame": [0, 0, 1],
+            "instrument": ["1", "1", "2"],
+            "part": ["shaft", "clasper", "shaft"],
+            "cx_px": [10.5, 20.0, 1.0 / 3.0],
+            "angle_deg": [0.0, 179.9999999, -0.0000001],
+            "end_z_mm": [math.nan, 55.25, math.nan],
+            "my_extra": [1.0, 2.0, 3.0],
+        }
+    )
 
 
 def test_golden_header_and_rows(tmp_path: Path) -> None:
@@ -49,10 +51,21 @@ def test_golden_header_and_rows(tmp_path: Path) -> None:
     assert len(lines) == 4
 
 
-@pytest.mark.parametrize("value, text", [
-    (1.0, "1"), (2.5, "2.5"), (1e-7, "0"), (-1e-7, "0"), (123456.1234567, "123456.123457"),
-    (math.nan, ""), (None, ""), (math.inf, "inf"), (np.int64(7), "7"), ("a b", "a b"),
-])
+@pytest.mark.parametrize(
+    "value, text",
+    [
+        (1.0, "1"),
+        (2.5, "2.5"),
+        (1e-7, "0"),
+        (-1e-7, "0"),
+        (123456.1234567, "123456.123457"),
+        (math.nan, ""),
+        (None, ""),
+        (math.inf, "inf"),
+        (np.int64(7), "7"),
+        ("a b", "a b"),
+    ],
+)
 def test_format_value(value: object, text: str) -> None:
     assert format_value(value) == text
 
@@ -90,13 +103,16 @@ def test_atomic_write_missing_folder_or_folder_target(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dir"]
 
 
-@pytest.mark.parametrize("text, message", [
-    ("", "empty file"),
-    ("frame,part\n0,shaft\n", "missing column.*instrument"),
-    ("frame,instrument,part\n0,1\n", "line 2 has 2 cells"),
-    ("frame,instrument,part,cx_px\n0,1,shaft,abc\n", "line 2, column 'cx_px'"),
-    ("frame,instrument,part\n0.5,1,shaft\n", "expected an integer"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("", "empty file"),
+        ("frame,part\n0,shaft\n", "missing column.*instrument"),
+        ("frame,instrument,part\n0,1\n", "line 2 has 2 cells"),
+        ("frame,instrument,part,cx_px\n0,1,shaft,abc\n", "line 2, column 'cx_px'"),
+        ("frame,instrument,part\n0.5,1,shaft\n", "expected an integer"),
+    ],
+)
 def test_read_csv_errors(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "bad.csv"
     path.write_text(text)

@@ -24,7 +24,7 @@ PARTS = {"shaft": (160, 160)}
 
 def draw(box: RotatedBox, shape=(H, W), value=160) -> np.ndarray:
     """Light exactly the pixels whose centres lie inside ``box`` (no OpenCV raster)."""
-    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]]
     t = math.radians(box.angle_deg)
     u = (xx - box.cx) * math.cos(t) + (yy - box.cy) * math.sin(t)
     v = -(xx - box.cx) * math.sin(t) + (yy - box.cy) * math.cos(t)
@@ -44,8 +44,10 @@ def same_corner_set(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
 
 # min_area_box: OpenCV's convention converted -----------------------------------------
 
-@pytest.mark.parametrize("angle", [0.0, 10.0, 30.0, 45.0, 60.0, 80.0, 90.0, 100.0, 135.0,
-                                   170.0, 179.5])
+
+@pytest.mark.parametrize(
+    "angle", [0.0, 10.0, 30.0, 45.0, 60.0, 80.0, 90.0, 100.0, 135.0, 170.0, 179.5]
+)
 @pytest.mark.parametrize("length, width", [(40.0, 6.0), (25.0, 24.0)])
 def test_min_area_box_of_exact_corners(angle, length, width):
     ref = RotatedBox(100.0, 80.0, length, width, angle)
@@ -68,20 +70,29 @@ def test_corners_are_opencv_boxpoints_order(angle):
     np.testing.assert_allclose(corners, expected, atol=1e-4)
 
 
-@pytest.mark.parametrize("rect", [((3.0, 4.0), (10.0, 2.0), -90.0), ((100.5, 20.25),
-                                  (7.0, 33.0), -12.5), ((0.0, 0.0), (5.0, 5.0), 45.0),
-                                  ((10.0, 10.0), (4.0, 1.0), 30.0)])
+@pytest.mark.parametrize(
+    "rect",
+    [
+        ((3.0, 4.0), (10.0, 2.0), -90.0),
+        ((100.5, 20.25), (7.0, 33.0), -12.5),
+        ((0.0, 0.0), (5.0, 5.0), 45.0),
+        ((10.0, 10.0), (4.0, 1.0), 30.0),
+    ],
+)
 def test_box_points_is_opencv_boxpoints(rect):
     np.testing.assert_allclose(box_points(rect), cv2.boxPoints(rect), atol=1e-4)
 
 
-@pytest.mark.parametrize("points, expected", [
-    ([[5, 5]], (5.0, 5.0, 0.0, 0.0, 0.0)),                  # one point
-    ([[5, 5], [9, 5]], (7.0, 5.0, 4.0, 0.0, 0.0)),          # horizontal segment
-    ([[5, 5], [5, 9]], (5.0, 7.0, 4.0, 0.0, 90.0)),         # vertical segment
-    ([[0, 0], [3, 3]], (1.5, 1.5, math.sqrt(18), 0.0, 45.0)),  # diagonal, y down
-    ([[3, 0], [0, 3]], (1.5, 1.5, math.sqrt(18), 0.0, 135.0)),
-])
+@pytest.mark.parametrize(
+    "points, expected",
+    [
+        ([[5, 5]], (5.0, 5.0, 0.0, 0.0, 0.0)),  # one point
+        ([[5, 5], [9, 5]], (7.0, 5.0, 4.0, 0.0, 0.0)),  # horizontal segment
+        ([[5, 5], [5, 9]], (5.0, 7.0, 4.0, 0.0, 90.0)),  # vertical segment
+        ([[0, 0], [3, 3]], (1.5, 1.5, math.sqrt(18), 0.0, 45.0)),  # diagonal, y down
+        ([[3, 0], [0, 3]], (1.5, 1.5, math.sqrt(18), 0.0, 135.0)),
+    ],
+)
 def test_min_area_box_degenerate(points, expected):
     box, corners = min_area_box(np.array(points))
     got = (box.cx, box.cy, box.length, box.width, box.angle_deg)
@@ -103,8 +114,10 @@ def test_min_area_box_rejects_empty():
 GENERIC_CENTRE = (351.3, 287.9)
 
 
-@pytest.mark.parametrize("angle", [0.0, 1.0, 2.0, 30.0, 45.0, 60.0, 88.0, 89.0, 90.0, 91.0,
-                                   120.0, 135.0, 150.0, 178.0, 179.0])
+@pytest.mark.parametrize(
+    "angle",
+    [0.0, 1.0, 2.0, 30.0, 45.0, 60.0, 88.0, 89.0, 90.0, 91.0, 120.0, 135.0, 150.0, 178.0, 179.0],
+)
 @pytest.mark.parametrize("length, width", [(120.0, 16.0), (200.0, 24.0), (300.0, 41.0)])
 def test_drawn_rectangle_recovered(angle, length, width):
     ref = RotatedBox(*GENERIC_CENTRE, length, width, angle)
@@ -123,8 +136,11 @@ def test_axis_aligned_rectangle_on_pixel_edges_is_exact(angle, length, width):
     # sides on pixel edges (x.5): exactly `length` x `width` pixels are lit
     cx = 300.5 if length % 2 == 0 else 300.0
     cy = 250.5 if width % 2 == 0 else 250.0
-    ref = RotatedBox(cx, cy, length, width, angle) if angle == 0 else \
-        RotatedBox(cy, cx, length, width, angle)
+    ref = (
+        RotatedBox(cx, cy, length, width, angle)
+        if angle == 0
+        else RotatedBox(cy, cx, length, width, angle)
+    )
     img = draw(ref)
     assert (img > 0).sum() == length * width
     box, _ = bounding_boxes(img, PARTS)["shaft"]
@@ -139,11 +155,17 @@ def test_random_placements_within_quantisation_bound():
     rng = np.random.default_rng(7)
     errs = []
     for _ in range(40):
-        ref = RotatedBox(rng.uniform(250, 450), rng.uniform(200, 350), rng.uniform(60, 250),
-                         rng.uniform(8, 30), rng.uniform(0, 180))
+        ref = RotatedBox(
+            rng.uniform(250, 450),
+            rng.uniform(200, 350),
+            rng.uniform(60, 250),
+            rng.uniform(8, 30),
+            rng.uniform(0, 180),
+        )
         box, _ = bounding_boxes(draw(ref), PARTS)["shaft"]
-        errs.append([box.cx - ref.cx, box.cy - ref.cy, box.length - ref.length,
-                     box.width - ref.width])
+        errs.append(
+            [box.cx - ref.cx, box.cy - ref.cy, box.length - ref.length, box.width - ref.width]
+        )
     e = np.abs(np.array(errs))
     assert e[:, :2].max() <= 0.5  # centre
     assert e[:, 2:].max() <= 1.0  # size: half a row spacing per side, two sides
@@ -178,6 +200,7 @@ def test_invariances(name, angle):
 
 # masks and specks ------------------------------------------------------------------
 
+
 def test_range_mask_inclusive_and_dtypes():
     img = np.array([[0, 59, 60, 70, 80, 81]], np.uint8)
     assert range_mask(img, (60, 80)).tolist() == [[0, 0, 255, 255, 255, 0]]
@@ -194,8 +217,9 @@ def reference_clean(mask: np.ndarray, min_area: int) -> np.ndarray:
     return keep[cc]
 
 
-@pytest.mark.parametrize("case", ["big+specks", "thin diagonal", "ring with speck", "all small",
-                                  "two big"])
+@pytest.mark.parametrize(
+    "case", ["big+specks", "thin diagonal", "ring with speck", "all small", "two big"]
+)
 def test_remove_specks_matches_pixel_counts(case):
     m = np.zeros((60, 80), np.uint8)
     if case in ("big+specks", "ring with speck", "two big"):

@@ -69,28 +69,36 @@ def test_imports_flow_one_way(path: Path) -> None:
             # The CLI may import the viewer, but only lazily inside a function body.
             assert RANK[other] <= RANK[me], (
                 f"{path.name}: mistool.{me} (layer {RANK[me]}) imports mistool.{other} "
-                f"(layer {RANK[other]}); imports must flow errors -> ... -> cli")
+                f"(layer {RANK[other]}); imports must flow errors -> ... -> cli"
+            )
         if me != "viewer" and isinstance(node, (ast.Import, ast.ImportFrom)):
-            mods = [a.name for a in node.names] if isinstance(node, ast.Import) else [
-                node.module or ""]
+            mods = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+            )
             assert not any(m.split(".")[0] == "viser" for m in mods) or me == "cli", (
-                f"{path}: only mistool.viewer may import viser")
+                f"{path}: only mistool.viewer may import viser"
+            )
 
 
-CORE = sorted({_dotted(p) for p in _modules()
-               if _top(_dotted(p)) not in (None, "viewer")})
+CORE = sorted({_dotted(p) for p in _modules() if _top(_dotted(p)) not in (None, "viewer")})
 
 
 @pytest.mark.parametrize("module", CORE)
 def test_core_module_does_not_load_viser(module: str) -> None:
-    code = (f"import sys, importlib; importlib.import_module({module!r}); "
-            "sys.exit(3 if 'viser' in sys.modules else 0)")
+    code = (
+        f"import sys, importlib; importlib.import_module({module!r}); "
+        "sys.exit(3 if 'viser' in sys.modules else 0)"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, f"{module} loads viser (or failed):\n{proc.stderr}"
 
 
 def test_cli_parser_does_not_load_viser() -> None:
-    code = ("import sys; from mistool.cli import build_parser; build_parser(); "
-            "sys.exit(3 if 'viser' in sys.modules else 0)")
+    code = (
+        "import sys; from mistool.cli import build_parser; build_parser(); "
+        "sys.exit(3 if 'viser' in sys.modules else 0)"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr

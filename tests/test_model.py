@@ -28,24 +28,29 @@ def test_box_corners(angle: float) -> None:
     assert math.degrees(math.atan2(edge[1], edge[0])) % 180.0 == pytest.approx(angle)
 
 
-@pytest.mark.parametrize("kwargs", [
-    {"length": 1.0, "width": 2.0, "angle_deg": 0.0},
-    {"length": 2.0, "width": 1.0, "angle_deg": 180.0},
-    {"length": 2.0, "width": 1.0, "angle_deg": -0.1},
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"length": 1.0, "width": 2.0, "angle_deg": 0.0},
+        {"length": 2.0, "width": 1.0, "angle_deg": 180.0},
+        {"length": 2.0, "width": 1.0, "angle_deg": -0.1},
+    ],
+)
 def test_box_rejects_non_canonical(kwargs: dict) -> None:
     with pytest.raises(ValueError):
         RotatedBox(cx=0.0, cy=0.0, **kwargs)
 
 
 def _table() -> TrackTable:
-    return TrackTable({
-        "part": ["clasper", "shaft", "shaft", "wrist"],
-        "frame": [1, 1, 0, 1],
-        "instrument": ["b", "b", "a", "a"],
-        "cx_px": [1.0, 2.0, 3.0, 4.0],
-        "extra": [9, 8, 7, 6],
-    })
+    return TrackTable(
+        {
+            "part": ["clasper", "shaft", "shaft", "wrist"],
+            "frame": [1, 1, 0, 1],
+            "instrument": ["b", "b", "a", "a"],
+            "cx_px": [1.0, 2.0, 3.0, 4.0],
+            "extra": [9, 8, 7, 6],
+        }
+    )
 
 
 def test_table_columns_keep_the_fixed_order() -> None:
@@ -63,10 +68,14 @@ def test_table_selection_sort_concat_groups() -> None:
     s = t.sorted()
     assert s["frame"].tolist() == [0, 1, 1, 1]
     assert list(zip(s["instrument"], s["part"], strict=True))[1:] == [
-        ("a", "wrist"), ("b", "shaft"), ("b", "clasper")]
+        ("a", "wrist"),
+        ("b", "shaft"),
+        ("b", "clasper"),
+    ]
     assert t[t["frame"] == 1].num_rows == 3 and t[1:3]["cx_px"].tolist() == [2.0, 3.0]
-    c = TrackTable.concat([t, TrackTable({"frame": [5], "instrument": ["c"], "part": ["shaft"],
-                                          "dz": [0.5]})])
+    c = TrackTable.concat(
+        [t, TrackTable({"frame": [5], "instrument": ["c"], "part": ["shaft"], "dz": [0.5]})]
+    )
     assert c.num_rows == 5 and np.isnan(c["cx_px"][4]) and np.isnan(c["dz"][0])
     assert c["dz"][4] == 0.5
     groups = dict(t.groups("instrument"))

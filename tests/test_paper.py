@@ -41,8 +41,11 @@ def xy(corners):
 
 def table(rows):
     """rows: (frame, instrument, part, corners)."""
-    cols = {"frame": [r[0] for r in rows], "instrument": [r[1] for r in rows],
-            "part": [r[2] for r in rows]}
+    cols = {
+        "frame": [r[0] for r in rows],
+        "instrument": [r[1] for r in rows],
+        "part": [r[2] for r in rows],
+    }
     for i in range(4):
         cols[f"x{i + 1}_px"] = [float(r[3][i][0]) for r in rows]
         cols[f"y{i + 1}_px"] = [float(r[3][i][1]) for r in rows]
@@ -55,15 +58,19 @@ def cv_corners(box: RotatedBox):
 
 # Eq. (1) -------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("corners, paper, shoelace", [
-    # B1: sum_{i=1..3} x_i y_{i+1} = 3*1 + 3*1 + 7*3 = 27; sum x_{i+1} y_i = 3*3 + 7*1 + 7*1
-    #     = 23 -> A = (27 - 23)/2 = 2. The i = 4 term x4*y1 - x1*y4 = 21 - 9 = 12 -> 8 = 4*2.
-    (B1, 2.0, 8.0),
-    # B2: 4*2 + 4*2 + 10*5 = 66; 4*5 + 10*2 + 10*2 = 60 -> 3. i = 4: 50 - 20 = 30 -> 18.
-    (B2, 3.0, 18.0),
-    # Q: 0*1 + 4*3 + 3*2 = 18; 4*0 + 3*1 + 1*3 = 6 -> 6; i = 4: 1*0 - 0*2 = 0 -> 6 too.
-    (Q, 6.0, 6.0),
-])
+
+@pytest.mark.parametrize(
+    "corners, paper, shoelace",
+    [
+        # B1: sum_{i=1..3} x_i y_{i+1} = 3*1 + 3*1 + 7*3 = 27; sum x_{i+1} y_i = 3*3 + 7*1 + 7*1
+        #     = 23 -> A = (27 - 23)/2 = 2. The i = 4 term x4*y1 - x1*y4 = 21 - 9 = 12 -> 8 = 4*2.
+        (B1, 2.0, 8.0),
+        # B2: 4*2 + 4*2 + 10*5 = 66; 4*5 + 10*2 + 10*2 = 60 -> 3. i = 4: 50 - 20 = 30 -> 18.
+        (B2, 3.0, 18.0),
+        # Q: 0*1 + 4*3 + 3*2 = 18; 4*0 + 3*1 + 1*3 = 6 -> 6; i = 4: 1*0 - 0*2 = 0 -> 6 too.
+        (Q, 6.0, 6.0),
+    ],
+)
 def test_eq1_area_as_printed(corners, paper, shoelace):
     x, y = xy(corners)
     assert area_eq1(x, y) == pytest.approx(paper)
@@ -82,6 +89,7 @@ def test_eq1_depends_on_position_and_can_be_negative():
 
 # Eq. (4), Eq. (2), e_r, e_p, e_y, Eq. (6) ------------------------------------------------
 
+
 def test_general_quadrilateral_by_hand():
     q = paper_quantities(*[v[None] for v in xy(Q)])
     # Eq. 4: (0,0)->(4,1): 1/4; (4,1)->(3,3): 2/-1 = -2; (3,3)->(1,2): -1/-2 = 0.5;
@@ -91,8 +99,7 @@ def test_general_quadrilateral_by_hand():
     #        a2 = atan((0.5 + 2)/(1 - 1)) = atan(+inf) = 90
     #        a3 = atan((2 - 0.5)/(1 + 1)) = atan(0.75) = 36.8698976
     #        a4 = atan((0.25 - 2)/(1 + 0.5)) = atan(-7/6) = -49.3987054
-    np.testing.assert_allclose(q["a"][0], [-77.4711923, 90.0, 36.8698976, -49.3987054],
-                               atol=1e-6)
+    np.testing.assert_allclose(q["a"][0], [-77.4711923, 90.0, 36.8698976, -49.3987054], atol=1e-6)
     # e_r = a1 + a4 - a2 - a3 = -77.4711923 - 49.3987054 - 90 - 36.8698976 = -253.7397953
     # e_p = a3 + a4 - a1 - a2 = 36.8698976 - 49.3987054 + 77.4711923 - 90 = -25.0576155
     # e_y = (180 - (14.0362435 - 63.4349488 + 26.5650512 + 63.4349488)) / 4
@@ -128,13 +135,13 @@ def test_eq2_limits_with_one_infinite_slope():
     # m1 = inf, m2 = 2: limit -1/m2 = -0.5 -> atan = -26.5650512
     # m2 = inf, m1 = 2 (second pair): limit 1/m1 = 0.5 -> 26.5650512
     a = internal_angles_eq2(np.array([[np.inf, 2.0, np.inf, 2.0]]))[0]
-    np.testing.assert_allclose(a, [-26.5650512, 26.5650512, -26.5650512, 26.5650512],
-                               atol=1e-6)
+    np.testing.assert_allclose(a, [-26.5650512, 26.5650512, -26.5650512, 26.5650512], atol=1e-6)
     both = internal_angles_eq2(np.array([[np.inf, -np.inf, 0.0, 1.0]]))[0]
     assert both[0] == 0.0  # two vertical edges are parallel
 
 
 # frame to frame: S, z (Eq. 5), dx, dy, dz, T, R ---------------------------------------
+
 
 def test_two_frames_by_hand():
     t = paper_motion(table([(0, "1", "shaft", B1), (1, "1", "shaft", B2)]), focal_px=2.0)
@@ -152,8 +159,7 @@ def test_two_frames_by_hand():
     assert (t["droll_deg"][1], t["dpitch_deg"][1], t["dyaw_deg"][1]) == (0.0, 0.0, 0.0)
     # with the full shoelace: A = 8 then 18, S = 2.25: z = sqrt(4/8) = 0.7071068,
     # sqrt(4 * 5.0625 / 18) = sqrt(1.125) = 1.0606602
-    s = paper_motion(table([(0, "1", "shaft", B1), (1, "1", "shaft", B2)]), 2.0,
-                     area="shoelace")
+    s = paper_motion(table([(0, "1", "shaft", B1), (1, "1", "shaft", B2)]), 2.0, area="shoelace")
     np.testing.assert_allclose(s["paper_z"], [0.7071068, 1.0606602], atol=1e-7)
     # Eq. 7: T = [[1, 0, dx], [0, 1, dy], [0, 0, dz]]
     T, R = paper_matrices(t)
@@ -162,30 +168,47 @@ def test_two_frames_by_hand():
     assert np.isnan(T[0]).any() and np.isnan(R[0]).any()
 
 
-@pytest.mark.parametrize("droll, dpitch, dyaw, expected", [
-    # R_X(90): [[1,0,0],[0,cos,-sin],[0,sin,cos]] = [[1,0,0],[0,0,-1],[0,1,0]]
-    (90.0, 0.0, 0.0, [[1, 0, 0], [0, 0, -1], [0, 1, 0]]),
-    # R_Y(90): [[cos,0,sin],[0,1,0],[-sin,0,cos]] = [[0,0,1],[0,1,0],[-1,0,0]]
-    (0.0, 90.0, 0.0, [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]),
-    # R_Z(90) R_Y(90) = [[0,-1,0],[1,0,0],[0,0,1]] @ [[0,0,1],[0,1,0],[-1,0,0]]
-    #                 = [[0,-1,0],[0,0,1],[-1,0,0]]
-    (0.0, 90.0, 90.0, [[0, -1, 0], [0, 0, 1], [-1, 0, 0]]),
-    # R_Z(180) = diag(-1, -1, 1)
-    (0.0, 0.0, 180.0, [[-1, 0, 0], [0, -1, 0], [0, 0, 1]]),
-])
+@pytest.mark.parametrize(
+    "droll, dpitch, dyaw, expected",
+    [
+        # R_X(90): [[1,0,0],[0,cos,-sin],[0,sin,cos]] = [[1,0,0],[0,0,-1],[0,1,0]]
+        (90.0, 0.0, 0.0, [[1, 0, 0], [0, 0, -1], [0, 1, 0]]),
+        # R_Y(90): [[cos,0,sin],[0,1,0],[-sin,0,cos]] = [[0,0,1],[0,1,0],[-1,0,0]]
+        (0.0, 90.0, 0.0, [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]),
+        # R_Z(90) R_Y(90) = [[0,-1,0],[1,0,0],[0,0,1]] @ [[0,0,1],[0,1,0],[-1,0,0]]
+        #                 = [[0,-1,0],[0,0,1],[-1,0,0]]
+        (0.0, 90.0, 90.0, [[0, -1, 0], [0, 0, 1], [-1, 0, 0]]),
+        # R_Z(180) = diag(-1, -1, 1)
+        (0.0, 0.0, 180.0, [[-1, 0, 0], [0, -1, 0], [0, 0, 1]]),
+    ],
+)
 def test_eq3_rotation_order(droll, dpitch, dyaw, expected):
-    t = TrackTable({"frame": [0], "instrument": ["1"], "part": ["shaft"], "dx_px": [0.0],
-                    "dy_px": [0.0], "dz": [0.0], "droll_deg": [droll],
-                    "dpitch_deg": [dpitch], "dyaw_deg": [dyaw]})
+    t = TrackTable(
+        {
+            "frame": [0],
+            "instrument": ["1"],
+            "part": ["shaft"],
+            "dx_px": [0.0],
+            "dy_px": [0.0],
+            "dz": [0.0],
+            "droll_deg": [droll],
+            "dpitch_deg": [dpitch],
+            "dyaw_deg": [dyaw],
+        }
+    )
     _, R = paper_matrices(t)
     np.testing.assert_allclose(R[0], expected, atol=1e-12)
 
 
 def test_consecutive_frames_only_and_groups():
     rows = [
-        (5, "2", "clasper", B2), (0, "1", "shaft", B1), (1, "1", "shaft", B2),
+        (5, "2", "clasper", B2),
+        (0, "1", "shaft", B1),
+        (1, "1", "shaft", B2),
         (3, "1", "shaft", B1),  # frame 2 missing: a new run starts
-        (4, "1", "shaft", B2), (4, "2", "clasper", B1), (1, "1", "clasper", B1),
+        (4, "1", "shaft", B2),
+        (4, "2", "clasper", B1),
+        (1, "1", "clasper", B1),
     ]
     t = paper_motion(table(rows), focal_px=2.0)
     has_delta = ~np.isnan(t["dx_px"])
@@ -206,8 +229,9 @@ def test_zero_area_and_degenerate_boxes():
     point = [(5.0, 5.0)] * 4  # a one-pixel part fitted to its pixel centre: 0 x 0
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        t = paper_motion(table([(0, "1", "shaft", B1), (1, "1", "shaft", point),
-                                (2, "1", "shaft", B1)]))
+        t = paper_motion(
+            table([(0, "1", "shaft", B1), (1, "1", "shaft", point), (2, "1", "shaft", B1)])
+        )
     assert np.isnan(t["paper_z"][1])  # A = 0
     assert np.isnan(t["paper_z"][2])  # S = A / 0 is not finite
     assert np.isnan(t["paper_roll_deg"][1])  # zero-length edges have no slope
@@ -234,8 +258,23 @@ def test_empty_and_missing_columns():
 
 # the degeneracies, verified ----------------------------------------------------------
 
-ANGLES = [0.0, 5.0, 17.0, 30.0, 44.0, 45.0, 46.0, 60.0, 89.0, 90.0, 91.0, 120.0, 135.0,
-          150.0, 179.0]
+ANGLES = [
+    0.0,
+    5.0,
+    17.0,
+    30.0,
+    44.0,
+    45.0,
+    46.0,
+    60.0,
+    89.0,
+    90.0,
+    91.0,
+    120.0,
+    135.0,
+    150.0,
+    179.0,
+]
 
 
 def rect_table(angles, centre=(351.3, 270.2), size=(150.0, 20.0)):
@@ -246,8 +285,12 @@ def rect_table(angles, centre=(351.3, 270.2), size=(150.0, 20.0)):
 def test_rectangle_internal_angles_are_all_plus_minus_90():
     rng = np.random.default_rng(3)
     angles = list(rng.uniform(0, 180, 200)) + ANGLES
-    boxes = [RotatedBox(rng.uniform(50, 650), rng.uniform(50, 500), rng.uniform(20, 300),
-                        rng.uniform(5, 20), a) for a in angles]
+    boxes = [
+        RotatedBox(
+            rng.uniform(50, 650), rng.uniform(50, 500), rng.uniform(20, 300), rng.uniform(5, 20), a
+        )
+        for a in angles
+    ]
     c = np.array([cv_corners(b) for b in boxes], dtype=np.float64)
     q = paper_quantities(c[..., 0], c[..., 1])
     np.testing.assert_allclose(np.abs(q["a"]), 90.0, atol=1e-3)
@@ -262,8 +305,9 @@ def test_rectangle_internal_angles_are_all_plus_minus_90():
 
 @pytest.mark.parametrize("angle", ANGLES)
 def test_yaw_term_is_the_box_angle_modulo_90(angle):
-    q = paper_quantities(*[v[None] for v in xy(cv_corners(RotatedBox(351.3, 270.2, 150.0,
-                                                                     20.0, angle)))])
+    q = paper_quantities(
+        *[v[None] for v in xy(cv_corners(RotatedBox(351.3, 270.2, 150.0, 20.0, angle)))]
+    )
     r = angle % 90.0
     # slopes' angles are theta and theta - 90 reduced to (-90, 90]: their sum is
     # 4 (theta mod 90) - 180, so e_y = (180 - that) / 4 = 90 - (theta mod 90);
@@ -282,8 +326,11 @@ def test_z_follows_visible_size_not_depth():
     """A shaft at constant depth sliding into view: z changes with the visible length."""
     lengths = [60.0, 120.0, 180.0, 240.0]
     boxes = [RotatedBox(L / 2, 300.0, L, 20.0, 0.0) for L in lengths]  # entering from x=0
-    t = paper_motion(table([(k, "1", "shaft", cv_corners(b)) for k, b in enumerate(boxes)]),
-                     focal_px=500.0, area="shoelace")
+    t = paper_motion(
+        table([(k, "1", "shaft", cv_corners(b)) for k, b in enumerate(boxes)]),
+        focal_px=500.0,
+        area="shoelace",
+    )
     z = t["paper_z"]
     # frame 0: S = 1, A = 1200: z = 500 / sqrt(1200) = 14.4337567
     # frame k: S = A_k / A_{k-1} = L_k / L_{k-1}, z = 500 S / sqrt(20 L_k):
@@ -293,8 +340,11 @@ def test_z_follows_visible_size_not_depth():
     # a box of constant size gives constant z wherever it is; the same box twice as
     # long (no depth change) gives z / sqrt(2)
     same = [RotatedBox(100.0 + 50 * k, 300.0, 100.0, 20.0, 30.0) for k in range(3)]
-    s = paper_motion(table([(k, "1", "shaft", cv_corners(b)) for k, b in enumerate(same)]),
-                     focal_px=500.0, area="shoelace")
+    s = paper_motion(
+        table([(k, "1", "shaft", cv_corners(b)) for k, b in enumerate(same)]),
+        focal_px=500.0,
+        area="shoelace",
+    )
     np.testing.assert_allclose(s["paper_z"], 500 / math.sqrt(2000.0), rtol=1e-5)
     np.testing.assert_allclose(s["dz"][1:], 0.0, atol=1e-6)
 
@@ -307,7 +357,7 @@ def test_observed_translation_gives_dx_dy():
     rows = []
     for k in range(5):
         img = np.zeros((200, 300), np.uint8)
-        img[50 + 2 * k:70 + 2 * k, 40 + 3 * k:160 + 3 * k] = 160  # 120 x 20 shaft
+        img[50 + 2 * k : 70 + 2 * k, 40 + 3 * k : 160 + 3 * k] = 160  # 120 x 20 shaft
         (inst,) = observe_frame(img, Config())
         rows.append((k, "1", "shaft", inst.parts["shaft"].corners))
     t = paper_motion(table(rows), focal_px=1.0, area="shoelace")

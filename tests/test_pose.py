@@ -41,8 +41,9 @@ def part_obs(mask: np.ndarray) -> SimpleNamespace | None:
     x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
     (cx, cy), (w, h), _ = cv2.minAreaRect(np.stack([xs, ys], 1).astype(np.float32))
     box = SimpleNamespace(cx=cx, cy=cy, length=max(w, h), width=min(w, h))
-    return SimpleNamespace(mask=mask[y0:y1, x0:x1].copy(), offset=(int(x0), int(y0)),
-                           box=box, area_px=len(xs))
+    return SimpleNamespace(
+        mask=mask[y0:y1, x0:x1].copy(), offset=(int(x0), int(y0)), box=box, area_px=len(xs)
+    )
 
 
 def observe(labels: np.ndarray, shaft: int = 160, clasper: int = 70) -> SimpleNamespace:
@@ -62,8 +63,11 @@ def render(J, a, bend=(0.0, 0.0, 0.0), length=10.0, clasper=True):
 
 
 def vec(row: dict, prefix: str) -> np.ndarray:
-    keys = {"end": ("end_x_mm", "end_y_mm", "end_z_mm"), "axis": ("axis_x", "axis_y", "axis_z"),
-            "start": ("start_x_mm", "start_y_mm", "start_z_mm")}[prefix]
+    keys = {
+        "end": ("end_x_mm", "end_y_mm", "end_z_mm"),
+        "axis": ("axis_x", "axis_y", "axis_z"),
+        "start": ("start_x_mm", "start_y_mm", "start_z_mm"),
+    }[prefix]
     return np.array([row[k] for k in keys])
 
 
@@ -74,11 +78,14 @@ def angle_deg(u, v) -> float:
 # --- closed form ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("p0,a", [
-    ([10.0, -5.0, 80.0], [1.0, 0.2, 0.3]),
-    ([-20.0, 15.0, 140.0], [0.1, -1.0, 0.8]),
-    ([0.0, 0.0, 60.0], [0.3, 0.1, -1.0]),
-])
+@pytest.mark.parametrize(
+    "p0,a",
+    [
+        ([10.0, -5.0, 80.0], [1.0, 0.2, 0.3]),
+        ([-20.0, 15.0, 140.0], [0.1, -1.0, 0.8]),
+        ([0.0, 0.0, 60.0], [0.3, 0.1, -1.0]),
+    ],
+)
 def test_axis_from_tangent_planes_is_exact(p0, a):
     """Planes through the origin tangent to a known cylinder give its axis back."""
     p0, a = np.asarray(p0), unit(a)
@@ -96,13 +103,16 @@ def test_axis_from_tangent_planes_is_exact(p0, a):
     assert np.linalg.norm(off - (off @ a) * a) < 1e-9
 
 
-@pytest.mark.parametrize("J,a", [
-    ([0.0, 0.0, 100.0], [1.0, 0.0, 0.0]),      # across the view, frontal
-    ([-15.0, 10.0, 60.0], [0.7, -0.4, 0.6]),   # receding
-    ([20.0, -10.0, 140.0], [-0.3, 0.8, 0.5]),  # far, steep
-    ([5.0, 5.0, 55.0], [0.5, 0.6, -0.6]),      # pointing toward the camera
-    ([10.0, 0.0, 110.0], [1.0, 1.0, 0.0]),     # 45 degrees in the image
-])
+@pytest.mark.parametrize(
+    "J,a",
+    [
+        ([0.0, 0.0, 100.0], [1.0, 0.0, 0.0]),  # across the view, frontal
+        ([-15.0, 10.0, 60.0], [0.7, -0.4, 0.6]),  # receding
+        ([20.0, -10.0, 140.0], [-0.3, 0.8, 0.5]),  # far, steep
+        ([5.0, 5.0, 55.0], [0.5, 0.6, -0.6]),  # pointing toward the camera
+        ([10.0, 0.0, 110.0], [1.0, 1.0, 0.0]),  # 45 degrees in the image
+    ],
+)
 def test_clean_render_gives_pose_back(J, a):
     J, a = np.asarray(J), unit(a)
     labels, tip = render(J, a, bend=(0.0, 0.2, 0.0))
@@ -124,11 +134,14 @@ def test_clean_render_gives_pose_back(J, a):
     assert np.linalg.norm(np.cross(st - J, a)) < 0.5
 
 
-@pytest.mark.parametrize("J,a", [
-    ([-20.0, 0.0, 80.0], [1.0, 0.0, 0.8]),
-    ([10.0, 10.0, 70.0], [-0.3, 0.5, 0.8]),
-    ([0.0, -10.0, 90.0], [0.2, 1.0, 0.3]),
-])
+@pytest.mark.parametrize(
+    "J,a",
+    [
+        ([-20.0, 0.0, 80.0], [1.0, 0.0, 0.8]),
+        ([10.0, 10.0, 70.0], [-0.3, 0.5, 0.8]),
+        ([0.0, -10.0, 90.0], [0.2, 1.0, 0.3]),
+    ],
+)
 def test_tip_is_the_jaw_end_centre_not_its_rim(J, a, monkeypatch):
     """A thick clasper (2 mm radius) receding from the camera: its image ends at the end
     cap's rim, several px beyond the cap's centre (the tip); the tip's pixel is pulled
@@ -144,8 +157,10 @@ def test_tip_is_the_jaw_end_centre_not_its_rim(J, a, monkeypatch):
     def tip_px(cap: float) -> tuple[float, float]:
         monkeypatch.setattr(measure, "_TIP_CAP", cap)
         cl = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 16.0)["clasper"]
-        return (float(np.linalg.norm([cl["aux_u_px"] - uv[0], cl["aux_v_px"] - uv[1]])),
-                float(np.linalg.norm(vec(cl, "end") - tip)))
+        return (
+            float(np.linalg.norm([cl["aux_u_px"] - uv[0], cl["aux_v_px"] - uv[1]])),
+            float(np.linalg.norm(vec(cl, "end") - tip)),
+        )
 
     px_raw, _ = tip_px(0.0)
     px, mm = tip_px(1.0)
@@ -248,8 +263,9 @@ def _pivot_sequence(n: int, seed: int):
     T = np.array([-120.0, -60.0, 20.0])
     js = []
     for k in range(n):
-        target = np.array([10 * math.sin(k / 15), 8 * math.cos(k / 20),
-                           100 + 20 * math.sin(k / 25)])
+        target = np.array(
+            [10 * math.sin(k / 15), 8 * math.cos(k / 20), 100 + 20 * math.sin(k / 25)]
+        )
         js.append(target + rng.normal(0, 0.01, 3))
     js = np.array(js)
     axes = js - T
@@ -274,12 +290,20 @@ def _table(js, axes, frames=None, noise=0.0, seed=1):
     n = len(js)
     frames = np.arange(n) if frames is None else frames
     e = js + rng.normal(0, noise, js.shape) if noise else js
-    return TrackTable({
-        "frame": frames, "instrument": ["1"] * n, "part": ["shaft"] * n,
-        "end_x_mm": e[:, 0], "end_y_mm": e[:, 1], "end_z_mm": e[:, 2],
-        "axis_x": axes[:, 0], "axis_y": axes[:, 1], "axis_z": axes[:, 2],
-        "aux_l1a": np.full(n, np.nan),
-    })
+    return TrackTable(
+        {
+            "frame": frames,
+            "instrument": ["1"] * n,
+            "part": ["shaft"] * n,
+            "end_x_mm": e[:, 0],
+            "end_y_mm": e[:, 1],
+            "end_z_mm": e[:, 2],
+            "axis_x": axes[:, 0],
+            "axis_y": axes[:, 1],
+            "axis_z": axes[:, 2],
+            "aux_l1a": np.full(n, np.nan),
+        }
+    )
 
 
 def test_refine_fills_trocar_smooths_and_drops_aux():
@@ -293,7 +317,8 @@ def test_refine_fills_trocar_smooths_and_drops_aux():
     raw = np.stack([table[c] for c in ("end_x_mm", "end_y_mm", "end_z_mm")], 1)
     sm = np.stack([out[c] for c in ("end_x_mm", "end_y_mm", "end_z_mm")], 1)
     assert np.median(np.linalg.norm(sm - js, axis=1)) < 0.7 * np.median(
-        np.linalg.norm(raw - js, axis=1))
+        np.linalg.norm(raw - js, axis=1)
+    )
     none = refine_sequence(table, cfg, smoothing="none")
     assert np.allclose(none["end_x_mm"], table["end_x_mm"])
     q = np.stack([out[c] for c in ("qw", "qx", "qy", "qz")], 1)
@@ -354,7 +379,7 @@ def test_piece_cut_by_an_occluder_has_no_joint():
 def test_two_tools_merged_into_one_instance():
     """Two tools touching (merged masks): the larger shaft is measured, the clasper,
     which could be either tool's, is left empty."""
-    Ja, aa = np.array([-5.0, 0.0, 80.0]), unit([-1.0, 0.2, 0.3])   # larger (nearer)
+    Ja, aa = np.array([-5.0, 0.0, 80.0]), unit([-1.0, 0.2, 0.3])  # larger (nearer)
     Jb, ab = np.array([12.0, 30.0, 120.0]), unit([1.0, 0.3, 0.4])
     la, tipa = render(Ja, aa)
     lb, tipb = render(Jb, ab)
@@ -387,7 +412,7 @@ def test_robust_line_fit_ignores_outliers():
     rng = np.random.default_rng(4)
     x = np.linspace(0.0, 300.0, 600)
     y = 0.3 * x + 5.0 + rng.uniform(-0.5, 0.5, x.size)  # quantisation-like noise
-    y[::7] += rng.uniform(3.0, 15.0, y[::7].size)        # a notch / another edge
+    y[::7] += rng.uniform(3.0, 15.0, y[::7].size)  # a notch / another edge
     line, inl, sigma = fit_line_robust(np.stack([x, y], 1), x)
     n = np.array([-0.3, 1.0]) / math.hypot(0.3, 1.0)
     if line[:2] @ n < 0:

@@ -24,7 +24,7 @@ def _labels(h: int = 24, w: int = 32, value: int = 160, seed: int = 0) -> np.nda
     rng = np.random.default_rng(seed)
     img = np.zeros((h, w), np.uint8)
     y, x = rng.integers(0, h - 6), rng.integers(0, w - 6)
-    img[y:y + 6, x:x + 6] = value
+    img[y : y + 6, x : x + 6] = value
     img[0, 0] = 70
     return img
 
@@ -136,11 +136,14 @@ def test_one_array_is_not_a_sequence() -> None:
     assert [i for i, _, _ in open_sequence(stack)] == [0, 1, 2]
 
 
-@pytest.mark.parametrize("bad, message", [
-    (np.full((4, 4), -1), "0..65535"),
-    (np.full((4, 4), 0.5), "non-integer"),
-    (np.zeros((4, 4, 2), np.uint8), "shape"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (np.full((4, 4), -1), "0..65535"),
+        (np.full((4, 4), 0.5), "non-integer"),
+        (np.zeros((4, 4, 2), np.uint8), "shape"),
+    ],
+)
 def test_bad_arrays(bad: np.ndarray, message: str) -> None:
     with pytest.raises(MaskFormatError, match=message):
         list(open_sequence([bad]))
@@ -182,7 +185,7 @@ def test_mask_video_widens_single_values(tmp_path: Path) -> None:
     frames = []
     for i in range(4):
         img = np.zeros((48, 64), np.uint8)
-        img[10:30, 5 + i:40 + i] = 160
+        img[10:30, 5 + i : 40 + i] = 160
         img[30:40, 30:45] = 70
         frames.append(img)
         writer.write(img)
@@ -203,8 +206,7 @@ def test_widening_never_overlaps() -> None:
     wide = widen_for_video(cfg)
     assert wide.parts == {"shaft": (6, 14), "wrist": (16, 24), "clasper": (26, 34)}
     cfg = config_from_dict({"instrument": [{"name": "a", "shaft": 100, "clasper": 110}]})
-    assert widen_for_video(cfg).instruments[0].parts == {"shaft": (96, 104),
-                                                          "clasper": (106, 114)}
+    assert widen_for_video(cfg).instruments[0].parts == {"shaft": (96, 104), "clasper": (106, 114)}
 
 
 def test_odd_folder_names(tmp_path: Path) -> None:
@@ -221,22 +223,31 @@ def _png(rows: np.ndarray, filters: list[int], *, depth: int = 8, ctype: int = 0
     import zlib
 
     def chunk(kind: bytes, body: bytes) -> bytes:
-        return (struct.pack(">I", len(body)) + kind + body
-                + struct.pack(">I", zlib.crc32(kind + body)))
+        return (
+            struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        )
 
     h, w = rows.shape
     raw = b"".join(bytes([f]) + rows[i].tobytes() for i, f in enumerate(filters))
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, ctype,
-                                                               0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, ctype, 0, 0, 0))
+        + chunk(b"IDAT", zlib.compress(raw))
+        + chunk(b"IEND", b"")
+    )
 
 
 def _fast_cases() -> list[np.ndarray]:
     rng = np.random.default_rng(7)
-    cases = [np.zeros((5, 7), np.uint8), np.full((3, 4), 255, np.uint8),
-             rng.integers(0, 256, (40, 33)).astype(np.uint8),  # dense: every byte a step
-             np.zeros((1, 1), np.uint8), np.full((1, 1), 9, np.uint8),
-             np.zeros((6, 1), np.uint8), np.arange(256, dtype=np.uint8)[None, :]]
+    cases = [
+        np.zeros((5, 7), np.uint8),
+        np.full((3, 4), 255, np.uint8),
+        rng.integers(0, 256, (40, 33)).astype(np.uint8),  # dense: every byte a step
+        np.zeros((1, 1), np.uint8),
+        np.full((1, 1), 9, np.uint8),
+        np.zeros((6, 1), np.uint8),
+        np.arange(256, dtype=np.uint8)[None, :],
+    ]
     last = np.zeros((9, 11), np.uint8)
     last[-1, -1] = 200
     cases.append(last)
@@ -244,8 +255,9 @@ def _fast_cases() -> list[np.ndarray]:
         img = np.zeros((57 + k, 71), np.uint8)
         for _ in range(8):
             y, x = rng.integers(0, 50), rng.integers(0, 60)
-            img[y:y + rng.integers(1, 30), x:x + rng.integers(1, 40)] = rng.choice(
-                [0, 1, 70, 160, 255])
+            img[y : y + rng.integers(1, 30), x : x + rng.integers(1, 40)] = rng.choice(
+                [0, 1, 70, 160, 255]
+            )
         cases.append(img)
     return cases
 

@@ -54,18 +54,20 @@ def _limb_lines(p0: np.ndarray, a: np.ndarray, r: float) -> list[np.ndarray]:
     lines = []
     for sgn in (1.0, -1.0):
         cos_phi = r / rho
-        m = cos_phi * e1 + sgn * math.sqrt(1 - cos_phi ** 2) * e2
-        line = np.array([m[0] / c.fx, m[1] / c.fy,
-                         m[2] - m[0] * c.cx / c.fx - m[1] * c.cy / c.fy])
+        m = cos_phi * e1 + sgn * math.sqrt(1 - cos_phi**2) * e2
+        line = np.array([m[0] / c.fx, m[1] / c.fy, m[2] - m[0] * c.cx / c.fx - m[1] * c.cy / c.fy])
         lines.append(line / math.hypot(line[0], line[1]))  # m . p0 = r > 0: positive side
     return lines
 
 
-@pytest.mark.parametrize("p0,a", [
-    ((-60.0, -30.0, 70.0), (1.0, 0.45, 0.35)),
-    ((40.0, 50.0, 120.0), (-0.7, -0.6, -0.2)),
-    ((-5.0, -120.0, 90.0), (0.1, 1.0, 0.05)),   # near-vertical in the image
-])
+@pytest.mark.parametrize(
+    "p0,a",
+    [
+        ((-60.0, -30.0, 70.0), (1.0, 0.45, 0.35)),
+        ((40.0, 50.0, 120.0), (-0.7, -0.6, -0.2)),
+        ((-5.0, -120.0, 90.0), (0.1, 1.0, 0.05)),  # near-vertical in the image
+    ],
+)
 def test_cylinder_silhouette_is_bounded_by_its_analytic_limb_lines(p0, a):
     p0 = np.array(p0)
     a = np.array(a) / np.linalg.norm(a)
@@ -81,7 +83,7 @@ def test_cylinder_silhouette_is_bounded_by_its_analytic_limb_lines(p0, a):
     # axial coordinate of the closest point of each ray to the axis
     w0 = -p0
     da, dw, dd = d @ a, d @ w0, np.sum(d * d, -1)
-    t = (da * (w0 @ a) - dw) / (dd - da ** 2)
+    t = (da * (w0 @ a) - dw) / (dd - da**2)
     s = t * da + w0 @ a
     middle = (s > 20) & (s < length - 20) & (t > 5)
     assert middle.sum() > 2000
@@ -104,8 +106,8 @@ def test_cylinder_silhouette_is_bounded_by_its_analytic_limb_lines(p0, a):
         mine = np.abs(dist) < np.abs(pts @ other[:2] + other[2])
         dist = dist[mine]
         assert len(dist) > 50
-        assert np.abs(dist).max() <= 0.5 + 1e-4      # within half a pixel step
-        assert abs(dist.mean()) < 0.1                 # and unbiased: sub-pixel agreement
+        assert np.abs(dist).max() <= 0.5 + 1e-4  # within half a pixel step
+        assert abs(dist.mean()) < 0.1  # and unbiased: sub-pixel agreement
 
 
 @pytest.mark.parametrize("bias", [0.5, -0.5, 0.3])
@@ -115,8 +117,9 @@ def test_fractional_bias_moves_limb_lines_by_bias_px(bias):
     pixels), and the clean render (the truth's) does not change."""
     p0 = np.array([-60.0, -30.0, 70.0])
     a = np.array([1.0, 0.45, 0.35]) / np.linalg.norm([1.0, 0.45, 0.35])
-    parts = [[PartGeometry("shaft", (Cylinder(p0, a, 200.0, 4.0),), np.zeros(3), np.zeros(3),
-                           np.eye(3))]]
+    parts = [
+        [PartGeometry("shaft", (Cylinder(p0, a, 200.0, 4.0),), np.zeros(3), np.zeros(3), np.eye(3))]
+    ]
     caster = RayCaster(CAM)
     clean = caster.render(parts).instance > 0
     mask = caster.render(parts, bias_px=bias).instance > 0
@@ -127,13 +130,17 @@ def test_fractional_bias_moves_limb_lines_by_bias_px(bias):
     c = CAM.camera
     d = np.stack([(uu - c.cx) / c.fx, (vv - c.cy) / c.fy, np.ones_like(uu, float)], -1)
     da, dd = d @ a, np.sum(d * d, -1)
-    t = (da * (-p0 @ a) + d @ p0) / (dd - da ** 2)
+    t = (da * (-p0 @ a) + d @ p0) / (dd - da**2)
     s = t * da - p0 @ a
     middle = (s > 20) & (s < 180) & (t > 5)
     side = np.min([ln[0] * uu + ln[1] * vv + ln[2] for ln in lines], axis=0)  # signed px
     clear = middle & (np.abs(side + bias) > 0.01)
-    band = clear & (np.abs(side) > 0.01) & (np.minimum(side, side + bias) < 0) \
+    band = (
+        clear
+        & (np.abs(side) > 0.01)
+        & (np.minimum(side, side + bias) < 0)
         & (np.maximum(side, side + bias) > 0)
+    )
     assert np.count_nonzero(band) > 300  # pixels whose verdict the bias changes
     assert np.array_equal(mask[clear], side[clear] > -bias)
     assert np.array_equal(clean[band], ~mask[band])
@@ -151,8 +158,7 @@ def test_fractional_bias_grows_spheres_and_caps_by_bias_px(bias):
         a1 = np.count_nonzero(caster.render(parts, bias_px=bias).instance)
         # the near-circular outline's equivalent radius grows by the bias (pixel-count
         # quantisation: a few hundredths of a px)
-        assert math.sqrt(a1 / math.pi) - math.sqrt(a0 / math.pi) == pytest.approx(bias,
-                                                                                abs=0.1)
+        assert math.sqrt(a1 / math.pi) - math.sqrt(a0 / math.pi) == pytest.approx(bias, abs=0.1)
 
 
 def test_sphere_depth_and_outline_are_exact():
@@ -162,17 +168,16 @@ def test_sphere_depth_and_outline_are_exact():
     u, v = CAM.project(c)
     # the ray through the projected centre hits at distance |c| - r, depth scaled by z
     ui, vi = int(round(u)), int(round(v))
-    d = np.array([(ui - CAM.camera.cx) / CAM.camera.fx, (vi - CAM.camera.cy) / CAM.camera.fy,
-                  1.0])
+    d = np.array([(ui - CAM.camera.cx) / CAM.camera.fx, (vi - CAM.camera.cy) / CAM.camera.fy, 1.0])
     b = d @ c
     t_exact = (b - math.sqrt(b * b - (d @ d) * (c @ c - r * r))) / (d @ d)
     assert buf.depth[vi, ui] == pytest.approx(t_exact, abs=1e-3)
     # a pixel is inside iff its ray passes within r of the centre
-    vv, uu = np.mgrid[0:CAM.height, 0:CAM.width]
+    vv, uu = np.mgrid[0 : CAM.height, 0 : CAM.width]
     dx = (uu - CAM.camera.cx) / CAM.camera.fx
     dy = (vv - CAM.camera.cy) / CAM.camera.fy
-    dist2 = (dx ** 2 + dy ** 2 + 1) * (c @ c) - (dx * c[0] + dy * c[1] + c[2]) ** 2
-    dist2 /= dx ** 2 + dy ** 2 + 1
+    dist2 = (dx**2 + dy**2 + 1) * (c @ c) - (dx * c[0] + dy * c[1] + c[2]) ** 2
+    dist2 /= dx**2 + dy**2 + 1
     clear = np.abs(dist2 - r * r) > 1e-3
     assert np.array_equal((buf.instance > 0)[clear], (dist2 <= r * r)[clear])
 
@@ -194,8 +199,15 @@ def test_nearer_instrument_hides_the_farther_one():
 
 
 def _pose(axis, insertion=110.0, roll=0.0, wrist=0.0, yaw=0.0, jaw=30.0):
-    return InstrumentPose(np.array([100.0, -40.0, 5.0]), np.asarray(axis, float) /
-                          np.linalg.norm(axis), insertion, roll, wrist, yaw, jaw)
+    return InstrumentPose(
+        np.array([100.0, -40.0, 5.0]),
+        np.asarray(axis, float) / np.linalg.norm(axis),
+        insertion,
+        roll,
+        wrist,
+        yaw,
+        jaw,
+    )
 
 
 def test_projected_joint_sits_on_the_shaft_clasper_boundary():
@@ -214,8 +226,9 @@ def test_projected_joint_sits_on_the_shaft_clasper_boundary():
     uj, vj = CAM.project(parts[0].end_mm)
     shaft = buf.part == PART_CODES["shaft"]
     head = buf.part >= PART_CODES["wrist"]
-    border = shaft & (np.roll(head, 1, 0) | np.roll(head, -1, 0) | np.roll(head, 1, 1) |
-                      np.roll(head, -1, 1))
+    border = shaft & (
+        np.roll(head, 1, 0) | np.roll(head, -1, 0) | np.roll(head, 1, 1) | np.roll(head, -1, 1)
+    )
     ys, xs = np.nonzero(border)
     assert len(xs) > 10
     assert np.hypot(xs - uj, ys - vj).min() <= 1.0
@@ -260,8 +273,7 @@ def test_motion_is_smooth_pivots_about_a_fixed_trocar_and_stays_in_depth():
         assert not (0 <= u < CAM.width and 0 <= v < CAM.height)
         joints = np.array([p.trocar_mm + p.insertion_mm * p.axis for p in inst])
         uv = CAM.project(joints)
-        seen = (uv[:, 0] >= 0) & (uv[:, 0] < CAM.width) & (uv[:, 1] >= 0) & \
-            (uv[:, 1] < CAM.height)
+        seen = (uv[:, 0] >= 0) & (uv[:, 0] < CAM.width) & (uv[:, 1] >= 0) & (uv[:, 1] < CAM.height)
         assert seen.mean() > 0.5
         z = joints[seen, 2]
         assert z.min() >= DEPTH_RANGE_MM[0] and z.max() <= DEPTH_RANGE_MM[1]
@@ -274,10 +286,10 @@ def test_motion_is_smooth_pivots_about_a_fixed_trocar_and_stays_in_depth():
 
 def test_leave_view_takes_the_tool_out_and_back():
     geom = InstrumentGeometry()
-    inst = generate_motion(CAM, [geom], 250, 25.0, seed=1,
-                           options=MotionOptions(leave_view=True))[0]
-    buf = [RayCaster(CAM).render([instrument_parts(p, geom)]).instance.any()
-           for p in inst[::5]]
+    inst = generate_motion(CAM, [geom], 250, 25.0, seed=1, options=MotionOptions(leave_view=True))[
+        0
+    ]
+    buf = [RayCaster(CAM).render([instrument_parts(p, geom)]).instance.any() for p in inst[::5]]
     runs = np.flatnonzero(np.diff(np.array(buf, int)))
     assert len(runs) >= 3  # enters, leaves, comes back
 
@@ -296,15 +308,23 @@ def test_same_seed_same_files_other_seed_other_files(tmp_path):
     assert (a.path / "truth.csv").read_text() != (c.path / "truth.csv").read_text()
 
 
-@pytest.mark.parametrize("corr", [
-    Corruptions(jitter_px=2.0), Corruptions(bias_px=2), Corruptions(bias_px=-2),
-    Corruptions(bias_px=0.5),
-    Corruptions(holes=6), Corruptions(speckle=20), Corruptions(occluders=3),
-    Corruptions(hide_clasper=1.0),
-])
+@pytest.mark.parametrize(
+    "corr",
+    [
+        Corruptions(jitter_px=2.0),
+        Corruptions(bias_px=2),
+        Corruptions(bias_px=-2),
+        Corruptions(bias_px=0.5),
+        Corruptions(holes=6),
+        Corruptions(speckle=20),
+        Corruptions(occluders=3),
+        Corruptions(hide_clasper=1.0),
+    ],
+)
 def test_corruptions_change_masks_never_truth(tmp_path, corr):
-    kw = dict(frames=4, instruments=2, seed=2,
-              scene=SceneOptions(motion=MotionOptions(enter=False)))
+    kw = dict(
+        frames=4, instruments=2, seed=2, scene=SceneOptions(motion=MotionOptions(enter=False))
+    )
     clean = synthesize(tmp_path / "clean", **kw)
     bad = synthesize(tmp_path / "bad", corruptions=corr, **kw)
     assert (clean.path / "truth.csv").read_text() == (bad.path / "truth.csv").read_text()
@@ -312,8 +332,13 @@ def test_corruptions_change_masks_never_truth(tmp_path, corr):
 
 
 def test_truth_boxes_are_the_clean_masks_boxes(tmp_path):
-    res = synthesize(tmp_path / "s", frames=3, instruments=1, seed=4,
-                     scene=SceneOptions(motion=MotionOptions(enter=False)))
+    res = synthesize(
+        tmp_path / "s",
+        frames=3,
+        instruments=1,
+        seed=4,
+        scene=SceneOptions(motion=MotionOptions(enter=False)),
+    )
     truth = read_csv(res.path / "truth.csv")
     cfg = load_config(res.path)
     for f in range(3):
@@ -345,8 +370,13 @@ def test_truth_boxes_are_the_clean_masks_boxes(tmp_path):
 
 
 def test_visible_fraction_counts_what_the_other_instrument_hides(tmp_path):
-    res = synthesize(tmp_path / "s", frames=60, instruments=2, seed=0,
-                     scene=SceneOptions(motion=MotionOptions(enter=False)))
+    res = synthesize(
+        tmp_path / "s",
+        frames=60,
+        instruments=2,
+        seed=0,
+        scene=SceneOptions(motion=MotionOptions(enter=False)),
+    )
     v = read_csv(res.path / "truth.csv")["visible_frac"]
     assert np.all((v > 0) & (v <= 1.0))
     assert (v < 0.999).any() and (v == 1.0).mean() > 0.5  # tools cross, mostly apart
@@ -359,21 +389,28 @@ def test_folder_config_and_labels(tmp_path):
     assert cfg.camera is not None and cfg.camera.fx == 600.0
     assert cfg.shaft_diameter_mm == 8.0
     assert cfg.clasper_length_mm == pytest.approx(16.0)
-    res = synthesize(tmp_path / "d", frames=2, instruments=2, preset="endovis15",
-                     distinct_labels=True)
+    res = synthesize(
+        tmp_path / "d", frames=2, instruments=2, preset="endovis15", distinct_labels=True
+    )
     cfg = load_config(res.path)
     assert [i.name for i in cfg.instruments] == ["1", "2"]
     assert cfg.instruments[1].parts == {"shaft": (159, 159), "clasper": (69, 69)}
     assert cfg.instruments[0].shaft_diameter_mm == 8.0
-    lap = synthesize(tmp_path / "l", frames=2, instruments=1,
-                     scene=SceneOptions(tool="laparoscopic"))
+    lap = synthesize(
+        tmp_path / "l", frames=2, instruments=1, scene=SceneOptions(tool="laparoscopic")
+    )
     assert load_config(lap.path).shaft_diameter_mm == 5.0
     assert np.all(read_csv(lap.path / "truth.csv")["wrist_deg"] == 0.0)
 
 
 def test_video_is_written_and_its_ranges_hold_the_smeared_values(tmp_path):
-    res = synthesize(tmp_path / "v", frames=5, instruments=2, video="mjpg",
-                     scene=SceneOptions(motion=MotionOptions(enter=False)))
+    res = synthesize(
+        tmp_path / "v",
+        frames=5,
+        instruments=2,
+        video="mjpg",
+        scene=SceneOptions(motion=MotionOptions(enter=False)),
+    )
     checked = 0
     cap = cv2.VideoCapture(str(res.path / "masks.avi"))
     n = 0
@@ -464,18 +501,28 @@ def test_bundled_sample_is_a_small_endovis15_sequence_with_truth():
     assert np.ptp(truth["jaw_open_deg"]) > 20  # and grasp
 
 
-@pytest.mark.parametrize("preset,parts", [("endovis15", ["shaft", "clasper"]),
-                                          ("endovis17", ["shaft", "wrist", "clasper"])])
+@pytest.mark.parametrize(
+    "preset,parts",
+    [("endovis15", ["shaft", "clasper"]), ("endovis17", ["shaft", "wrist", "clasper"])],
+)
 def test_truth_parts_are_linked_segments_along_their_axes(tmp_path, preset, parts):
-    res = synthesize(tmp_path / "s", frames=3, instruments=1, preset=preset, seed=3,
-                     scene=SceneOptions(motion=MotionOptions(enter=False)))
+    res = synthesize(
+        tmp_path / "s",
+        frames=3,
+        instruments=1,
+        preset=preset,
+        seed=3,
+        scene=SceneOptions(motion=MotionOptions(enter=False)),
+    )
     t = read_csv(res.path / "truth.csv")
     for f in range(3):
         rows = {p: np.flatnonzero((t["frame"] == f) & (t["part"] == p))[0] for p in parts}
 
         def vec(prefix: str, r: int, t=t) -> np.ndarray:
-            return np.array([t[f"{prefix}_{a}" + ("_mm" if prefix != "axis" else "")][r]
-                             for a in "xyz"])
+            return np.array(
+                [t[f"{prefix}_{a}" + ("_mm" if prefix != "axis" else "")][r] for a in "xyz"]
+            )
+
         for k, p in enumerate(parts):
             r = rows[p]
             seg = vec("end", r) - vec("start", r)

@@ -35,9 +35,17 @@ def fill_box(img: np.ndarray, box: RotatedBox, value: int) -> None:
     img[yy[inside], xx[inside]] = value
 
 
-def draw_tool(img: np.ndarray, tip: tuple[float, float], angle_deg: float, *,
-              shaft=SHAFT, clasper=CLASPER, shaft_len=260.0, width=22.0,
-              clasper_len=40.0) -> None:
+def draw_tool(
+    img: np.ndarray,
+    tip: tuple[float, float],
+    angle_deg: float,
+    *,
+    shaft=SHAFT,
+    clasper=CLASPER,
+    shaft_len=260.0,
+    width=22.0,
+    clasper_len=40.0,
+) -> None:
     """A shaft coming from direction ``angle_deg + 180`` (from beyond the image border, as
     real shafts do) and a clasper ending at ``tip``.
     ``angle_deg`` is the distal direction, from +x towards +y."""
@@ -61,6 +69,7 @@ def frame(*tools: tuple[tuple[float, float], float], shaft_len: float = 260.0) -
 
 # observe_frame ----------------------------------------------------------------------
 
+
 def test_one_instrument_parts_and_boxes():
     img = frame(((400.0, 300.0), 20.0))
     (inst,) = observe_frame(img, MERGED)
@@ -74,21 +83,23 @@ def test_one_instrument_parts_and_boxes():
     assert inst.area_px == shaft.area_px + clasper.area_px
     ys, xs = np.nonzero(img)
     assert inst.centroid_px == pytest.approx((xs.mean(), ys.mean()))
-    assert inst.bbox_xywh == (xs.min(), ys.min(), xs.max() - xs.min() + 1,
-                              ys.max() - ys.min() + 1)
+    assert inst.bbox_xywh == (xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
     # the part's crop and offset give back exactly its pixels
     back = np.zeros_like(img, bool)
     x0, y0 = shaft.offset
     h, w = shaft.mask.shape
-    back[y0:y0 + h, x0:x0 + w] = shaft.mask
+    back[y0 : y0 + h, x0 : x0 + w] = shaft.mask
     assert np.array_equal(back, img == SHAFT)
 
 
-@pytest.mark.parametrize("tools, expected", [
-    ([((300.0, 200.0), 10.0)], 1),
-    ([((300.0, 150.0), 10.0), ((420.0, 450.0), 170.0)], 2),
-    ([((200.0, 100.0), 30.0), ((500.0, 300.0), 160.0), ((360.0, 520.0), 270.0)], 3),
-])
+@pytest.mark.parametrize(
+    "tools, expected",
+    [
+        ([((300.0, 200.0), 10.0)], 1),
+        ([((300.0, 150.0), 10.0), ((420.0, 450.0), 170.0)], 2),
+        ([((200.0, 100.0), 30.0), ((500.0, 300.0), 160.0), ((360.0, 520.0), 270.0)], 3),
+    ],
+)
 def test_instances_by_connectivity(tools, expected):
     insts = observe_frame(frame(*tools), MERGED)
     assert len(insts) == expected
@@ -122,20 +133,23 @@ def test_clasper_across_one_pixel_gap_stays_one_instrument():
     assert len(observe_frame(img, MERGED)) == 1
 
 
-@pytest.mark.parametrize("second_area, gap, value, expected", [
-    (10 * 30, 25, CLASPER, 1),  # a jaw 25 px from a shaft: part of that instrument
-    (10 * 30, 80, CLASPER, 1),  # heads reach 0.8 sqrt(11200) = 85 px
-    (10 * 30, 100, CLASPER, 2),  # too far: its own instrument
-    (10 * 30, 25, SHAFT, 1),    # a small shaft piece close by: a fragment
-    (10 * 30, 45, SHAFT, 2),    # ... but fragments reach only 30 px
-    (40 * 100, 25, SHAFT, 2),   # a large shaft nearby is never a fragment
-])
+@pytest.mark.parametrize(
+    "second_area, gap, value, expected",
+    [
+        (10 * 30, 25, CLASPER, 1),  # a jaw 25 px from a shaft: part of that instrument
+        (10 * 30, 80, CLASPER, 1),  # heads reach 0.8 sqrt(11200) = 85 px
+        (10 * 30, 100, CLASPER, 2),  # too far: its own instrument
+        (10 * 30, 25, SHAFT, 1),  # a small shaft piece close by: a fragment
+        (10 * 30, 45, SHAFT, 2),  # ... but fragments reach only 30 px
+        (40 * 100, 25, SHAFT, 2),  # a large shaft nearby is never a fragment
+    ],
+)
 def test_fragments_join_their_instrument(second_area, gap, value, expected):
     img = np.zeros((300, 400), np.uint8)
     img[100:140, 20:300] = SHAFT  # 11200 px
     h = 10 if second_area == 300 else 40
     w = second_area // h
-    img[140 + gap:140 + gap + h, 250:250 + w] = value
+    img[140 + gap : 140 + gap + h, 250 : 250 + w] = value
     assert len(observe_frame(img, MERGED)) == expected
 
 
@@ -166,10 +180,14 @@ def test_min_area_zero_keeps_one_pixel_parts():
 
 
 def test_own_label_values():
-    cfg = config_from_dict({"instrument": [
-        {"name": "left", "shaft": 160, "clasper": 70},
-        {"name": "right", "shaft": [100, 110], "clasper": 50},
-    ]})
+    cfg = config_from_dict(
+        {
+            "instrument": [
+                {"name": "left", "shaft": 160, "clasper": 70},
+                {"name": "right", "shaft": [100, 110], "clasper": 50},
+            ]
+        }
+    )
     img = np.zeros((H, W), np.uint8)
     draw_tool(img, (300.0, 300.0), 0.0, shaft=160, clasper=70)
     draw_tool(img, (330.0, 310.0), 180.0, shaft=105, clasper=50)  # touching: still two
@@ -204,6 +222,7 @@ def test_unknown_values():
 
 
 # IdentityTracker ----------------------------------------------------------------------
+
 
 def run(frames: list[list[tuple[str, tuple[float, float], float]]], max_gap_s: float = 2.0):
     """Track drawn frames; returns, per frame, {true tool: assigned name} matched by the
@@ -316,8 +335,9 @@ def test_resolve_splits_crossing_instruments():
             # the drawn shaft's axis passes through the joint, 40 px behind the tip
             t = math.radians(ang)
             joint = np.array(tip) - 40.0 * np.array([math.cos(t), math.sin(t)])
-            axis_dist = abs(-(shaft.cx - joint[0]) * math.sin(t)
-                            + (shaft.cy - joint[1]) * math.cos(t))
+            axis_dist = abs(
+                -(shaft.cx - joint[0]) * math.sin(t) + (shaft.cy - joint[1]) * math.cos(t)
+            )
             assert abs(((shaft.angle_deg - ang % 180.0) + 90) % 180 - 90) < 2.0, (k, name)
             assert axis_dist < 3.0, (k, name)
     assert split_frames >= 10
@@ -366,9 +386,18 @@ def test_bundled_sample_identities_and_split():
     folder = sample_masks_dir()
     cfg = load_config(folder)
     truth = read_csv(folder / "truth.csv")
-    want = {(int(f), str(i), str(p)): (x, y, a) for f, i, p, x, y, a in zip(
-        truth["frame"], truth["instrument"], truth["part"], truth["cx_px"], truth["cy_px"],
-        truth["angle_deg"], strict=True)}
+    want = {
+        (int(f), str(i), str(p)): (x, y, a)
+        for f, i, p, x, y, a in zip(
+            truth["frame"],
+            truth["instrument"],
+            truth["part"],
+            truth["cx_px"],
+            truth["cy_px"],
+            truth["angle_deg"],
+            strict=True,
+        )
+    }
     tracker = IdentityTracker(cfg)
     pairs: dict[tuple[str, str], int] = {}
     seen: set[tuple[int, str, str]] = set()
@@ -379,8 +408,11 @@ def test_bundled_sample_identities_and_split():
         for inst, name in zip(insts, names, strict=True):
             for part, obs in inst.parts.items():
                 # which true instrument is this? the nearest true box of that part
-                cands = [(math.hypot(obs.box.cx - x, obs.box.cy - y), i, a)
-                         for (f, i, p), (x, y, a) in want.items() if f == k and p == part]
+                cands = [
+                    (math.hypot(obs.box.cx - x, obs.box.cy - y), i, a)
+                    for (f, i, p), (x, y, a) in want.items()
+                    if f == k and p == part
+                ]
                 if not cands:
                     continue
                 d, true_name, a = min(cands)
@@ -433,8 +465,14 @@ def test_shaft_cut_by_an_occluder_is_one_instrument(offset, expected):
         assert got.angle_deg == pytest.approx(full.angle_deg, abs=0.5)
 
 
-def _open_tool(img: np.ndarray, joint: tuple[float, float], angle_deg: float,
-               open_deg: float = 25.0, width: float = 30.0, jaw_len: float = 70.0) -> None:
+def _open_tool(
+    img: np.ndarray,
+    joint: tuple[float, float],
+    angle_deg: float,
+    open_deg: float = 25.0,
+    width: float = 30.0,
+    jaw_len: float = 70.0,
+) -> None:
     """A shaft from beyond the image border to ``joint`` and two open jaws from there
     (``angle_deg`` distal, from +x towards +y)."""
     t = math.radians(angle_deg)
@@ -448,8 +486,10 @@ def _open_tool(img: np.ndarray, joint: tuple[float, float], angle_deg: float,
         fill_box(img, RotatedBox(c[0], c[1], jaw_len, 10.0, a % 180.0), CLASPER)
 
 
-@pytest.mark.parametrize("band_x, angle", [(520.0, 180.0), (520.0, 160.0), (560.0, 180.0),
-                                           (560.0, 200.0), (560.0, 160.0)])
+@pytest.mark.parametrize(
+    "band_x, angle",
+    [(520.0, 180.0), (520.0, 160.0), (560.0, 180.0), (560.0, 200.0), (560.0, 160.0)],
+)
 def test_tool_cut_by_a_band_keeps_one_name(band_x, angle):
     """A tool entering from the right slides under a 30 px band of tissue (background
     value) across its axis: the band cuts its shaft, its jaws, or the shaft just behind
@@ -471,8 +511,9 @@ def _meeting(n_tools: int, k: int) -> np.ndarray:
     """Tools entering from the left, the right (and the bottom), their jaws meeting near
     the image centre at k = 0 and drawing apart, 4 px per frame, afterwards."""
     img = np.zeros((H, W), np.uint8)
-    for angle, start in [(10.0, (330.0, 270.0)), (165.0, (400.0, 300.0)),
-                         (280.0, (370.0, 340.0))][:n_tools]:
+    for angle, start in [(10.0, (330.0, 270.0)), (165.0, (400.0, 300.0)), (280.0, (370.0, 340.0))][
+        :n_tools
+    ]:
         t = math.radians(angle)
         joint = (start[0] - 4.0 * k * math.cos(t), start[1] - 4.0 * k * math.sin(t))
         _open_tool(img, joint, angle)
@@ -494,9 +535,15 @@ def test_tools_touching_when_they_appear_are_split(n_tools):
         assert len(out) == n_tools, k
         for inst, name in zip(out, names, strict=True):
             s = inst.parts["shaft"].box
-            side = ("left" if s.cx < 250 and abs(s.angle_deg - 10) < 5 else
-                    "right" if s.cx > 450 and abs(s.angle_deg - 165) < 5 else
-                    "bottom" if s.cy > 400 and abs(s.angle_deg - 100) < 5 else "?")
+            side = (
+                "left"
+                if s.cx < 250 and abs(s.angle_deg - 10) < 5
+                else "right"
+                if s.cx > 450 and abs(s.angle_deg - 165) < 5
+                else "bottom"
+                if s.cy > 400 and abs(s.angle_deg - 100) < 5
+                else "?"
+            )
             by_side.setdefault(side, set()).add(name)
     assert merged_frames >= 5  # they do touch for a while
     assert "?" not in by_side
@@ -541,8 +588,13 @@ def test_hole_in_a_shafts_border_contact_does_not_split_the_tool(tmp_path):
     from mistool.api import track
     from mistool.synth import Corruptions, synthesize
 
-    res = synthesize(tmp_path / "s", frames=44, instruments=2, seed=1,
-                     corruptions=Corruptions(jitter_px=1.0, holes=3.0, speckle=10.0))
+    res = synthesize(
+        tmp_path / "s",
+        frames=44,
+        instruments=2,
+        seed=1,
+        corruptions=Corruptions(jitter_px=1.0, holes=3.0, speckle=10.0),
+    )
     table = track(res.path, metric=False)
     shafts = table[table["part"] == "shaft"]
     late = shafts[shafts["frame"] >= 36]

@@ -37,14 +37,19 @@ CAMERA = Camera(fx=600.0, fy=600.0, cx=359.5, cy=287.5)
 
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     w, x, y, z = q
-    r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    r = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     return r @ v
 
 
-@pytest.mark.parametrize("d", [(0, 0, 1), (0, 0, -1), (1, 0, 0), (0, 1, 0),
-                               (0.6, -0.8, 0.0), (0.3, 0.4, -0.866)])
+@pytest.mark.parametrize(
+    "d", [(0, 0, 1), (0, 0, -1), (1, 0, 0), (0, 1, 0), (0.6, -0.8, 0.0), (0.3, 0.4, -0.866)]
+)
 def test_quat_z_to_rotates_z_onto_direction(d: tuple[float, ...]) -> None:
     d = np.asarray(d, float) / np.linalg.norm(d)
     q = quat_z_to(d)
@@ -64,17 +69,49 @@ def _metric_table() -> TrackTable:
         joint = np.array([10.0 + f, 5.0, 80.0])
         shaft_start = joint - np.array([0.0, 0.0, 40.0])
         tip = joint + np.array([0.0, 10.0, 0.0])
-        rows.append(dict(frame=f, instrument="a", part="shaft", cx_px=300, cy_px=200,
-                         length_px=200, width_px=40, angle_deg=0.0,
-                         start_x_mm=shaft_start[0], start_y_mm=shaft_start[1],
-                         start_z_mm=shaft_start[2], end_x_mm=joint[0], end_y_mm=joint[1],
-                         end_z_mm=joint[2], axis_x=0.0, axis_y=0.0, axis_z=1.0))
+        rows.append(
+            dict(
+                frame=f,
+                instrument="a",
+                part="shaft",
+                cx_px=300,
+                cy_px=200,
+                length_px=200,
+                width_px=40,
+                angle_deg=0.0,
+                start_x_mm=shaft_start[0],
+                start_y_mm=shaft_start[1],
+                start_z_mm=shaft_start[2],
+                end_x_mm=joint[0],
+                end_y_mm=joint[1],
+                end_z_mm=joint[2],
+                axis_x=0.0,
+                axis_y=0.0,
+                axis_z=1.0,
+            )
+        )
         # The clasper's own start is off the joint: the viewer attaches it anyway.
-        rows.append(dict(frame=f, instrument="a", part="clasper", cx_px=400, cy_px=220,
-                         length_px=60, width_px=20, angle_deg=90.0,
-                         start_x_mm=joint[0] + 3, start_y_mm=joint[1], start_z_mm=joint[2],
-                         end_x_mm=tip[0], end_y_mm=tip[1], end_z_mm=tip[2],
-                         axis_x=0.0, axis_y=1.0, axis_z=0.0))
+        rows.append(
+            dict(
+                frame=f,
+                instrument="a",
+                part="clasper",
+                cx_px=400,
+                cy_px=220,
+                length_px=60,
+                width_px=20,
+                angle_deg=90.0,
+                start_x_mm=joint[0] + 3,
+                start_y_mm=joint[1],
+                start_z_mm=joint[2],
+                end_x_mm=tip[0],
+                end_y_mm=tip[1],
+                end_z_mm=tip[2],
+                axis_x=0.0,
+                axis_y=1.0,
+                axis_z=0.0,
+            )
+        )
     return TrackTable({k: [r[k] for r in rows] for k in rows[0]})
 
 
@@ -92,8 +129,7 @@ def test_metric_cylinders_are_linked_in_millimetres() -> None:
     shaft_end = g.centre[2, 0, 0] + 0.5 * g.length[2, 0, 0] * _rotate(g.wxyz[2, 0, 0], [0, 0, 1])
     np.testing.assert_allclose(shaft_end, joint_w, atol=1e-9)
     # Clasper: its base is the shaft's end (joint), its end the tip.
-    clasp_base = g.centre[2, 0, 1] - 0.5 * g.length[2, 0, 1] * _rotate(g.wxyz[2, 0, 1],
-                                                                        [0, 0, 1])
+    clasp_base = g.centre[2, 0, 1] - 0.5 * g.length[2, 0, 1] * _rotate(g.wxyz[2, 0, 1], [0, 0, 1])
     np.testing.assert_allclose(clasp_base, joint_w, atol=1e-9)
     assert np.isclose(g.length[2, 0, 1], 10.0 * s)
     # Camera y (down) is world -z: the tip 10 mm "down" in the image is lower in the world.
@@ -106,10 +142,14 @@ def test_metric_cylinders_are_linked_in_millimetres() -> None:
 
 def test_without_camera_or_metric_values_paper_mode_is_the_default() -> None:
     table = _metric_table()
-    paper = {"paper_x_px": table["cx_px"], "paper_y_px": table["cy_px"],
-             "paper_z": np.zeros(table.num_rows), "paper_roll_deg": np.zeros(table.num_rows),
-             "paper_pitch_deg": np.zeros(table.num_rows),
-             "paper_yaw_deg": np.zeros(table.num_rows)}
+    paper = {
+        "paper_x_px": table["cx_px"],
+        "paper_y_px": table["cy_px"],
+        "paper_z": np.zeros(table.num_rows),
+        "paper_roll_deg": np.zeros(table.num_rows),
+        "paper_pitch_deg": np.zeros(table.num_rows),
+        "paper_yaw_deg": np.zeros(table.num_rows),
+    }
     replay = build_replay(table.with_columns(**paper), Config())
     assert list(replay.modes) == ["paper"] and replay.default_mode == "paper"
 
@@ -117,13 +157,24 @@ def test_without_camera_or_metric_values_paper_mode_is_the_default() -> None:
 def test_paper_cylinders_follow_the_papers_scene() -> None:
     """Base at the paper's (x, y, z), length = box length, radius = half the box width,
     axis = +x turned by the yaw, clasper base on the shaft's end (the paper, Section 4)."""
-    table = TrackTable({
-        "frame": [0, 0], "instrument": ["1", "1"], "part": ["shaft", "clasper"],
-        "cx_px": [100.0, 100.0], "cy_px": [50.0, 250.0], "length_px": [200.0, 60.0],
-        "width_px": [40.0, 20.0], "angle_deg": [90.0, 0.0],
-        "paper_x_px": [100.0, 999.0], "paper_y_px": [50.0, 999.0], "paper_z": [0.0, 0.0],
-        "paper_roll_deg": [90.0, 0.0], "paper_pitch_deg": [0.0, 0.0],
-        "paper_yaw_deg": [90.0, 0.0]})
+    table = TrackTable(
+        {
+            "frame": [0, 0],
+            "instrument": ["1", "1"],
+            "part": ["shaft", "clasper"],
+            "cx_px": [100.0, 100.0],
+            "cy_px": [50.0, 250.0],
+            "length_px": [200.0, 60.0],
+            "width_px": [40.0, 20.0],
+            "angle_deg": [90.0, 0.0],
+            "paper_x_px": [100.0, 999.0],
+            "paper_y_px": [50.0, 999.0],
+            "paper_z": [0.0, 0.0],
+            "paper_roll_deg": [90.0, 0.0],
+            "paper_pitch_deg": [0.0, 0.0],
+            "paper_yaw_deg": [90.0, 0.0],
+        }
+    )
     config = Config(camera=CAMERA)  # no metric columns: paper only
     replay = build_replay(table, config, image_wh=(720, 576))
     g = replay.modes["paper"]
@@ -144,13 +195,36 @@ def test_paper_cylinders_follow_the_papers_scene() -> None:
     assert np.isclose(g.radius[0, 0, 1], 10 * s)
 
 
-@pytest.mark.parametrize("columns, message", [
-    ({"frame": [], "instrument": [], "part": []}, "missing column 'cx_px'"),
-    ({"frame": [0], "instrument": ["a"], "part": ["blade"], "cx_px": [1.0], "cy_px": [1.0],
-      "length_px": [2.0], "width_px": [1.0]}, "unknown part"),
-    ({"frame": [0], "instrument": ["a"], "part": ["shaft"], "cx_px": [1.0], "cy_px": [1.0],
-      "length_px": [2.0], "width_px": [1.0]}, "nothing to show"),
-])
+@pytest.mark.parametrize(
+    "columns, message",
+    [
+        ({"frame": [], "instrument": [], "part": []}, "missing column 'cx_px'"),
+        (
+            {
+                "frame": [0],
+                "instrument": ["a"],
+                "part": ["blade"],
+                "cx_px": [1.0],
+                "cy_px": [1.0],
+                "length_px": [2.0],
+                "width_px": [1.0],
+            },
+            "unknown part",
+        ),
+        (
+            {
+                "frame": [0],
+                "instrument": ["a"],
+                "part": ["shaft"],
+                "cx_px": [1.0],
+                "cy_px": [1.0],
+                "length_px": [2.0],
+                "width_px": [1.0],
+            },
+            "nothing to show",
+        ),
+    ],
+)
 def test_bad_tables_raise_one_line_errors(columns: dict, message: str) -> None:
     with pytest.raises(TableError, match=message) as info:
         build_replay(TrackTable(columns), Config())
@@ -190,8 +264,10 @@ def test_overlay_colours_each_instrument_part_and_draws_boxes(sequence) -> None:
         for part in replay.parts:
             c = np.array(replay.part_colour(i, part))
             if replay.modes[replay.default_mode].visible[k, i, replay.parts.index(part)]:
-                assert (np.abs(colours.astype(int) - c).sum(axis=1) == 0).sum() > 20, \
-                    (replay.instruments[i], part)
+                assert (np.abs(colours.astype(int) - c).sum(axis=1) == 0).sum() > 20, (
+                    replay.instruments[i],
+                    part,
+                )
     # Opacity 0 shows no mask; boxes add outline pixels.
     plain = renderer.render(k, opacity=0.0, boxes=False)
     assert len(np.unique(plain.reshape(-1, 3), axis=0)) == 1
@@ -200,8 +276,9 @@ def test_overlay_colours_each_instrument_part_and_draws_boxes(sequence) -> None:
 
 
 @pytest.mark.parametrize("kind", ["folder", "video"])
-def test_overlay_blends_over_the_source_video(kind: str, synth_dir: Path, sequence,
-                                              tmp_path: Path) -> None:
+def test_overlay_blends_over_the_source_video(
+    kind: str, synth_dir: Path, sequence, tmp_path: Path
+) -> None:
     red = np.full((576, 720, 3), (0, 0, 255), np.uint8)  # BGR
     if kind == "folder":
         src = tmp_path / "rgb"
@@ -214,8 +291,9 @@ def test_overlay_blends_over_the_source_video(kind: str, synth_dir: Path, sequen
         for _ in range(5):
             writer.write(red)
         writer.release()
-    config = config_from_dict({"source": str(src), "camera": {"fx": 600.0, "fy": 600.0,
-                                                               "cx": 359.5, "cy": 287.5}})
+    config = config_from_dict(
+        {"source": str(src), "camera": {"fx": 600.0, "fy": 600.0, "cx": 359.5, "cy": 287.5}}
+    )
     frames = FrameStore(synth_dir, config)
     assert frames.has_source and frames.has_masks
     img = OverlayRenderer(sequence.replay, frames).render(0, opacity=0.5, boxes=False)
@@ -279,8 +357,9 @@ def test_cli_serve_prints_the_port_it_really_got(synth_dir: Path) -> None:
     from mistool.cli import build_parser
     from mistool.cli.serve import run
 
-    args = build_parser().parse_args(["serve", str(synth_dir), "--poses",
-                                      str(synth_dir / "truth.csv"), "--port", str(busy)])
+    args = build_parser().parse_args(
+        ["serve", str(synth_dir), "--poses", str(synth_dir / "truth.csv"), "--port", str(busy)]
+    )
     ready, stop = threading.Event(), threading.Event()
     out = io.StringIO()
     result: list[int] = []
@@ -305,19 +384,38 @@ def test_cli_serve_prints_the_port_it_really_got(synth_dir: Path) -> None:
     assert result == [0]
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["serve", "{tmp}/nope"], "no such file"),
-    (["serve", "{seq}", "--poses", "{tmp}/nope.csv"], "no such file"),
-    (["serve", "{seq}", "--port", "70000"], "--port 70000"),
-    (["serve", "{seq}", "--poses", "{seq}/truth.csv", "--host", "no-such-host.invalid"],
-     "--host no-such-host.invalid"),
-    (["serve", "{seq}", "--poses", "{seq}/truth.csv", "--host", "192.0.2.1"],
-     "--host 192.0.2.1"),
-    (["export-html", "{seq}", "--poses", "{seq}/truth.csv", "--stride", "0", "-o",
-      "{tmp}/x.html"], "--stride 0"),
-])
-def test_cli_bad_input_is_one_line_error(argv: list[str], needle: str, synth_dir: Path,
-                                        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["serve", "{tmp}/nope"], "no such file"),
+        (["serve", "{seq}", "--poses", "{tmp}/nope.csv"], "no such file"),
+        (["serve", "{seq}", "--port", "70000"], "--port 70000"),
+        (
+            ["serve", "{seq}", "--poses", "{seq}/truth.csv", "--host", "no-such-host.invalid"],
+            "--host no-such-host.invalid",
+        ),
+        (
+            ["serve", "{seq}", "--poses", "{seq}/truth.csv", "--host", "192.0.2.1"],
+            "--host 192.0.2.1",
+        ),
+        (
+            [
+                "export-html",
+                "{seq}",
+                "--poses",
+                "{seq}/truth.csv",
+                "--stride",
+                "0",
+                "-o",
+                "{tmp}/x.html",
+            ],
+            "--stride 0",
+        ),
+    ],
+)
+def test_cli_bad_input_is_one_line_error(
+    argv: list[str], needle: str, synth_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     argv = [a.format(tmp=tmp_path, seq=synth_dir) for a in argv]
     assert main(argv) == 1
     err = capsys.readouterr().err.strip()
@@ -332,14 +430,15 @@ def test_export_html_is_standalone(sequence, tmp_path: Path) -> None:
     html = out.read_text(encoding="utf-8")
     assert "window.__VISER_EMBED_DATA__=" in html
     # Offline: no script or stylesheet is fetched from elsewhere.
-    assert "<script src=\"http" not in html and "<link rel=\"stylesheet\" href=\"http" not in html
+    assert '<script src="http' not in html and '<link rel="stylesheet" href="http' not in html
     with pytest.raises(MistoolError, match="--mode"):
         export_html(sequence, tmp_path / "y.html", mode="nonsense")
     assert not (tmp_path / "y.html").exists()
 
 
 def test_serve_reuses_the_tracked_table_until_the_sequence_changes(
-        synth_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    synth_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     import shutil
 
     from mistool import api
@@ -361,10 +460,12 @@ def test_serve_reuses_the_tracked_table_until_the_sequence_changes(
     first = load_sequence(seq, cache=True)
     again = load_sequence(seq, cache=True)
     assert len(calls) == 1, "the unchanged sequence was tracked twice"
-    np.testing.assert_allclose(again.replay.modes["metric"].centre,
-                               first.replay.modes["metric"].centre, atol=1e-5)
-    assert not (seq / ".mistool").exists() and len(list(seq.iterdir())) == \
-        len(list(synth_dir.iterdir())), "the sequence folder was written to"
+    np.testing.assert_allclose(
+        again.replay.modes["metric"].centre, first.replay.modes["metric"].centre, atol=1e-5
+    )
+    assert not (seq / ".mistool").exists() and len(list(seq.iterdir())) == len(
+        list(synth_dir.iterdir())
+    ), "the sequence folder was written to"
     frame = sorted(seq.glob("*.png"))[3]
     frame.write_bytes(frame.read_bytes())  # same content, new modification time
     os.utime(frame, ns=(time.time_ns(), time.time_ns() + 10**9))
@@ -381,10 +482,21 @@ def test_serve_stops_cleanly_on_ctrl_c(sig: str, synth_dir: Path) -> None:
     import sys
 
     proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from mistool.cli import main; "
-         "sys.exit(main(sys.argv[1:]))", "serve", str(synth_dir), "--poses",
-         str(synth_dir / "truth.csv"), "--port", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "import sys; from mistool.cli import main; sys.exit(main(sys.argv[1:]))",
+            "serve",
+            str(synth_dir),
+            "--poses",
+            str(synth_dir / "truth.csv"),
+            "--port",
+            "0",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout is not None
         lines = [proc.stdout.readline() for _ in range(2)]
@@ -421,8 +533,9 @@ def test_single_frame_single_part_without_masks() -> None:
     one = table[(np.asarray(table["frame"]) == 0) & (np.asarray(table["part"]) == "shaft")]
     replay = build_replay(one, Config(camera=CAMERA))
     assert replay.num_frames == 1 and replay.parts == ("shaft",)
-    viewer = ReplayViewer(LoadedSequence(replay=replay, frames=FrameStore(None, Config()),
-                                         name="one"), port=0)
+    viewer = ReplayViewer(
+        LoadedSequence(replay=replay, frames=FrameStore(None, Config()), name="one"), port=0
+    )
     try:
         assert viewer.timeline.wait_shown(0)
         viewer.timeline.step(1)  # loops onto itself
@@ -454,24 +567,27 @@ def test_plot_cursor_marks_the_current_time(sequence) -> None:
         p = replay.parts.index(viewer.plots.part.value)
         x, *ys, _ = viewer.plots.charts["position"].data
         j = int(np.flatnonzero(np.isclose(x, k / replay.fps))[0])
-        np.testing.assert_allclose([y[j] for y in ys],
-                                   replay.series["metric/position"][k, i, p], rtol=1e-9)
+        np.testing.assert_allclose(
+            [y[j] for y in ys], replay.series["metric/position"][k, i, p], rtol=1e-9
+        )
     finally:
         viewer.close()
 
 
-@pytest.mark.parametrize("shape, aspect, out_shape", [
-    ((576, 720), 1280 / 800, (576, 922)),  # wider window: black bars left and right
-    ((576, 720), 0.5, (1440, 720)),         # taller window: bars above and below
-    ((576, 720), 1.25, (576, 720)),         # same aspect: unchanged
-])
+@pytest.mark.parametrize(
+    "shape, aspect, out_shape",
+    [
+        ((576, 720), 1280 / 800, (576, 922)),  # wider window: black bars left and right
+        ((576, 720), 0.5, (1440, 720)),  # taller window: bars above and below
+        ((576, 720), 1.25, (576, 720)),  # same aspect: unchanged
+    ],
+)
 def test_endoscope_backdrop_keeps_a_centred_image_centred(shape, aspect, out_shape) -> None:
     from mistool.viewer.app import endoscope_backdrop
 
     h, w = shape
     img = np.full((*shape, 3), 200, np.uint8)
-    out, fov = endoscope_backdrop(img, aspect, (600.0, 600.0, (w - 1) / 2, (h - 1) / 2),
-                                  (w, h))
+    out, fov = endoscope_backdrop(img, aspect, (600.0, 600.0, (w - 1) / 2, (h - 1) / 2), (w, h))
     assert out.shape[:2] == out_shape
     ys, xs = np.nonzero(out[..., 0])
     assert (ys.min() + ys.max()) / 2 == pytest.approx((out_shape[0] - 1) / 2, abs=1)

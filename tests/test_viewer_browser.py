@@ -23,8 +23,15 @@ from mistool.viewer import ReplayViewer, export_html, load_sequence
 from mistool.viewer.scene import node_name
 
 CHROMIUM = Path("/usr/bin/chromium")
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--disable-quic",
+]
 VIEWPORT = {"width": 1280, "height": 800}
 #: The 3D view left of the GUI panel and below viser's notification (x, y, w, h).
 SCENE_CLIP = {"x": 0, "y": 160, "width": 860, "height": 640}
@@ -81,8 +88,9 @@ def _busy_frames(replay) -> np.ndarray:
 
 def _shot(page, clip: dict | None = None) -> np.ndarray:
     png = page.screenshot(clip=clip or SCENE_CLIP)
-    return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR),
-                        cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(
+        cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB
+    )
 
 
 def _hue_pixels(img: np.ndarray, rgb: tuple[int, int, int]) -> int:
@@ -123,8 +131,7 @@ def _client(viewer: ReplayViewer):
     return clients[-1]
 
 
-def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
-                                         tmp_path: Path) -> None:
+def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer, tmp_path: Path) -> None:
     replay = viewer.replay
     busy = _busy_frames(replay)
     assert len(busy) >= 2, "the synthetic sequence should show both instruments"
@@ -149,8 +156,9 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
         time.sleep(1.0)
         endo = _shot(page)
         for i in range(len(replay.instruments)):
-            assert _hue_pixels(endo, replay.part_colour(i, "shaft")) > 300, \
+            assert _hue_pixels(endo, replay.part_colour(i, "shaft")) > 300, (
                 f"instrument {replay.instruments[i]} not visible"
+            )
         # Behind the cylinders, this browser's background is the overlay (dark mask
         # image, letterboxed), and the frustum and grid are out of the way.
         assert _client(viewer).client_id in viewer._endoscope
@@ -161,8 +169,9 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
         client = _client(viewer)
         before_cam = np.array(client.camera.position)
         page.get_by_role("button", name="Reset").click()
-        assert _wait(lambda: np.linalg.norm(np.array(client.camera.position) - before_cam)
-                     > 1.0), "Reset preset did not move the camera"
+        assert _wait(lambda: np.linalg.norm(np.array(client.camera.position) - before_cam) > 1.0), (
+            "Reset preset did not move the camera"
+        )
         time.sleep(1.0)
         overview = _shot(page)
         assert overview.std() > 10.0 and len(np.unique(overview.reshape(-1, 3), axis=0)) > 50
@@ -172,8 +181,9 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
         # A camera preset moves this browser's camera, and the picture.
         reset_cam = np.array(client.camera.position)
         page.get_by_role("button", name="Top").click()
-        assert _wait(lambda: np.linalg.norm(np.array(client.camera.position) - reset_cam)
-                     > 1.0), "Top preset did not move the camera"
+        assert _wait(lambda: np.linalg.norm(np.array(client.camera.position) - reset_cam) > 1.0), (
+            "Top preset did not move the camera"
+        )
         time.sleep(1.0)
         top = _shot(page)
         assert np.abs(top.astype(int) - overview.astype(int)).mean() > 2.0
@@ -190,8 +200,9 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer,
         thumb.focus()
         for _ in range(max(1, int(busy[-1]) - start)):
             page.keyboard.press("ArrowRight")
-        assert _wait(lambda: viewer.timeline.shown == int(busy[-1])), \
+        assert _wait(lambda: viewer.timeline.shown == int(busy[-1])), (
             f"slider moved to {viewer.timeline.shown}, expected {int(busy[-1])}"
+        )
         time.sleep(0.8)
         moved = _shot(page)
         assert np.abs(moved.astype(int) - first.astype(int)).mean() > 1.0
@@ -260,8 +271,9 @@ def test_endoscope_view_lines_up_with_the_mask(browser, viewer: ReplayViewer) ->
         for size in ({"width": 620, "height": 900}, {"width": 1280, "height": 640}):
             page.set_viewport_size(size)
             w, h = size["width"], size["height"]
-            assert _wait(lambda wh=(w, h): (client.camera.image_width,
-                                            client.camera.image_height) == wh)
+            assert _wait(
+                lambda wh=(w, h): (client.camera.image_width, client.camera.image_height) == wh
+            )
             time.sleep(0.5)  # the new layout follows the camera message
             for cyl in viewer.scene.cylinders.values():
                 cyl.visible = False
@@ -274,21 +286,28 @@ def test_endoscope_view_lines_up_with_the_mask(browser, viewer: ReplayViewer) ->
             assert (cylinders.min(axis=2) > 250).mean() > 0.5  # background gone
             # Within the image (the padding is black; cylinders run on over it), below
             # the minimised panel.
-            keep = cv2.erode((backdrop.max(axis=2) > 10).astype(np.uint8),
-                             np.ones((7, 7), np.uint8)) > 0
+            keep = (
+                cv2.erode((backdrop.max(axis=2) > 10).astype(np.uint8), np.ones((7, 7), np.uint8))
+                > 0
+            )
             keep[:70] = False
             for i, name in enumerate(replay.instruments):
                 colour = replay.part_colour(i, "shaft")
                 mask = _shaft_pixels(backdrop, colour) & keep
                 drawn = _shaft_pixels(cylinders, colour) & keep
-                assert mask.sum() > 1500 and drawn.sum() > 1500, (size, name, mask.sum(),
-                                                                  drawn.sum())
+                assert mask.sum() > 1500 and drawn.sum() > 1500, (
+                    size,
+                    name,
+                    mask.sum(),
+                    drawn.sum(),
+                )
                 iou = (mask & drawn).sum() / (mask | drawn).sum()
                 ym, xm = np.nonzero(mask)
                 yd, xd = np.nonzero(drawn)
                 shift = np.hypot(xd.mean() - xm.mean(), yd.mean() - ym.mean())
-                assert iou > 0.85 and shift < 4.0, \
+                assert iou > 0.85 and shift < 4.0, (
                     f"{w}x{h}, instrument {name}: IoU {iou:.2f}, centroids {shift:.1f} px apart"
+                )
             viewer._send_backdrops(viewer._overlay_rgb, only=client)  # what a frame does
         assert not errors, errors
     finally:
@@ -308,13 +327,23 @@ class _SocketClient:
         from viser._messages import ViewerCameraMessage
         from websockets.sync.client import connect
 
-        self.ws = connect(url.replace("http://", "ws://"),
-                          subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
+        self.ws = connect(
+            url.replace("http://", "ws://"),
+            subprotocols=[f"viser-v{viser.__version__}"],
+            max_size=None,
+        )
         # viser registers a client when its first camera message arrives.
-        camera = ViewerCameraMessage(wxyz=(1.0, 0.0, 0.0, 0.0), position=(3.0, 3.0, 3.0),
-                                     fov=1.0, near=0.01, far=1000.0, image_height=600,
-                                     image_width=800, look_at=(0.0, 0.0, 0.0),
-                                     up_direction=(0.0, 0.0, 1.0))
+        camera = ViewerCameraMessage(
+            wxyz=(1.0, 0.0, 0.0, 0.0),
+            position=(3.0, 3.0, 3.0),
+            fov=1.0,
+            near=0.01,
+            far=1000.0,
+            image_height=600,
+            image_width=800,
+            look_at=(0.0, 0.0, 0.0),
+            up_direction=(0.0, 0.0, 1.0),
+        )
         self.ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
         self.received = 0
         self.thread = threading.Thread(target=self._read, daemon=True)
@@ -359,9 +388,9 @@ def test_ten_viewers_playback_and_some_closing(browser, viewer: ReplayViewer) ->
         assert _wait(lambda: len(viewer.server.get_clients()) == 5, 10.0)
         # The remaining bare clients are still being served (viser batches messages, so
         # count websocket messages, not frames).
-        assert _wait(lambda: all(s.received > b
-                                 for s, b in zip(sockets[:4], before, strict=True))), \
-            [(s.received, b) for s, b in zip(sockets[:4], before, strict=True)]
+        assert _wait(
+            lambda: all(s.received > b for s, b in zip(sockets[:4], before, strict=True))
+        ), [(s.received, b) for s, b in zip(sockets[:4], before, strict=True)]
         assert not viewer.timeline.draw_errors
         assert not pages[0].errors  # type: ignore[attr-defined]
     finally:
@@ -377,8 +406,12 @@ def test_exported_html_replays_offline(browser, sequence, tmp_path: Path) -> Non
     export_html(sequence, out, max_frames=30)
     page = browser.new_page(viewport={"width": 1000, "height": 700})
     remote: list[str] = []
-    page.on("request", lambda r: remote.append(r.url)
-            if r.url.split(":", 1)[0] not in ("file", "data", "blob") else None)
+    page.on(
+        "request",
+        lambda r: (
+            remote.append(r.url) if r.url.split(":", 1)[0] not in ("file", "data", "blob") else None
+        ),
+    )
     try:
         page.goto(out.as_uri())
         page.wait_for_selector("canvas[data-engine]", timeout=20000)
@@ -387,8 +420,9 @@ def test_exported_html_replays_offline(browser, sequence, tmp_path: Path) -> Non
         time.sleep(0.6)
         shots.append(_shot(page, {"x": 0, "y": 160, "width": 1000, "height": 480}))
         assert shots[0].std() > 10.0
-        assert np.abs(shots[1].astype(int) - shots[0].astype(int)).mean() > 0.2, \
+        assert np.abs(shots[1].astype(int) - shots[0].astype(int)).mean() > 0.2, (
             "the recording does not play"
+        )
         assert not remote, remote
     finally:
         page.close()

@@ -28,11 +28,13 @@ def build_parser() -> argparse.ArgumentParser:
             "Track surgical instruments from segmentation masks: per-part rotated boxes "
             "(the paper's Algorithm 1), the paper's 3D motion (Algorithm 2), metric 3D pose "
             "from the shaft's silhouette, ground-truth synthesis and evaluation, and a 3D "
-            "replay viewer in the browser."),
+            "replay viewer in the browser."
+        ),
         epilog=(
             "A sequence is a folder of label images (natural sort gives frame order) or a mask "
             "video, with an optional mistool.toml beside it (fps, label values, camera, "
-            "instruments). Run 'mistool COMMAND --help' for each command."),
+            "instruments). Run 'mistool COMMAND --help' for each command."
+        ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"mistool {__version__}")

@@ -42,16 +42,31 @@ examples:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``eval`` subcommand."""
     p = subparsers.add_parser(
-        "eval", help="score motion tables against ground truth", description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("files", nargs="+", metavar="CSV",
-                   help="PRED.csv [PRED2.csv ...] TRUTH.csv (or only predictions with "
-                        "--truth)")
+        "eval",
+        help="score motion tables against ground truth",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "files",
+        nargs="+",
+        metavar="CSV",
+        help="PRED.csv [PRED2.csv ...] TRUTH.csv (or only predictions with --truth)",
+    )
     p.add_argument("--truth", metavar="TRUTH.csv", help="the ground-truth table")
-    p.add_argument("--names", nargs="+", metavar="NAME",
-                   help="method names, one per prediction (default: file names)")
-    p.add_argument("--min-area", type=int, default=20, metavar="PX",
-                   help="leave out truth rows with a clean area below PX (default 20)")
+    p.add_argument(
+        "--names",
+        nargs="+",
+        metavar="NAME",
+        help="method names, one per prediction (default: file names)",
+    )
+    p.add_argument(
+        "--min-area",
+        type=int,
+        default=20,
+        metavar="PX",
+        help="leave out truth rows with a clean area below PX (default 20)",
+    )
     p.add_argument("--json", metavar="M.json", help="also write every score as JSON")
     p.add_argument("--per-frame", metavar="F.csv", help="also write per-row errors as CSV")
     p.set_defaults(func=run)
@@ -72,15 +87,17 @@ def run(args: argparse.Namespace) -> int:
     files = [Path(f) for f in args.files]
     if args.truth is None:
         if len(files) < 2:
-            raise ConfigError("eval: give PRED.csv and TRUTH.csv (the truth last), or "
-                              "--truth TRUTH.csv")
+            raise ConfigError(
+                "eval: give PRED.csv and TRUTH.csv (the truth last), or --truth TRUTH.csv"
+            )
         truth_path, pred_paths = files[-1], files[:-1]
     else:
         truth_path, pred_paths = Path(args.truth), files
     names = args.names or _method_names(pred_paths)
     if len(names) != len(pred_paths):
-        raise ConfigError(f"eval: --names gives {len(names)} name(s) for "
-                          f"{len(pred_paths)} prediction(s)")
+        raise ConfigError(
+            f"eval: --names gives {len(names)} name(s) for {len(pred_paths)} prediction(s)"
+        )
     if len(set(names)) != len(names):
         raise ConfigError(f"eval: method names must differ, got {names}")
     if args.min_area < 0:

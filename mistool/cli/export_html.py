@@ -26,23 +26,46 @@ examples:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``export-html`` subcommand."""
     p = subparsers.add_parser(
-        "export-html", help="standalone offline HTML replay", description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("sequence", metavar="SEQUENCE", nargs="?", default=None,
-                   help="folder of label images or mask video (default: bundled sample)")
-    p.add_argument("-o", "--output", metavar="OUT.html", default="replay.html",
-                   help="HTML file to write (default ./replay.html)")
-    p.add_argument("--poses", metavar="POSES.csv",
-                   help="use this motion table instead of tracking the sequence")
-    p.add_argument("--mode", choices=("metric", "paper"),
-                   help="3D mode (default: metric when the camera is known)")
+        "export-html",
+        help="standalone offline HTML replay",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "sequence",
+        metavar="SEQUENCE",
+        nargs="?",
+        default=None,
+        help="folder of label images or mask video (default: bundled sample)",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT.html",
+        default="replay.html",
+        help="HTML file to write (default ./replay.html)",
+    )
+    p.add_argument(
+        "--poses",
+        metavar="POSES.csv",
+        help="use this motion table instead of tracking the sequence",
+    )
+    p.add_argument(
+        "--mode",
+        choices=("metric", "paper"),
+        help="3D mode (default: metric when the camera is known)",
+    )
     p.add_argument("--stride", type=int, default=1, metavar="K", help="every K-th frame")
     p.add_argument("--max-frames", type=int, metavar="N", help="at most N frames")
-    p.add_argument("--no-images", action="store_true",
-                   help="no mask images on the frustum (much smaller file)")
+    p.add_argument(
+        "--no-images", action="store_true", help="no mask images on the frustum (much smaller file)"
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
-    p.add_argument("--no-cache", action="store_true",
-                   help="track again even if this unchanged sequence was tracked before")
+    p.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="track again even if this unchanged sequence was tracked before",
+    )
     p.set_defaults(func=run)
 
 
@@ -51,11 +74,20 @@ def run(args: argparse.Namespace) -> int:
     from mistool.viewer import export_html, load_sequence  # viser only for this command
 
     progress = not args.quiet and sys.stderr.isatty()
-    sequence = load_sequence(args.sequence, poses=args.poses, progress=progress,
-                             cache=not args.no_cache)
-    summary = export_html(sequence, args.output, mode=args.mode, stride=args.stride,
-                          max_frames=args.max_frames, images=not args.no_images)
+    sequence = load_sequence(
+        args.sequence, poses=args.poses, progress=progress, cache=not args.no_cache
+    )
+    summary = export_html(
+        sequence,
+        args.output,
+        mode=args.mode,
+        stride=args.stride,
+        max_frames=args.max_frames,
+        images=not args.no_images,
+    )
     if not args.quiet:
-        print(f"mistool export-html: {summary.frames} frames ({summary.mode} mode) -> "
-              f"{summary.path} ({summary.bytes / 1e6:.1f} MB)")
+        print(
+            f"mistool export-html: {summary.frames} frames ({summary.mode} mode) -> "
+            f"{summary.path} ({summary.bytes / 1e6:.1f} MB)"
+        )
     return 0

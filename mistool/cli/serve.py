@@ -41,29 +41,54 @@ examples:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``serve`` subcommand."""
     p = subparsers.add_parser(
-        "serve", help="replay a sequence in 3D in the browser", description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("sequence", metavar="SEQUENCE", nargs="?", default=None,
-                   help="folder of label images or mask video (default: bundled sample)")
-    p.add_argument("--port", type=int, default=8080,
-                   help="first port to try (default 8080; 0 = any free port)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="interface to listen on (default 127.0.0.1; 0.0.0.0 for all)")
-    p.add_argument("--poses", metavar="POSES.csv",
-                   help="show this motion table instead of tracking the sequence")
+        "serve",
+        help="replay a sequence in 3D in the browser",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "sequence",
+        metavar="SEQUENCE",
+        nargs="?",
+        default=None,
+        help="folder of label images or mask video (default: bundled sample)",
+    )
+    p.add_argument(
+        "--port", type=int, default=8080, help="first port to try (default 8080; 0 = any free port)"
+    )
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="interface to listen on (default 127.0.0.1; 0.0.0.0 for all)",
+    )
+    p.add_argument(
+        "--poses",
+        metavar="POSES.csv",
+        help="show this motion table instead of tracking the sequence",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--no-cache", action="store_true",
-                   help="track again even if this unchanged sequence was tracked before "
-                        "(tables are cached in ~/.cache/mistool/tables)")
-    p.add_argument("--environment-map", action="store_true",
-                   help="light the scene with viser's HDR environment map (off by "
-                        "default: about 1 s slower to first render without a GPU, "
-                        "scripts/bench_viewer.py)")
+    p.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="track again even if this unchanged sequence was tracked before "
+        "(tables are cached in ~/.cache/mistool/tables)",
+    )
+    p.add_argument(
+        "--environment-map",
+        action="store_true",
+        help="light the scene with viser's HDR environment map (off by "
+        "default: about 1 s slower to first render without a GPU, "
+        "scripts/bench_viewer.py)",
+    )
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
-        stop: threading.Event | None = None) -> int:
+def run(
+    args: argparse.Namespace,
+    *,
+    ready: threading.Event | None = None,
+    stop: threading.Event | None = None,
+) -> int:
     """Serve until Ctrl+C (or until ``stop`` is set, for in-process tests)."""
     from mistool.errors import ConfigError
     from mistool.viewer import ReplayViewer, load_sequence  # viser only for this command
@@ -71,10 +96,12 @@ def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port}: must be in 0..65535")
     progress = not args.quiet and sys.stderr.isatty()
-    sequence = load_sequence(args.sequence, poses=args.poses, progress=progress,
-                             cache=not args.no_cache)
-    viewer = ReplayViewer(sequence, host=args.host, port=args.port,
-                          environment_map=args.environment_map)
+    sequence = load_sequence(
+        args.sequence, poses=args.poses, progress=progress, cache=not args.no_cache
+    )
+    viewer = ReplayViewer(
+        sequence, host=args.host, port=args.port, environment_map=args.environment_map
+    )
     waiter = stop or threading.Event()
     previous = None
     if threading.current_thread() is threading.main_thread():
@@ -82,9 +109,11 @@ def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
         previous = signal.signal(signal.SIGTERM, lambda *_: waiter.set())
     replay = sequence.replay
     try:  # from here on, Ctrl+C (even during the prints) stops cleanly
-        print(f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
-              f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode",
-              flush=True)
+        print(
+            f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
+            f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode",
+            flush=True,
+        )
         print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
         if ready is not None:
             ready.set()
@@ -100,7 +129,10 @@ def run(args: argparse.Namespace, *, ready: threading.Event | None = None,
     errors = viewer.timeline.draw_errors
     if errors:  # a bug, not bad input: say so, with the last error
         last = errors[-1]
-        print(f"mistool serve: {viewer.timeline.draw_error_count} frame(s) failed to draw; "
-              f"last: {type(last).__name__}: {last}", file=sys.stderr)
+        print(
+            f"mistool serve: {viewer.timeline.draw_error_count} frame(s) failed to draw; "
+            f"last: {type(last).__name__}: {last}",
+            file=sys.stderr,
+        )
         return 1
     return 0

@@ -72,51 +72,100 @@ examples:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``synth`` subcommand."""
     p = subparsers.add_parser(
-        "synth", help="render synthetic masks with exact 3D ground truth",
-        description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+        "synth",
+        help="render synthetic masks with exact 3D ground truth",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("out", metavar="OUT", help="sequence folder to create")
-    p.add_argument("--frames", type=int, default=100, metavar="N",
-                   help="number of frames (default 100)")
-    p.add_argument("--instruments", type=int, default=2, metavar="K",
-                   help="number of instruments, 1-4 (default 2)")
-    p.add_argument("--seed", type=int, default=0, metavar="S",
-                   help="random seed of the motion and corruptions (default 0)")
-    p.add_argument("--preset", choices=sorted(PRESETS), default="endovis15",
-                   help="label values (default endovis15)")
-    p.add_argument("--fps", type=float, default=25.0, metavar="F",
-                   help="frames per second (default 25)")
-    p.add_argument("--distinct-labels", action="store_true",
-                   help="each instrument its own label values and [[instrument]] table")
+    p.add_argument(
+        "--frames", type=int, default=100, metavar="N", help="number of frames (default 100)"
+    )
+    p.add_argument(
+        "--instruments",
+        type=int,
+        default=2,
+        metavar="K",
+        help="number of instruments, 1-4 (default 2)",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        metavar="S",
+        help="random seed of the motion and corruptions (default 0)",
+    )
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default="endovis15",
+        help="label values (default endovis15)",
+    )
+    p.add_argument(
+        "--fps", type=float, default=25.0, metavar="F", help="frames per second (default 25)"
+    )
+    p.add_argument(
+        "--distinct-labels",
+        action="store_true",
+        help="each instrument its own label values and [[instrument]] table",
+    )
     g = p.add_argument_group("scene")
-    g.add_argument("--size", default="720x576", metavar="WxH",
-                   help="image size (default 720x576)")
-    g.add_argument("--focal", type=float, default=600.0, metavar="PX",
-                   help="focal length in px (default 600)")
-    g.add_argument("--tool", choices=("robotic", "laparoscopic"), default="robotic",
-                   help="robotic: 8 mm shaft, bending wrist (default); laparoscopic: 5 mm")
-    g.add_argument("--shaft-diameter", type=float, metavar="MM",
-                   help="shaft diameter in mm (scales the tool's head too)")
-    g.add_argument("--leave-view", action="store_true",
-                   help="each tool retracts out of the view once and comes back")
-    g.add_argument("--no-enter", action="store_true",
-                   help="tools present from the first frame instead of entering")
+    g.add_argument("--size", default="720x576", metavar="WxH", help="image size (default 720x576)")
+    g.add_argument(
+        "--focal", type=float, default=600.0, metavar="PX", help="focal length in px (default 600)"
+    )
+    g.add_argument(
+        "--tool",
+        choices=("robotic", "laparoscopic"),
+        default="robotic",
+        help="robotic: 8 mm shaft, bending wrist (default); laparoscopic: 5 mm",
+    )
+    g.add_argument(
+        "--shaft-diameter",
+        type=float,
+        metavar="MM",
+        help="shaft diameter in mm (scales the tool's head too)",
+    )
+    g.add_argument(
+        "--leave-view",
+        action="store_true",
+        help="each tool retracts out of the view once and comes back",
+    )
+    g.add_argument(
+        "--no-enter",
+        action="store_true",
+        help="tools present from the first frame instead of entering",
+    )
     g.add_argument("--no-cross", action="store_true", help="tools do not cross")
     c = p.add_argument_group("corruptions (see above)")
-    c.add_argument("--jitter", type=float, default=0.0, metavar="PX",
-                   help="boundary jitter amplitude")
-    c.add_argument("--bias", type=float, default=0.0, metavar="PX",
-                   help="outlines moved outward (> 0) or inward (< 0) by PX px, "
-                        "sub-pixel (e.g. 0.5)")
-    c.add_argument("--holes", type=float, default=0.0, metavar="N",
-                   help="specular holes per frame")
-    c.add_argument("--speckle", type=float, default=0.0, metavar="N",
-                   help="label specks per frame")
-    c.add_argument("--occluders", type=int, default=0, metavar="N",
-                   help="tissue blobs over the tools")
-    c.add_argument("--hide-clasper", type=float, default=0.0, metavar="F",
-                   help="fraction of frames with the clasper hidden")
-    c.add_argument("--video", choices=("mjpg", "xvid", "mp4v"), metavar="CODEC",
-                   help="also write masks.avi (mjpg, xvid, mp4v)")
+    c.add_argument(
+        "--jitter", type=float, default=0.0, metavar="PX", help="boundary jitter amplitude"
+    )
+    c.add_argument(
+        "--bias",
+        type=float,
+        default=0.0,
+        metavar="PX",
+        help="outlines moved outward (> 0) or inward (< 0) by PX px, sub-pixel (e.g. 0.5)",
+    )
+    c.add_argument("--holes", type=float, default=0.0, metavar="N", help="specular holes per frame")
+    c.add_argument("--speckle", type=float, default=0.0, metavar="N", help="label specks per frame")
+    c.add_argument(
+        "--occluders", type=int, default=0, metavar="N", help="tissue blobs over the tools"
+    )
+    c.add_argument(
+        "--hide-clasper",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="fraction of frames with the clasper hidden",
+    )
+    c.add_argument(
+        "--video",
+        choices=("mjpg", "xvid", "mp4v"),
+        metavar="CODEC",
+        help="also write masks.avi (mjpg, xvid, mp4v)",
+    )
     p.add_argument("--force", action="store_true", help="replace an earlier synth output in OUT")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress, no summary")
     p.set_defaults(func=run)
@@ -136,16 +185,26 @@ def run(args: argparse.Namespace) -> int:
 
     w, h = _size(args.size)
     try:
-        corr = Corruptions(jitter_px=args.jitter, bias_px=args.bias, holes=args.holes,
-                           speckle=args.speckle, occluders=args.occluders,
-                           hide_clasper=args.hide_clasper)
+        corr = Corruptions(
+            jitter_px=args.jitter,
+            bias_px=args.bias,
+            holes=args.holes,
+            speckle=args.speckle,
+            occluders=args.occluders,
+            hide_clasper=args.hide_clasper,
+        )
     except ValueError as exc:
         raise ConfigError(f"corruption option: {exc}") from None
-    scene = SceneOptions(width=w, height=h, focal_px=args.focal, tool=args.tool,
-                         shaft_diameter_mm=args.shaft_diameter,
-                         motion=MotionOptions(enter=not args.no_enter,
-                                              leave_view=args.leave_view,
-                                              cross=not args.no_cross))
+    scene = SceneOptions(
+        width=w,
+        height=h,
+        focal_px=args.focal,
+        tool=args.tool,
+        shaft_diameter_mm=args.shaft_diameter,
+        motion=MotionOptions(
+            enter=not args.no_enter, leave_view=args.leave_view, cross=not args.no_cross
+        ),
+    )
     bar = None
     progress = None
     if not args.quiet and sys.stderr.isatty():
@@ -158,17 +217,30 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     try:
-        res = synthesize(args.out, frames=args.frames, instruments=args.instruments,
-                         seed=args.seed, preset=args.preset, fps=args.fps, corruptions=corr,
-                         scene=scene, distinct_labels=args.distinct_labels,
-                         video=args.video, force=args.force, progress=progress)
+        res = synthesize(
+            args.out,
+            frames=args.frames,
+            instruments=args.instruments,
+            seed=args.seed,
+            preset=args.preset,
+            fps=args.fps,
+            corruptions=corr,
+            scene=scene,
+            distinct_labels=args.distinct_labels,
+            video=args.video,
+            force=args.force,
+            progress=progress,
+        )
     finally:
         if bar is not None:
             bar.close()
     dt = time.perf_counter() - t0
     if not args.quiet:
         n_inst = len(set(res.truth["instrument"])) if res.truth.num_rows else 0
-        print(f"mistool synth: {args.frames} frames, {n_inst} instrument(s) visible, "
-              f"{res.truth.num_rows} truth rows -> {res.path} ({args.frames / dt:.0f} "
-              "frames/s)", file=sys.stderr)
+        print(
+            f"mistool synth: {args.frames} frames, {n_inst} instrument(s) visible, "
+            f"{res.truth.num_rows} truth rows -> {res.path} ({args.frames / dt:.0f} "
+            "frames/s)",
+            file=sys.stderr,
+        )
     return 0

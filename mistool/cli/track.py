@@ -64,25 +64,53 @@ examples:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``track`` subcommand."""
     p = subparsers.add_parser(
-        "track", help="mask sequence -> motion table (CSV)", description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("sequence", metavar="SEQUENCE",
-                   help="folder of label images, or a mask video file")
-    p.add_argument("-o", "--output", metavar="OUT.csv",
-                   help="output CSV ('-' for stdout; default ./<name>_motion.csv)")
-    p.add_argument("-q", "--quiet", action="store_true",
-                   help="no progress bar and no summary line (errors and warnings only)")
+        "track",
+        help="mask sequence -> motion table (CSV)",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "sequence", metavar="SEQUENCE", help="folder of label images, or a mask video file"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT.csv",
+        help="output CSV ('-' for stdout; default ./<name>_motion.csv)",
+    )
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bar and no summary line (errors and warnings only)",
+    )
     p.add_argument("--fps", type=float, metavar="F", help="frames per second (time_s)")
-    p.add_argument("--labels", choices=sorted(PRESETS), metavar="PRESET",
-                   help=f"label preset: {', '.join(PRESETS)} (replaces [parts])")
-    p.add_argument("--min-area", type=int, metavar="PX",
-                   help="ignore connected specks smaller than PX pixels")
-    p.add_argument("--no-metric", action="store_true",
-                   help="skip the metric 3D pose even when [camera] is given")
-    p.add_argument("--smoothing", choices=("none", "offline", "online"), default="offline",
-                   help="temporal filtering of the metric pose (default: offline)")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help="worker threads (default: number of CPUs, at most 8)")
+    p.add_argument(
+        "--labels",
+        choices=sorted(PRESETS),
+        metavar="PRESET",
+        help=f"label preset: {', '.join(PRESETS)} (replaces [parts])",
+    )
+    p.add_argument(
+        "--min-area", type=int, metavar="PX", help="ignore connected specks smaller than PX pixels"
+    )
+    p.add_argument(
+        "--no-metric",
+        action="store_true",
+        help="skip the metric 3D pose even when [camera] is given",
+    )
+    p.add_argument(
+        "--smoothing",
+        choices=("none", "offline", "online"),
+        default="offline",
+        help="temporal filtering of the metric pose (default: offline)",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="worker threads (default: number of CPUs, at most 8)",
+    )
     p.set_defaults(func=run_track)
 
 
@@ -112,8 +140,11 @@ def run_track(args: argparse.Namespace) -> int:
     path, config = sequence.resolve(args.sequence)
     overrides: dict[str, object] = {"fps": args.fps, "min_area_px": args.min_area}
     if args.labels:
-        overrides.update(labels=args.labels, colour_masks=False,
-                         parts={p: (v, v) for p, v in PRESETS[args.labels].items()})
+        overrides.update(
+            labels=args.labels,
+            colour_masks=False,
+            parts={p: (v, v) for p, v in PRESETS[args.labels].items()},
+        )
     config = config.with_overrides(**overrides)
     out = None if args.output == "-" else Path(args.output or default_output(path))
     if out is not None and not (out.parent if str(out.parent) else Path(".")).is_dir():
@@ -123,11 +154,20 @@ def run_track(args: argparse.Namespace) -> int:
     show_progress = not args.quiet and sys.stderr.isatty()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", api.MistoolWarning)
-        result = api.run(path, config, progress=show_progress, workers=args.workers,
-                         metric=not args.no_metric, smoothing=args.smoothing)
+        result = api.run(
+            path,
+            config,
+            progress=show_progress,
+            workers=args.workers,
+            metric=not args.no_metric,
+            smoothing=args.smoothing,
+        )
     if result.unknown_values:
-        print("mistool: warning: " + api.unknown_values_message(
-            result.unknown_values, result.config.colour_masks), file=sys.stderr)
+        print(
+            "mistool: warning: "
+            + api.unknown_values_message(result.unknown_values, result.config.colour_masks),
+            file=sys.stderr,
+        )
     if out is None:
         write_table_csv(result.table.full(), sys.stdout)
         sys.stdout.flush()
@@ -136,9 +176,11 @@ def run_track(args: argparse.Namespace) -> int:
     if not args.quiet:
         n_inst, parts = len(result.instruments), result.parts
         rate = result.num_frames / result.seconds if result.seconds > 0 else float("inf")
-        print(f"mistool: {result.num_frames} frame(s), {n_inst} instrument(s), "
-              f"parts: {', '.join(parts) or 'none'}, {result.table.num_rows} rows, "
-              f"{result.seconds:.1f} s ({rate:.0f} frames/s)"
-              f"{'' if result.metric else ', no metric 3D'} -> {out or 'stdout'}",
-              file=sys.stderr)
+        print(
+            f"mistool: {result.num_frames} frame(s), {n_inst} instrument(s), "
+            f"parts: {', '.join(parts) or 'none'}, {result.table.num_rows} rows, "
+            f"{result.seconds:.1f} s ({rate:.0f} frames/s)"
+            f"{'' if result.metric else ', no metric 3D'} -> {out or 'stdout'}",
+            file=sys.stderr,
+        )
     return 0

@@ -33,8 +33,9 @@ __all__ = [
 
 def cross3(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Cross product of two (3,) vectors (``np.cross`` is slow on tiny inputs)."""
-    return np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
-                     u[0] * v[1] - u[1] * v[0]])
+    return np.array(
+        [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+    )
 
 
 def tangent_plane(line: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -52,8 +53,9 @@ def tangent_plane(line: np.ndarray, K: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n)
 
 
-def axis_from_lines(n1: np.ndarray, n2: np.ndarray, radius_mm: float
-                    ) -> tuple[np.ndarray, np.ndarray] | None:
+def axis_from_lines(
+    n1: np.ndarray, n2: np.ndarray, radius_mm: float
+) -> tuple[np.ndarray, np.ndarray] | None:
     """The cylinder axis tangent to two planes through the camera centre.
 
     Args:
@@ -75,8 +77,9 @@ def axis_from_lines(n1: np.ndarray, n2: np.ndarray, radius_mm: float
     return p0, a / s
 
 
-def axis_through_point(n1: np.ndarray, radius_mm: float, point: np.ndarray,
-                       ray: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def axis_through_point(
+    n1: np.ndarray, radius_mm: float, point: np.ndarray, ray: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
     """One-line solve: the axis at distance ``radius_mm`` from plane ``n1`` that passes
     through ``point`` (e.g. the trocar, moved onto the plane) and meets ``ray``.
 
@@ -131,8 +134,9 @@ def project(X: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803 - 3D poin
     return uv
 
 
-def ray_cylinder(rays: np.ndarray, p0: np.ndarray, a: np.ndarray, radius_mm: float
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ray_cylinder(
+    rays: np.ndarray, p0: np.ndarray, a: np.ndarray, radius_mm: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Axial coordinates where rays from the camera centre enter and leave an infinite
     cylinder.
 

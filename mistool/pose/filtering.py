@@ -34,8 +34,7 @@ def noise_scale(y: np.ndarray, floor: float) -> float:
     return max(1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0), floor)
 
 
-def _kalman_1d(t: np.ndarray, y: np.ndarray, r: np.ndarray, q: float, smooth: bool
-               ) -> np.ndarray:
+def _kalman_1d(t: np.ndarray, y: np.ndarray, r: np.ndarray, q: float, smooth: bool) -> np.ndarray:
     n = len(t)
     xs = np.zeros((n, 2))
     ps = np.zeros((n, 2, 2))
@@ -68,8 +67,14 @@ def _kalman_1d(t: np.ndarray, y: np.ndarray, r: np.ndarray, q: float, smooth: bo
     return xs[:, 0]
 
 
-def filter_series(t: np.ndarray, y: np.ndarray, mode: str, accel: float,
-                  noise_floor: float, max_gap_s: float = 0.4) -> np.ndarray:
+def filter_series(
+    t: np.ndarray,
+    y: np.ndarray,
+    mode: str,
+    accel: float,
+    noise_floor: float,
+    max_gap_s: float = 0.4,
+) -> np.ndarray:
     """Filter a (N, D) series sampled at times ``t`` (N,) seconds, rows in time order.
 
     Args:
@@ -104,7 +109,8 @@ def filter_series(t: np.ndarray, y: np.ndarray, mode: str, accel: float,
             if mode == "offline":
                 r = np.full(len(ys), noise_scale(ys, noise_floor))
             else:  # causal: the noise scale from the (last 250) samples seen so far
-                r = np.array([noise_scale(ys[max(0, k - 249):k + 1], noise_floor)
-                              for k in range(len(ys))])
+                r = np.array(
+                    [noise_scale(ys[max(0, k - 249) : k + 1], noise_floor) for k in range(len(ys))]
+                )
             out[seg, d] = _kalman_1d(ts, ys, r, accel, smooth=(mode == "offline"))
     return out

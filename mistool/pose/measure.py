@@ -44,8 +44,20 @@ __all__ = ["AUX_KEYS", "MAX_SIGMA_DEG", "MAX_SIGMA_MM", "POSE_KEYS", "measure_in
 
 #: The metric columns :func:`measure_instance` fills for each part.
 POSE_KEYS: tuple[str, ...] = (
-    "end_x_mm", "end_y_mm", "end_z_mm", "axis_x", "axis_y", "axis_z",
-    "start_x_mm", "start_y_mm", "start_z_mm", "qw", "qx", "qy", "qz", "quality",
+    "end_x_mm",
+    "end_y_mm",
+    "end_z_mm",
+    "axis_x",
+    "axis_y",
+    "axis_z",
+    "start_x_mm",
+    "start_y_mm",
+    "start_z_mm",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    "quality",
 )
 #: Per-frame auxiliary values (extra columns) that :func:`refine_sequence` uses to
 #: re-solve frames with the trocar constraint, then drops. Limb lines are image lines
@@ -56,8 +68,18 @@ POSE_KEYS: tuple[str, ...] = (
 #: seen in this frame, else 0; ``aux_su_px, aux_sv_px`` the pixel where the shaft leaves
 #: the view (its proximal end).
 AUX_KEYS: tuple[str, ...] = (
-    "aux_l1a", "aux_l1b", "aux_l1c", "aux_l2a", "aux_l2b", "aux_l2c",
-    "aux_u_px", "aux_v_px", "aux_su_px", "aux_sv_px", "aux_sigma_mm", "aux_sigma_deg",
+    "aux_l1a",
+    "aux_l1b",
+    "aux_l1c",
+    "aux_l2a",
+    "aux_l2b",
+    "aux_l2c",
+    "aux_u_px",
+    "aux_v_px",
+    "aux_su_px",
+    "aux_sv_px",
+    "aux_sigma_mm",
+    "aux_sigma_deg",
     "aux_distal",
 )
 
@@ -88,8 +110,9 @@ def _as_u8(mask: np.ndarray) -> np.ndarray:
     return m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).astype(np.uint8)
 
 
-def _outline(mask_u8: np.ndarray, offset: tuple[int, int], contours: Any = None
-             ) -> tuple[np.ndarray, dict[str, float]]:
+def _outline(
+    mask_u8: np.ndarray, offset: tuple[int, int], contours: Any = None
+) -> tuple[np.ndarray, dict[str, float]]:
     """Outline pixels (N, 2) of a mask (full-image px) and its region moments.
 
     A region's extreme points in any direction are outline pixels, so the outline
@@ -141,8 +164,9 @@ def _ray(px: np.ndarray, K: np.ndarray) -> np.ndarray:
 _UNIT_GRID = np.linspace(0.0, 1.0, 81)
 
 
-def _axis_from_lines_f(l1: np.ndarray, l2: np.ndarray, K: np.ndarray, radius: float
-                       ) -> tuple[np.ndarray, np.ndarray] | None:
+def _axis_from_lines_f(
+    l1: np.ndarray, l2: np.ndarray, K: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray] | None:
     """``axis_from_lines(tangent_plane(l1, K), tangent_plane(l2, K), radius)`` in plain
     floats (numpy's per-call overhead dominates for 3-vectors)."""
     (k00, k01, k02), (k10, k11, k12), (k20, k21, k22) = K.tolist()
@@ -179,7 +203,7 @@ def _window_max(x: np.ndarray, size: int) -> np.ndarray:
         m = np.maximum(m[:-w], m[w:])
         w *= 2
     n_out = len(x) - size + 1
-    return np.maximum(m[:n_out], m[size - w:size - w + n_out])
+    return np.maximum(m[:n_out], m[size - w : size - w + n_out])
 
 
 def _on_border(px: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
@@ -187,8 +211,9 @@ def _on_border(px: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
     return (px[:, 0] <= 0) | (px[:, 1] <= 0) | (px[:, 0] >= W - 1) | (px[:, 1] >= H - 1)
 
 
-def _fill_pose(row: dict[str, float], end: np.ndarray | None, axis: np.ndarray | None,
-               start: np.ndarray | None) -> None:
+def _fill_pose(
+    row: dict[str, float], end: np.ndarray | None, axis: np.ndarray | None, start: np.ndarray | None
+) -> None:
     if end is not None:
         row["end_x_mm"], row["end_y_mm"], row["end_z_mm"] = end.tolist()
     if axis is not None:
@@ -198,8 +223,14 @@ def _fill_pose(row: dict[str, float], end: np.ndarray | None, axis: np.ndarray |
         row["start_x_mm"], row["start_y_mm"], row["start_z_mm"] = start.tolist()
 
 
-def _joint_t(pts: np.ndarray, is_other: np.ndarray, p0: np.ndarray, a: np.ndarray,
-             radius: float, K: np.ndarray) -> tuple[float, float]:
+def _joint_t(
+    pts: np.ndarray,
+    is_other: np.ndarray,
+    p0: np.ndarray,
+    a: np.ndarray,
+    radius: float,
+    K: np.ndarray,
+) -> tuple[float, float]:
     """J's axial coordinate (mm) and the points' robust spread (mm) from the shaft's
     distal outline points.
 
@@ -229,9 +260,14 @@ class _LineStats:
         self.centre, self.span, self.n, self.sigma = centre, span, n, sigma
 
 
-def _fit_limbs(pts: np.ndarray, s: np.ndarray, q: np.ndarray, keep: np.ndarray,
-               centre: np.ndarray, rng: np.random.Generator | None
-               ) -> tuple[list[np.ndarray | None], list[_LineStats | None]]:
+def _fit_limbs(
+    pts: np.ndarray,
+    s: np.ndarray,
+    q: np.ndarray,
+    keep: np.ndarray,
+    centre: np.ndarray,
+    rng: np.random.Generator | None,
+) -> tuple[list[np.ndarray | None], list[_LineStats | None]]:
     """One robust line per side of the axis; interior (the centre) on the positive side."""
     lines: list[np.ndarray | None] = []
     stats: list[_LineStats | None] = []
@@ -260,8 +296,14 @@ def _fit_limbs(pts: np.ndarray, s: np.ndarray, q: np.ndarray, keep: np.ndarray,
     return lines, stats
 
 
-def _uncertainty(lines: list[np.ndarray], stats: list[_LineStats], K: np.ndarray,
-                 radius: float, ref: np.ndarray, a: np.ndarray) -> tuple[float, float]:
+def _uncertainty(
+    lines: list[np.ndarray],
+    stats: list[_LineStats],
+    K: np.ndarray,
+    radius: float,
+    ref: np.ndarray,
+    a: np.ndarray,
+) -> tuple[float, float]:
     """1-sigma error of a reference axis point (mm) and of the axis direction (deg),
     propagated by finite differences from each line's offset and angle uncertainty.
 
@@ -320,9 +362,13 @@ def _uncertainty(lines: list[np.ndarray], stats: list[_LineStats], K: np.ndarray
     return math.sqrt(var_p), math.sqrt(var_a)
 
 
-def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
-                     shaft_diameter_mm: float | None, clasper_length_mm: float | None
-                     ) -> dict[str, dict[str, float]]:
+def measure_instance(
+    instance: Any,
+    image_shape: tuple[int, int],
+    camera: Any,
+    shaft_diameter_mm: float | None,
+    clasper_length_mm: float | None,
+) -> dict[str, dict[str, float]]:
     """Metric pose of one instrument in one frame.
 
     Pure and thread-safe (no shared state; RANSAC uses a fixed table of draws).
@@ -344,8 +390,13 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     parts = instance.parts
     out = {name: _nan_row() for name in parts}
     shaft = parts.get("shaft")
-    if (camera is None or shaft is None or shaft_diameter_mm is None
-            or not shaft_diameter_mm > 0 or not np.any(shaft.mask)):
+    if (
+        camera is None
+        or shaft is None
+        or shaft_diameter_mm is None
+        or not shaft_diameter_mm > 0
+        or not np.any(shaft.mask)
+    ):
         return out
     K = np.asarray(camera.K, dtype=np.float64)
     radius = 0.5 * float(shaft_diameter_mm)
@@ -479,8 +530,9 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
             return None
         return p0, a, xc
 
-    def joint_of(p0: np.ndarray, a: np.ndarray, lines: list[np.ndarray],
-                 stats: list[_LineStats]) -> np.ndarray | None:
+    def joint_of(
+        p0: np.ndarray, a: np.ndarray, lines: list[np.ndarray], stats: list[_LineStats]
+    ) -> np.ndarray | None:
         if distal == 0 or (dist_at_border and len(bnd.other) < 3):
             return None
         near = np.flatnonzero(s >= s_max - zone)
@@ -491,7 +543,7 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
         cap = near[(d1 > tol) & (d2 > tol)]
         end_pts = np.concatenate([bnd.other, pts[cap]])
         is_other = np.zeros(len(end_pts), dtype=bool)
-        is_other[:len(bnd.other)] = True
+        is_other[: len(bnd.other)] = True
         if len(end_pts) < 3:
             return None
         tj, spread = _joint_t(end_pts, is_other, p0, a, radius, K)
@@ -564,8 +616,9 @@ def measure_instance(instance: Any, image_shape: tuple[int, int], camera: Any,
     clasper = parts.get("clasper")
     c_axis = None
     if clasper is not None and np.any(clasper.mask):
-        tip, c_axis, tip_px = _tip(clasper, joint, a, K, image_shape, clasper_length_mm,
-                                   2.0 * radius)
+        tip, c_axis, tip_px = _tip(
+            clasper, joint, a, K, image_shape, clasper_length_mm, 2.0 * radius
+        )
         crow = out["clasper"]
         if tip_px is not None:
             crow["aux_u_px"], crow["aux_v_px"] = float(tip_px[0]), float(tip_px[1])
@@ -591,8 +644,9 @@ _JAW_RAD = 2.5
 _TIP_CAP = 1.0
 
 
-def _jaw_tips(mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray,
-              width_px: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+def _jaw_tips(
+    mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray, width_px: float
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Far ends of the clasper's jaws in the image.
 
     The jaw ends are the local maxima of the distance from J's pixel along the clasper's
@@ -655,9 +709,15 @@ def _jaw_tips(mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray,
     return ends, nears, dirs, halfw
 
 
-def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
-         image_shape: tuple[int, int], length: float | None, diameter: float
-         ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+def _tip(
+    clasper: Any,
+    joint: np.ndarray,
+    a: np.ndarray,
+    K: np.ndarray,
+    image_shape: tuple[int, int],
+    length: float | None,
+    diameter: float,
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Tip (3,), clasper axis (3,) and the tip's pixel (2,) (or Nones).
 
     The tip's pixel is the mid-point of the jaw ends (:func:`_jaw_tips`), each end
@@ -689,9 +749,15 @@ def _tip(clasper: Any, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
     return _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
 
 
-def _tip_solve(tip_px: np.ndarray, joint: np.ndarray, a: np.ndarray, K: np.ndarray,
-               length: float | None, hidden: bool, jpx: np.ndarray
-               ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+def _tip_solve(
+    tip_px: np.ndarray,
+    joint: np.ndarray,
+    a: np.ndarray,
+    K: np.ndarray,
+    length: float | None,
+    hidden: bool,
+    jpx: np.ndarray,
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """The tip (3,) and clasper axis (3,) from the tip's pixel (see :func:`_tip`)."""
     # plain floats for the 3-vectors (numpy's per-call overhead dominates at this size)
     tu, tv = tip_px.tolist()
@@ -705,8 +771,9 @@ def _tip_solve(tip_px: np.ndarray, joint: np.ndarray, a: np.ndarray, K: np.ndarr
     ray = _ray(tip_px, K)
     jx, jy, jz = joint.tolist()
     ax, ay, az = a.tolist()
-    wx, wy, wz = (ray if not hidden else _ray(np.array([ju + 10.0 * uu, jv + 10.0 * uv]), K)
-                  ).tolist()
+    wx, wy, wz = (
+        ray if not hidden else _ray(np.array([ju + 10.0 * uu, jv + 10.0 * uv]), K)
+    ).tolist()
     nx, ny, nz = jy * wz - jz * wy, jz * wx - jx * wz, jx * wy - jy * wx
     nn = math.sqrt(nx * nx + ny * ny + nz * nz)
     if nn < 1e-9:
@@ -743,7 +810,7 @@ def _tip_solve(tip_px: np.ndarray, joint: np.ndarray, a: np.ndarray, K: np.ndarr
     k = int(np.argmin(cost))
     sk = float(s[k])
     if 0 < k < len(s) - 1:  # parabolic refinement
-        c0, c1, c2 = cost[k - 1:k + 2].tolist()
+        c0, c1, c2 = cost[k - 1 : k + 2].tolist()
         den = c0 - 2.0 * c1 + c2
         off = 0.5 * (c0 - c2) / den if den > 0 else 0.0
         sk += min(max(off, -1.0), 1.0) * float(s[1] - s[0])

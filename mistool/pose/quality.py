@@ -34,8 +34,9 @@ def perpendicular_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, cross3(a, e1)
 
 
-def hull_of_cylinder(p_a: np.ndarray, p_b: np.ndarray, r_a: float, r_b: float,
-                     K: np.ndarray, min_z_mm: float = 1.0) -> np.ndarray | None:
+def hull_of_cylinder(
+    p_a: np.ndarray, p_b: np.ndarray, r_a: float, r_b: float, K: np.ndarray, min_z_mm: float = 1.0
+) -> np.ndarray | None:
     """Image outline of a capped (tapered) cylinder.
 
     Args:
@@ -60,8 +61,13 @@ def hull_of_cylinder(p_a: np.ndarray, p_b: np.ndarray, r_a: float, r_b: float,
     return cv2.convexHull(uv).reshape(-1, 2)
 
 
-def iou_polygon_mask(poly: np.ndarray | None, mask: np.ndarray, offset: tuple[int, int],
-                     image_shape: tuple[int, int], max_pixels: int = 40000) -> float:
+def iou_polygon_mask(
+    poly: np.ndarray | None,
+    mask: np.ndarray,
+    offset: tuple[int, int],
+    image_shape: tuple[int, int],
+    max_pixels: int = 40000,
+) -> float:
     """IoU of a filled polygon with a part's mask, inside the image.
 
     Args:
@@ -90,16 +96,15 @@ def iou_polygon_mask(poly: np.ndarray | None, mask: np.ndarray, offset: tuple[in
     x0, y0 = x0 - x0 % st, y0 - y0 % st
     hc, wc = -(-(y1 - y0) // st), -(-(x1 - x0) // st)
     canvas = np.zeros((hc, wc), dtype=np.uint8)
-    shifted = np.round((poly - np.array([x0, y0], dtype=np.float64)) * (16.0 / st)
-                       ).astype(np.int32)
+    shifted = np.round((poly - np.array([x0, y0], dtype=np.float64)) * (16.0 / st)).astype(np.int32)
     cv2.fillConvexPoly(canvas, shifted, 1, lineType=cv2.LINE_8, shift=4)
     rend = canvas.view(bool)
     obs = np.zeros_like(rend)
     ia, ja = max(0, -(-(oy - y0) // st)), max(0, -(-(ox - x0) // st))
     ib, jb = min(hc, -(-(oy + mh - y0) // st)), min(wc, -(-(ox + mw - x0) // st))
     if ia < ib and ja < jb:
-        sub = mask[y0 + st * ia - oy::st, x0 + st * ja - ox::st]
-        obs[ia:ib, ja:jb] = sub[:ib - ia, :jb - ja]
+        sub = mask[y0 + st * ia - oy :: st, x0 + st * ja - ox :: st]
+        obs[ia:ib, ja:jb] = sub[: ib - ia, : jb - ja]
     inter = np.count_nonzero(rend & obs)
     union = np.count_nonzero(rend | obs)
     return inter / union if union else float("nan")

@@ -14,8 +14,9 @@ from mistool.pose.cylinder import pixel_rays
 __all__ = ["capped_cylinder_depth", "render_instrument"]
 
 
-def capped_cylinder_depth(rays: np.ndarray, p_a: np.ndarray, p_b: np.ndarray,
-                          radius_mm: float) -> np.ndarray:
+def capped_cylinder_depth(
+    rays: np.ndarray, p_a: np.ndarray, p_b: np.ndarray, radius_mm: float
+) -> np.ndarray:
     """Distance along each ray (from the camera centre) to a closed cylinder.
 
     Args:
@@ -54,10 +55,18 @@ def capped_cylinder_depth(rays: np.ndarray, p_a: np.ndarray, p_b: np.ndarray,
     return best
 
 
-def render_instrument(shape: tuple[int, int], K: np.ndarray, start: np.ndarray,
-                      joint: np.ndarray, tip: np.ndarray | None, radius_mm: float,
-                      clasper_radius_mm: float | None = None, shaft_value: int = 160,
-                      clasper_value: int = 70, out: np.ndarray | None = None) -> np.ndarray:
+def render_instrument(
+    shape: tuple[int, int],
+    K: np.ndarray,
+    start: np.ndarray,
+    joint: np.ndarray,
+    tip: np.ndarray | None,
+    radius_mm: float,
+    clasper_radius_mm: float | None = None,
+    shaft_value: int = 160,
+    clasper_value: int = 70,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
     """Render one instrument's label image by ray casting pixel centres.
 
     Args:
@@ -77,8 +86,9 @@ def render_instrument(shape: tuple[int, int], K: np.ndarray, start: np.ndarray,
     h, w = shape
     vv, uu = np.mgrid[0:h, 0:w]
     rays = pixel_rays(np.stack([uu.ravel(), vv.ravel()], axis=1), K)
-    depth = capped_cylinder_depth(rays, np.asarray(start, float), np.asarray(joint, float),
-                                  radius_mm)
+    depth = capped_cylinder_depth(
+        rays, np.asarray(start, float), np.asarray(joint, float), radius_mm
+    )
     labels = np.zeros(h * w, dtype=np.uint8) if out is None else out.ravel().copy()
     labels[np.isfinite(depth)] = shaft_value
     if tip is not None:

@@ -55,8 +55,9 @@ def _get3(cols: dict[str, np.ndarray], names: tuple[str, ...], idx: np.ndarray) 
     return np.stack([cols[n][idx] for n in names], axis=1)
 
 
-def _set3(cols: dict[str, np.ndarray], names: tuple[str, ...], idx: np.ndarray,
-          values: np.ndarray) -> None:
+def _set3(
+    cols: dict[str, np.ndarray], names: tuple[str, ...], idx: np.ndarray, values: np.ndarray
+) -> None:
     for j, n in enumerate(names):
         cols[n][idx] = values[:, j]
 
@@ -66,8 +67,9 @@ def _ray(K: np.ndarray, u: float, v: float) -> np.ndarray:
     return r / np.linalg.norm(r)
 
 
-def _trocar_fusion(cols: dict[str, np.ndarray], idx: np.ndarray, trocar: Trocar,
-                   K: np.ndarray, radius: float) -> None:
+def _trocar_fusion(
+    cols: dict[str, np.ndarray], idx: np.ndarray, trocar: Trocar, K: np.ndarray, radius: float
+) -> None:
     """Re-solve the shaft rows ``idx`` (one instrument) with the trocar constraint.
 
     Two limb lines: (1) a second joint estimate, the line through the trocar with the
@@ -96,8 +98,9 @@ def _trocar_fusion(cols: dict[str, np.ndarray], idx: np.ndarray, trocar: Trocar,
                 t = float(closest_on_axis(jray[None], T, a)[0])
                 s_r = float(jray @ (T + t * a))
                 sin_ang = math.sqrt(max(1.0 - float(jray @ a) ** 2, 1e-6))
-                sig_t = (float(np.linalg.norm(J - T)) * max(sig_a, 1e-4)
-                         + trocar.sigma_across(a)) / sin_ang
+                sig_t = (
+                    float(np.linalg.norm(J - T)) * max(sig_a, 1e-4) + trocar.sigma_across(a)
+                ) / sin_ang
                 if s_r > 0:
                     w_t, w_m = 1.0 / sig_t**2, 1.0 / sig_j**2
                     J = (w_t * s_r * jray + w_m * J) / (w_t + w_m)
@@ -124,8 +127,9 @@ def _trocar_fusion(cols: dict[str, np.ndarray], idx: np.ndarray, trocar: Trocar,
             _set_row(cols, i, J, a, sray)
 
 
-def _set_row(cols: dict[str, np.ndarray], i: int, J: np.ndarray, a: np.ndarray,
-             sray: np.ndarray | None) -> None:
+def _set_row(
+    cols: dict[str, np.ndarray], i: int, J: np.ndarray, a: np.ndarray, sray: np.ndarray | None
+) -> None:
     for j, n in enumerate(_END):
         cols[n][i] = J[j]
     for j, n in enumerate(_AXIS):
@@ -136,8 +140,9 @@ def _set_row(cols: dict[str, np.ndarray], i: int, J: np.ndarray, a: np.ndarray,
             cols[n][i] = start[j]
 
 
-def _realign_clasper(cols: dict[str, np.ndarray], shaft_idx: np.ndarray,
-                     clasper_idx: np.ndarray, frames: np.ndarray) -> None:
+def _realign_clasper(
+    cols: dict[str, np.ndarray], shaft_idx: np.ndarray, clasper_idx: np.ndarray, frames: np.ndarray
+) -> None:
     """Move each clasper row's start (= J) and end with its shaft row's joint."""
     by_frame = {int(frames[i]): i for i in shaft_idx}
     for i in clasper_idx:
@@ -157,8 +162,7 @@ def _realign_clasper(cols: dict[str, np.ndarray], shaft_idx: np.ndarray,
                 cols[n][i] = tip[j] + shift[j]
 
 
-def _reliable_trocar(cols: dict[str, np.ndarray], idx: np.ndarray, t: np.ndarray
-                     ) -> Trocar | None:
+def _reliable_trocar(cols: dict[str, np.ndarray], idx: np.ndarray, t: np.ndarray) -> Trocar | None:
     """The trocar of one instrument's shaft rows ``idx`` (time order), or None when the
     pivoting is too small for it to be trusted.
 
@@ -182,8 +186,7 @@ def _reliable_trocar(cols: dict[str, np.ndarray], idx: np.ndarray, t: np.ndarray
     return trocar
 
 
-def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline"
-                    ) -> TrackTable:
+def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline") -> TrackTable:
     """Sequence-level metric refinement: trocar, trocar constraint, temporal filtering.
 
     Args:
@@ -235,12 +238,16 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
             flip = np.einsum("ij,ij->i", mid - trocar.point, ax) < 0
             _set3(cols, _AXIS, nod[flip], -ax[flip])
     if smoothing != "none":
-        for _key, idx in TrackTable({"frame": frames, "instrument": inst,
-                                          "part": part}).groups("instrument", "part"):
+        for _key, idx in TrackTable({"frame": frames, "instrument": inst, "part": part}).groups(
+            "instrument", "part"
+        ):
             idx = idx[np.argsort(frames[idx], kind="stable")]
             t = frames[idx] / fps
-            for names, acc, floor in ((_END, ACCEL_MM_S2, 0.05), (_START, ACCEL_MM_S2, 0.05),
-                                      (_AXIS, _ACCEL_AXIS, 1e-4)):
+            for names, acc, floor in (
+                (_END, ACCEL_MM_S2, 0.05),
+                (_START, ACCEL_MM_S2, 0.05),
+                (_AXIS, _ACCEL_AXIS, 1e-4),
+            ):
                 y = _get3(cols, names, idx)
                 f = filter_series(t, y, smoothing, acc, floor)
                 if names is _AXIS:
@@ -253,4 +260,3 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
         for j, n in enumerate(_QUAT):
             cols[n][i] = q[j]
     return TrackTable({c: v for c, v in cols.items() if c not in AUX_KEYS})
-

@@ -16,8 +16,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BG", "OTHER", "SHAFT", "Boundary", "Canvas", "boundary_points",
-           "fit_line_robust", "make_canvas"]
+__all__ = [
+    "BG",
+    "OTHER",
+    "SHAFT",
+    "Boundary",
+    "Canvas",
+    "boundary_points",
+    "fit_line_robust",
+    "make_canvas",
+]
 
 BG, SHAFT, OTHER = 0, 1, 2
 
@@ -45,22 +53,27 @@ class Boundary:
     """(M, 2) points between the part and the instrument's other parts."""
 
 
-def _paste(dst: np.ndarray, x0: int, y0: int, mask: np.ndarray, ox: int, oy: int,
-           value: int) -> None:
+def _paste(
+    dst: np.ndarray, x0: int, y0: int, mask: np.ndarray, ox: int, oy: int, value: int
+) -> None:
     h, w = dst.shape
     mh, mw = mask.shape
     xa, ya = max(ox, x0), max(oy, y0)
     xb, yb = min(ox + mw, x0 + w), min(oy + mh, y0 + h)
     if xa >= xb or ya >= yb:
         return
-    sub = mask[ya - oy:yb - oy, xa - ox:xb - ox]
-    view = dst[ya - y0:yb - y0, xa - x0:xb - x0]
+    sub = mask[ya - oy : yb - oy, xa - ox : xb - ox]
+    view = dst[ya - y0 : yb - y0, xa - x0 : xb - x0]
     view[sub] = value
 
 
-def make_canvas(part_mask: np.ndarray, offset: tuple[int, int],
-                others: list[tuple[np.ndarray, tuple[int, int]]],
-                image_shape: tuple[int, int], margin: int = 2) -> Canvas:
+def make_canvas(
+    part_mask: np.ndarray,
+    offset: tuple[int, int],
+    others: list[tuple[np.ndarray, tuple[int, int]]],
+    image_shape: tuple[int, int],
+    margin: int = 2,
+) -> Canvas:
     """Label crop around a part: the part and the instrument's other parts.
 
     Args:
@@ -154,9 +167,14 @@ def _draw_indices(n: int, iters: int) -> tuple[np.ndarray, np.ndarray]:
     return pick_i, pick_j
 
 
-def fit_line_robust(pts: np.ndarray, along: np.ndarray, rng: np.random.Generator | None = None,
-                    thresh_px: float = 1.5, iters: int = 12, max_points: int = 192
-                    ) -> tuple[np.ndarray, np.ndarray, float] | None:
+def fit_line_robust(
+    pts: np.ndarray,
+    along: np.ndarray,
+    rng: np.random.Generator | None = None,
+    thresh_px: float = 1.5,
+    iters: int = 12,
+    max_points: int = 192,
+) -> tuple[np.ndarray, np.ndarray, float] | None:
     """Robust sub-pixel line: RANSAC on long baselines, then Tukey-weighted TLS.
 
     Args:

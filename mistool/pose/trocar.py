@@ -83,8 +83,9 @@ def _lmeds_start(p: np.ndarray, a: np.ndarray, pairs: int = 60) -> np.ndarray | 
     return best
 
 
-def intersect_lines(p: np.ndarray, a: np.ndarray, min_lines: int = 5,
-                    min_spread_deg: float = 2.0, iters: int = 10) -> Trocar | None:
+def intersect_lines(
+    p: np.ndarray, a: np.ndarray, min_lines: int = 5, min_spread_deg: float = 2.0, iters: int = 10
+) -> Trocar | None:
     """Robust least-squares intersection of 3D lines.
 
     Args:

@@ -76,8 +76,15 @@ def _rng(seed: int, which: int, frame: int = -1) -> np.random.Generator:
 class Corruptor:
     """Applies :class:`Corruptions` frame by frame (state: occluder paths, hidden runs)."""
 
-    def __init__(self, corruptions: Corruptions, shape: tuple[int, int], frames: int,
-                 instruments: int, fps: float, seed: int) -> None:
+    def __init__(
+        self,
+        corruptions: Corruptions,
+        shape: tuple[int, int],
+        frames: int,
+        instruments: int,
+        fps: float,
+        seed: int,
+    ) -> None:
         self.c = corruptions
         self.shape = shape
         self.seed = seed
@@ -89,8 +96,10 @@ class Corruptor:
             amp = rng.uniform(10.0, 45.0, 2)
             freq = rng.uniform(0.05, 0.25, 2)
             phase = rng.uniform(0, 2 * math.pi, 2)
-            lobes = [(rng.uniform(-15, 15, 2), rng.uniform(15, 40, 2), rng.uniform(0, 180))
-                     for _ in range(3)]
+            lobes = [
+                (rng.uniform(-15, 15, 2), rng.uniform(15, 40, 2), rng.uniform(0, 180))
+                for _ in range(3)
+            ]
             self._blobs.append((k % max(1, instruments), amp, freq, phase, lobes))
         self.fps = fps
         # hidden clasper: per instrument, runs of ~1 s covering the requested fraction
@@ -103,7 +112,7 @@ class Corruptor:
                 for s in rng.permutation(max(1, frames - run + 1)):
                     if self._hidden[i].sum() >= target:
                         break
-                    self._hidden[i, s:s + run] = True
+                    self._hidden[i, s : s + run] = True
                 idx = np.flatnonzero(self._hidden[i])
                 self._hidden[i, idx[target:]] = False  # trim the overshoot
 
@@ -111,8 +120,15 @@ class Corruptor:
         """Whether instrument ``instrument``'s clasper is hidden in ``frame``."""
         return bool(self._hidden[instrument, frame])
 
-    def apply(self, labels: np.ndarray, instance: np.ndarray, part: np.ndarray,
-              frame: int, values: list[int], biased: bool = False) -> np.ndarray:
+    def apply(
+        self,
+        labels: np.ndarray,
+        instance: np.ndarray,
+        part: np.ndarray,
+        frame: int,
+        values: list[int],
+        biased: bool = False,
+    ) -> np.ndarray:
         """Corrupt one frame.
 
         Args:
@@ -145,8 +161,13 @@ class Corruptor:
             dx = cv2.resize(dx, (w, h), interpolation=cv2.INTER_CUBIC)
             dy = cv2.resize(dy, (w, h), interpolation=cv2.INTER_CUBIC)
             gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-            out = cv2.remap(out, gx + dx, gy + dy, interpolation=cv2.INTER_NEAREST,
-                            borderMode=cv2.BORDER_REPLICATE)
+            out = cv2.remap(
+                out,
+                gx + dx,
+                gy + dy,
+                interpolation=cv2.INTER_NEAREST,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
         if c.holes > 0:
             rng = _rng(self.seed, _HOLES, frame)
             ys, xs = np.nonzero(out)
@@ -155,8 +176,9 @@ class Corruptor:
                 pick = rng.integers(0, len(xs), n)
                 for x, y in zip(xs[pick], ys[pick], strict=True):
                     axes = (int(rng.integers(2, 8)), int(rng.integers(1, 4)))
-                    cv2.ellipse(out, (int(x), int(y)), axes, float(rng.uniform(0, 180)),
-                                0, 360, 0, -1)
+                    cv2.ellipse(
+                        out, (int(x), int(y)), axes, float(rng.uniform(0, 180)), 0, 360, 0, -1
+                    )
         if c.occluders > 0:
             t = frame / self.fps
             mask = np.zeros((h, w), dtype=np.uint8)
@@ -174,8 +196,16 @@ class Corruptor:
                 p = anchor + amp * np.sin(2 * math.pi * freq * t + phase)
                 for off, axes, ang in lobes:
                     q = p + off
-                    cv2.ellipse(mask, (int(round(q[0])), int(round(q[1]))),
-                                (int(axes[0]), int(axes[1])), float(ang), 0, 360, 1, -1)
+                    cv2.ellipse(
+                        mask,
+                        (int(round(q[0])), int(round(q[1]))),
+                        (int(axes[0]), int(axes[1])),
+                        float(ang),
+                        0,
+                        360,
+                        1,
+                        -1,
+                    )
             out[mask > 0] = 0
         if c.speckle > 0:
             rng = _rng(self.seed, _SPECKLE, frame)

@@ -39,14 +39,16 @@ class MotionOptions:
     """Scales every motion frequency."""
 
 
-def _smooth(rng: np.random.Generator, t: np.ndarray, fmin: float, fmax: float,
-            n: int = 3) -> np.ndarray:
+def _smooth(
+    rng: np.random.Generator, t: np.ndarray, fmin: float, fmax: float, n: int = 3
+) -> np.ndarray:
     """A smooth random curve in about [-1, 1]: sum of ``n`` sinusoids (Hz range given)."""
     freqs = rng.uniform(fmin, fmax, n)
     phases = rng.uniform(0, 2 * math.pi, n)
     amps = rng.uniform(0.5, 1.0, n)
-    y = sum(a * np.sin(2 * math.pi * f * t + p)
-            for a, f, p in zip(amps, freqs, phases, strict=True))
+    y = sum(
+        a * np.sin(2 * math.pi * f * t + p) for a, f, p in zip(amps, freqs, phases, strict=True)
+    )
     return y / amps.sum() * 1.6
 
 
@@ -55,9 +57,14 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
     return x * x * (3 - 2 * x)
 
 
-def generate_motion(cam: ImageCamera, geoms: list[InstrumentGeometry], frames: int,
-                    fps: float, seed: int, options: MotionOptions | None = None,
-                    ) -> list[list[InstrumentPose]]:
+def generate_motion(
+    cam: ImageCamera,
+    geoms: list[InstrumentGeometry],
+    frames: int,
+    fps: float,
+    seed: int,
+    options: MotionOptions | None = None,
+) -> list[list[InstrumentPose]]:
     """Poses of every instrument in every frame: ``result[i][frame]``."""
     opts = options or MotionOptions()
     rng = np.random.default_rng([seed, 7919])
@@ -70,10 +77,13 @@ def generate_motion(cam: ImageCamera, geoms: list[InstrumentGeometry], frames: i
         # trocar: instruments come from the right, left, top, bottom, in turn
         side = [(1.0, 0.0), (-1.0, 0.0), (0.0, -1.0), (0.0, 1.0)][i % 4]
         lateral = rng.uniform(95.0, 125.0)
-        trocar = np.array([
-            side[0] * lateral + (1 - abs(side[0])) * rng.uniform(-30, 30),
-            side[1] * lateral + (1 - abs(side[1])) * rng.uniform(-50, -10),
-            rng.uniform(-10.0, 15.0)])
+        trocar = np.array(
+            [
+                side[0] * lateral + (1 - abs(side[0])) * rng.uniform(-30, 30),
+                side[1] * lateral + (1 - abs(side[1])) * rng.uniform(-50, -10),
+                rng.uniform(-10.0, 15.0),
+            ]
+        )
         # work point G(t): depth, and image position as a fraction of the half-image
         z0 = rng.uniform(75.0, 105.0)
         z = z0 + 22.0 * _smooth(rng, t, 0.04, 0.15)
@@ -85,8 +95,9 @@ def generate_motion(cam: ImageCamera, geoms: list[InstrumentGeometry], frames: i
             # a slow sweep towards and past the image centre so that tools cross
             period = rng.uniform(0.6, 0.9) * max(duration, 4.0)
             phase = rng.uniform(0, 0.3)
-            sweep_x = sweep_x - side[0] * 0.45 * (0.5 - 0.5 * np.cos(
-                2 * math.pi * (t / period + phase)))
+            sweep_x = sweep_x - side[0] * 0.45 * (
+                0.5 - 0.5 * np.cos(2 * math.pi * (t / period + phase))
+            )
         gx_px = c.cx + (fx + sweep_x) * cam.width / 2.0
         gy_px = c.cy + (fy + sweep_y) * cam.height / 2.0
         z = np.clip(z, DEPTH_RANGE_MM[0] + 10.0, DEPTH_RANGE_MM[1] - 10.0)
@@ -120,10 +131,22 @@ def generate_motion(cam: ImageCamera, geoms: list[InstrumentGeometry], frames: i
         period = rng.uniform(1.8, 3.2)
         phase = rng.uniform(0, 1)
         cyc = (t / period + phase) % 1.0
-        opening = np.where(cyc < 0.5, _smoothstep(cyc / 0.15),
-                           1.0 - _smoothstep((cyc - 0.5) / 0.15))
+        opening = np.where(
+            cyc < 0.5, _smoothstep(cyc / 0.15), 1.0 - _smoothstep((cyc - 0.5) / 0.15)
+        )
         jaw = rng.uniform(35.0, 55.0) * opening
-        out.append([InstrumentPose(trocar, axis[f], float(insertion[f]), float(roll[f]),
-                                   float(wrist[f]), float(yaw[f]), float(jaw[f]))
-                    for f in range(frames)])
+        out.append(
+            [
+                InstrumentPose(
+                    trocar,
+                    axis[f],
+                    float(insertion[f]),
+                    float(roll[f]),
+                    float(wrist[f]),
+                    float(yaw[f]),
+                    float(jaw[f]),
+                )
+                for f in range(frames)
+            ]
+        )
     return out

@@ -59,8 +59,9 @@ class RayCaster:
         self.yn2 = self.yn * self.yn + np.float32(1.0)
 
     # ----------------------------------------------------------------------------------
-    def _bbox(self, centres: list[np.ndarray], radius: float, pad_px: float = 0.0
-              ) -> tuple[int, int, int, int] | None:
+    def _bbox(
+        self, centres: list[np.ndarray], radius: float, pad_px: float = 0.0
+    ) -> tuple[int, int, int, int] | None:
         """Pixel box (x0, y0, x1, y1), exclusive ends, bounding spheres of ``radius`` at the
         given centres and everything between them (their convex hull), grown by ``pad_px``;
         None if empty."""
@@ -91,8 +92,9 @@ class RayCaster:
             return None
         return x0, y0, x1, y1
 
-    def _cylinder(self, cyl: Cylinder, bias_px: float = 0.0
-                  ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+    def _cylinder(
+        self, cyl: Cylinder, bias_px: float = 0.0
+    ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         p0 = np.asarray(cyl.p0, dtype=np.float64)
         a = np.asarray(cyl.axis, dtype=np.float64)
         box = self._bbox([p0, p0 + cyl.length * a], cyl.radius, abs(bias_px))
@@ -104,8 +106,8 @@ class RayCaster:
         c = self.cam.camera
         ifx, ify = f32(1.0 / c.fx), f32(1.0 / c.fy)
         dd = self.xn2[x0:x1][None, :] + self.yn2[y0:y1][:, None]
-        da = f32(a[0]) * xn + (f32(a[1]) * yn + f32(a[2]))            # d . a
-        dp = f32(p0[0]) * xn + (f32(p0[1]) * yn + f32(p0[2]))         # d . p0
+        da = f32(a[0]) * xn + (f32(a[1]) * yn + f32(a[2]))  # d . a
+        dp = f32(p0[0]) * xn + (f32(p0[1]) * yn + f32(p0[2]))  # d . p0
         pa = float(p0 @ a)
         # |t d - p0|_perp^2 = r^2  ->  A t^2 - 2 B t + C = 0
         aa = dd - da * da
@@ -117,8 +119,9 @@ class RayCaster:
                 # t* |(n_x / fx, n_y / fy)|
                 nx = yn * f32(a[2]) - f32(a[1])
                 ny = f32(a[0]) - xn * f32(a[2])
-                grow = np.abs(bb / aa) * np.sqrt((nx * nx * ifx * ifx + ny * ny * ify * ify)
-                                                 / np.maximum(aa, f32(1e-12)))
+                grow = np.abs(bb / aa) * np.sqrt(
+                    (nx * nx * ifx * ifx + ny * ny * ify * ify) / np.maximum(aa, f32(1e-12))
+                )
                 rad = np.maximum(f32(cyl.radius) + f32(bias_px) * grow, f32(0.0))
             else:
                 rad = f32(cyl.radius)
@@ -126,7 +129,7 @@ class RayCaster:
             disc = bb * bb - aa * cc
             hit = disc >= 0
             t = (bb - np.sqrt(np.maximum(disc, 0))) / aa
-            s = t * da - f32(pa)                                      # axial coordinate
+            s = t * da - f32(pa)  # axial coordinate
             t = np.where(hit & (s >= 0) & (s <= cyl.length), t, np.inf)
             # the one cap facing the camera (the camera is outside the cylinder)
             cap_s = None
@@ -137,7 +140,7 @@ class RayCaster:
             if cap_s is not None:
                 tc = f32(cap_s + pa) / da
                 # squared distance from the axis at the cap: |t d - p0|^2 - cap_s^2
-                rho2 = tc * tc * dd - f32(2.0) * tc * dp + f32(float(p0 @ p0) - cap_s ** 2)
+                rho2 = tc * tc * dd - f32(2.0) * tc * dp + f32(float(p0 @ p0) - cap_s**2)
                 rad_c = f32(cyl.radius)
                 if bias_px:
                     # the hit's in-plane offset w from the cap centre q; a pixel step moves
@@ -147,18 +150,20 @@ class RayCaster:
                     wy = tc * yn - f32(q[1])
                     wz = tc - f32(q[2])
                     wn = np.sqrt(np.maximum(wx * wx + wy * wy + wz * wz, f32(1e-12)))
-                    k = (wx * xn + wy * yn + wz) / (wn * da)               # (w^ . d) / (a . d)
+                    k = (wx * xn + wy * yn + wz) / (wn * da)  # (w^ . d) / (a . d)
                     gu = (wx / wn - f32(a[0]) * k) * ifx
                     gv = (wy / wn - f32(a[1]) * k) * ify
-                    rad_c = np.maximum(rad_c + f32(bias_px) * np.abs(tc)
-                                       * np.sqrt(gu * gu + gv * gv), f32(0.0))
+                    rad_c = np.maximum(
+                        rad_c + f32(bias_px) * np.abs(tc) * np.sqrt(gu * gu + gv * gv), f32(0.0)
+                    )
                 tc = np.where((rho2 <= rad_c * rad_c) & (tc > 0), tc, np.inf)
                 t = np.minimum(t, tc)
         t = np.where(t >= NEAR_MM, t, np.inf)
         return box, t
 
-    def _sphere(self, sph: Sphere, bias_px: float = 0.0
-                ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+    def _sphere(
+        self, sph: Sphere, bias_px: float = 0.0
+    ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         c = np.asarray(sph.centre, dtype=np.float64)
         box = self._bbox([c], sph.radius, abs(bias_px))
         if box is None:
@@ -177,8 +182,9 @@ class RayCaster:
                 ny = ts * yn - f32(c[1])
                 nz = ts - f32(c[2])
                 nn = np.maximum(nx * nx + ny * ny + nz * nz, f32(1e-12))
-                grow = np.abs(ts) * np.sqrt((nx * nx / f32(cam.fx ** 2)
-                                             + ny * ny / f32(cam.fy ** 2)) / nn)
+                grow = np.abs(ts) * np.sqrt(
+                    (nx * nx / f32(cam.fx**2) + ny * ny / f32(cam.fy**2)) / nn
+                )
                 rad = np.maximum(f32(sph.radius) + f32(bias_px) * grow, f32(0.0))
             else:
                 rad = f32(sph.radius)
@@ -187,8 +193,9 @@ class RayCaster:
         t = np.where(t >= NEAR_MM, t, np.inf)
         return box, t
 
-    def depth_of(self, prim: Primitive, bias_px: float = 0.0
-                 ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+    def depth_of(
+        self, prim: Primitive, bias_px: float = 0.0
+    ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         """Depth (mm, float32, inf where missed) of one primitive over its pixel box
         ``(x0, y0, x1, y1)``; None when it projects outside the image. ``bias_px`` moves
         its outline outward (inward if negative) by that many px (module docstring)."""
@@ -196,8 +203,7 @@ class RayCaster:
             return self._cylinder(prim, bias_px)
         return self._sphere(prim, bias_px)
 
-    def render(self, instruments: list[list[PartGeometry]], bias_px: float = 0.0
-               ) -> RenderBuffers:
+    def render(self, instruments: list[list[PartGeometry]], bias_px: float = 0.0) -> RenderBuffers:
         """Render instruments (each a list of parts) into depth, instance and part maps;
         each instrument is rendered alone, then composited by depth. ``bias_px``: every
         outline moved outward by that many px (inward if negative; see module docstring)."""

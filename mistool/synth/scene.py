@@ -63,8 +63,9 @@ class ImageCamera:
         """Project camera-frame points (..., 3) mm to pixels (..., 2) (z must be > 0)."""
         p = np.asarray(points, dtype=np.float64)
         c = self.camera
-        return np.stack([c.fx * p[..., 0] / p[..., 2] + c.cx,
-                         c.fy * p[..., 1] / p[..., 2] + c.cy], axis=-1)
+        return np.stack(
+            [c.fx * p[..., 0] / p[..., 2] + c.cx, c.fy * p[..., 1] / p[..., 2] + c.cy], axis=-1
+        )
 
 
 @dataclass(frozen=True)
@@ -112,8 +113,9 @@ class InstrumentGeometry:
         if shaft_diameter_mm is None:
             return g
         k = shaft_diameter_mm / base
-        return InstrumentGeometry(shaft_diameter_mm, g.wrist_length_mm * k, None,
-                                  g.jaw_length_mm * k, None)
+        return InstrumentGeometry(
+            shaft_diameter_mm, g.wrist_length_mm * k, None, g.jaw_length_mm * k, None
+        )
 
 
 @dataclass(frozen=True)
@@ -172,20 +174,16 @@ def matrix_to_wxyz(r: np.ndarray) -> np.ndarray:
     tr = np.trace(m)
     if tr > 0:
         s = math.sqrt(tr + 1.0) * 2
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s,
-             (m[1, 0] - m[0, 1]) / s]
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
     elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
         s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s,
-             (m[0, 2] + m[2, 0]) / s]
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
     elif m[1, 1] > m[2, 2]:
         s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s,
-             (m[1, 2] + m[2, 1]) / s]
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
     else:
         s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s,
-             0.25 * s]
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
     qa = np.asarray(q)
     qa /= np.linalg.norm(qa)
     return -qa if qa[0] < 0 else qa
@@ -249,12 +247,17 @@ def instrument_parts(pose: InstrumentPose, geom: InstrumentGeometry) -> list[Par
     jaws = [math.cos(half) * b + sgn * math.sin(half) * x_j for sgn in (1.0, -1.0)]
     tip = w + geom.jaw_length_mm * math.cos(half) * b
     rs, rw, rj = geom.shaft_diameter_mm / 2.0, geom.wrist_radius_mm, geom.jaw_radius_mm
-    shaft = PartGeometry("shaft", (Cylinder(t, a_s, float(pose.insertion_mm), rs),),
-                         t, j, r_s)
-    wrist = PartGeometry("wrist", (Sphere(j, rw), Cylinder(j, a_w, geom.wrist_length_mm, rw),
-                                   Sphere(w, min(rw, 1.6 * rj))), j, w, r_w)
-    clasper = PartGeometry("clasper", tuple(Cylinder(w, d, geom.jaw_length_mm, rj)
-                                            for d in jaws), w, tip, r_j)
+    shaft = PartGeometry("shaft", (Cylinder(t, a_s, float(pose.insertion_mm), rs),), t, j, r_s)
+    wrist = PartGeometry(
+        "wrist",
+        (Sphere(j, rw), Cylinder(j, a_w, geom.wrist_length_mm, rw), Sphere(w, min(rw, 1.6 * rj))),
+        j,
+        w,
+        r_w,
+    )
+    clasper = PartGeometry(
+        "clasper", tuple(Cylinder(w, d, geom.jaw_length_mm, rj) for d in jaws), w, tip, r_j
+    )
     return [shaft, wrist, clasper]
 
 
@@ -266,5 +269,10 @@ def merged_head(wrist: PartGeometry, clasper: PartGeometry) -> PartGeometry:
     z = (end - start) / np.linalg.norm(end - start)
     x = clasper.rotation[:, 0] - (clasper.rotation[:, 0] @ z) * z
     x /= np.linalg.norm(x)
-    return PartGeometry("clasper", wrist.primitives + clasper.primitives, start, end,
-                        np.column_stack([x, np.cross(z, x), z]))
+    return PartGeometry(
+        "clasper",
+        wrist.primitives + clasper.primitives,
+        start,
+        end,
+        np.column_stack([x, np.cross(z, x), z]),
+    )

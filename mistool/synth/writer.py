@@ -56,8 +56,14 @@ from mistool.synth.scene import (
 VIDEO_CODECS: dict[str, str] = {"mjpg": "MJPG", "xvid": "XVID", "mp4v": "mp4v"}
 
 #: Extra truth columns (after the known ones): the true joint angles and insertion.
-TRUTH_EXTRAS: tuple[str, ...] = ("visible_frac", "roll_deg", "wrist_deg", "jaw_yaw_deg",
-                                 "jaw_open_deg", "insertion_mm")
+TRUTH_EXTRAS: tuple[str, ...] = (
+    "visible_frac",
+    "roll_deg",
+    "wrist_deg",
+    "jaw_yaw_deg",
+    "jaw_open_deg",
+    "insertion_mm",
+)
 
 
 @dataclass(frozen=True)
@@ -100,8 +106,10 @@ def label_values(preset: str, instruments: int, distinct: bool) -> list[dict[str
     values = sorted(base.values())
     gap = min([b - a for a, b in zip(values[:-1], values[1:], strict=True)] + [values[0] + 1])
     if instruments > gap:
-        raise ConfigError(f"distinct labels: preset {preset} leaves room for at most {gap} "
-                          f"instruments, got {instruments}")
+        raise ConfigError(
+            f"distinct labels: preset {preset} leaves room for at most {gap} "
+            f"instruments, got {instruments}"
+        )
     return [{p: v - i for p, v in base.items()} for i in range(instruments)]
 
 
@@ -125,10 +133,17 @@ def _part_box(mask: np.ndarray) -> tuple[RotatedBox, np.ndarray, int] | None:
     return box, corners, area
 
 
-def truth_rows(frame: int, fps: float, labels_clean: np.ndarray, instance: np.ndarray,
-               alone: list[np.ndarray], parts: list[list[PartGeometry]],
-               poses: list[InstrumentPose], values: list[dict[str, int]],
-               names: list[str]) -> list[dict]:
+def truth_rows(
+    frame: int,
+    fps: float,
+    labels_clean: np.ndarray,
+    instance: np.ndarray,
+    alone: list[np.ndarray],
+    parts: list[list[PartGeometry]],
+    poses: list[InstrumentPose],
+    values: list[dict[str, int]],
+    names: list[str],
+) -> list[dict]:
     """The truth rows of one frame: one per instrument x label part with >= 1 clean pixel.
 
     ``cx_px .. angle_deg``, corners and ``area_px`` come from the clean mask of that
@@ -150,10 +165,18 @@ def truth_rows(frame: int, fps: float, labels_clean: np.ndarray, instance: np.nd
             box, corners, area = found
             geo = by_name[lpart]
             full = int(np.count_nonzero(alone[i] == value)) if len(alone) > 1 else area
-            row = {"frame": frame, "time_s": frame / fps, "instrument": names[i],
-                   "part": lpart, "cx_px": box.cx, "cy_px": box.cy,
-                   "length_px": box.length, "width_px": box.width,
-                   "angle_deg": box.angle_deg, "area_px": float(area)}
+            row = {
+                "frame": frame,
+                "time_s": frame / fps,
+                "instrument": names[i],
+                "part": lpart,
+                "cx_px": box.cx,
+                "cy_px": box.cy,
+                "length_px": box.length,
+                "width_px": box.width,
+                "angle_deg": box.angle_deg,
+                "area_px": float(area),
+            }
             for k in range(4):
                 row[f"x{k + 1}_px"], row[f"y{k + 1}_px"] = corners[k]
             axis = geo.rotation[:, 2]
@@ -164,9 +187,14 @@ def truth_rows(frame: int, fps: float, labels_clean: np.ndarray, instance: np.nd
                 row[f"start_{ax}_mm"] = geo.start_mm[j]
                 row[f"trocar_{ax}_mm"] = pose.trocar_mm[j]
             row.update(qw=q[0], qx=q[1], qy=q[2], qz=q[3])
-            row.update(visible_frac=area / max(full, area), roll_deg=pose.roll_deg,
-                       wrist_deg=pose.wrist_deg, jaw_yaw_deg=pose.jaw_yaw_deg,
-                       jaw_open_deg=pose.jaw_open_deg, insertion_mm=pose.insertion_mm)
+            row.update(
+                visible_frac=area / max(full, area),
+                roll_deg=pose.roll_deg,
+                wrist_deg=pose.wrist_deg,
+                jaw_yaw_deg=pose.jaw_yaw_deg,
+                jaw_open_deg=pose.jaw_open_deg,
+                insertion_mm=pose.insertion_mm,
+            )
             rows.append(row)
     return rows
 
@@ -174,29 +202,51 @@ def truth_rows(frame: int, fps: float, labels_clean: np.ndarray, instance: np.nd
 def _rows_to_table(rows: list[dict]) -> TrackTable:
     if not rows:
         from mistool.model import empty_table
+
         return empty_table()
     names = list(rows[0])
     return TrackTable({n: [r.get(n, math.nan) for r in rows] for n in names})
 
 
-def _toml_text(preset: str, fps: float, cam: Camera, geom: InstrumentGeometry,
-               values: list[dict[str, int]], distinct: bool, names: list[str],
-               ranges: dict[str, tuple[int, int]] | None, header: str) -> str:
+def _toml_text(
+    preset: str,
+    fps: float,
+    cam: Camera,
+    geom: InstrumentGeometry,
+    values: list[dict[str, int]],
+    distinct: bool,
+    names: list[str],
+    ranges: dict[str, tuple[int, int]] | None,
+    header: str,
+) -> str:
     lines = [f"# {line}" for line in header.splitlines()]
-    lines += [f"fps = {fps!r}", f'labels = "{preset}"',
-              f"shaft_diameter_mm = {geom.shaft_diameter_mm!r}",
-              f"clasper_length_mm = {geom.clasper_length_mm!r}", ""]
+    lines += [
+        f"fps = {fps!r}",
+        f'labels = "{preset}"',
+        f"shaft_diameter_mm = {geom.shaft_diameter_mm!r}",
+        f"clasper_length_mm = {geom.clasper_length_mm!r}",
+        "",
+    ]
     if ranges:
         lines += ["# value ranges wide enough for the lossy masks.avi", "[parts]"]
         lines += [f"{p} = [{lo}, {hi}]" for p, (lo, hi) in ranges.items()] + [""]
-    lines += ["[camera]", f"fx = {cam.fx!r}", f"fy = {cam.fy!r}", f"cx = {cam.cx!r}",
-              f"cy = {cam.cy!r}", ""]
+    lines += [
+        "[camera]",
+        f"fx = {cam.fx!r}",
+        f"fy = {cam.fy!r}",
+        f"cx = {cam.cx!r}",
+        f"cy = {cam.cy!r}",
+        "",
+    ]
     if distinct:
         for name, vals in zip(names, values, strict=True):
             lines += ["[[instrument]]", f'name = "{name}"']
             lines += [f"{p} = {v}" for p, v in vals.items()]
-            lines += [f"shaft_diameter_mm = {geom.shaft_diameter_mm!r}",
-                      f"clasper_length_mm = {geom.clasper_length_mm!r}", ""]
+            lines += [
+                f"shaft_diameter_mm = {geom.shaft_diameter_mm!r}",
+                f"clasper_length_mm = {geom.clasper_length_mm!r}",
+                "",
+            ]
     return "\n".join(lines)
 
 
@@ -219,17 +269,20 @@ def _prepare_out(out: Path, force: bool) -> None:
             raise InputPathError(f"{out}: exists and is not a folder")
         if any(out.iterdir()):
             if not force:
-                raise InputPathError(f"{out}: folder is not empty; choose another folder or "
-                                     "pass --force to replace it")
+                raise InputPathError(
+                    f"{out}: folder is not empty; choose another folder or "
+                    "pass --force to replace it"
+                )
             if not (out / "synth.json").is_file():
                 # --force replaces an earlier synth output, never an arbitrary folder
-                raise InputPathError(f"{out}: --force only replaces a folder written by "
-                                     "mistool synth (with synth.json); this one is not")
+                raise InputPathError(
+                    f"{out}: --force only replaces a folder written by "
+                    "mistool synth (with synth.json); this one is not"
+                )
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise InputPathError(f"{out.parent}: cannot create folder: "
-                             f"{exc.strerror or exc}") from None
+        raise InputPathError(f"{out.parent}: cannot create folder: {exc.strerror or exc}") from None
 
 
 def _swap_in(tmp: Path, out: Path) -> None:
@@ -243,12 +296,22 @@ def _swap_in(tmp: Path, out: Path) -> None:
         os.replace(tmp, out)
 
 
-def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, seed: int = 0,
-               preset: str = "endovis15", fps: float = 25.0,
-               corruptions: Corruptions | None = None, scene: SceneOptions | None = None,
-               *, distinct_labels: bool = False, video: str | None = None,
-               force: bool = False, png_compression: int = 3,
-               progress: Callable[[int, int], None] | None = None) -> SynthResult:
+def synthesize(
+    out_dir: str | Path,
+    frames: int = 100,
+    instruments: int = 2,
+    seed: int = 0,
+    preset: str = "endovis15",
+    fps: float = 25.0,
+    corruptions: Corruptions | None = None,
+    scene: SceneOptions | None = None,
+    *,
+    distinct_labels: bool = False,
+    video: str | None = None,
+    force: bool = False,
+    png_compression: int = 3,
+    progress: Callable[[int, int], None] | None = None,
+) -> SynthResult:
     """Render a synthetic mask sequence with its exact ground truth into ``out_dir``.
 
     Args:
@@ -281,8 +344,10 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
     if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
         raise ConfigError(f"fps must be a number > 0, got {fps!r}")
     if sc.width < 16 or sc.height < 16 or not sc.focal_px > 0:
-        raise ConfigError(f"image {sc.width}x{sc.height} with focal {sc.focal_px} px: need "
-                          "width, height >= 16 and a focal length > 0")
+        raise ConfigError(
+            f"image {sc.width}x{sc.height} with focal {sc.focal_px} px: need "
+            "width, height >= 16 and a focal length > 0"
+        )
     if sc.shaft_diameter_mm is not None and not 0 < sc.shaft_diameter_mm <= 30:
         raise ConfigError(f"shaft diameter must be in (0, 30] mm, got {sc.shaft_diameter_mm}")
     if sc.tool not in ("robotic", "laparoscopic"):
@@ -290,8 +355,10 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
     if video is not None and video not in VIDEO_CODECS:
         raise ConfigError(f"video codec {video!r} is not one of {', '.join(VIDEO_CODECS)}")
     if video is not None and distinct_labels:
-        raise ConfigError("video and distinct labels do not mix: a lossy codec smears the "
-                          "close per-instrument values into each other")
+        raise ConfigError(
+            "video and distinct labels do not mix: a lossy codec smears the "
+            "close per-instrument values into each other"
+        )
     values = label_values(preset, instruments, distinct_labels)
     out = Path(out_dir)
     _prepare_out(out, force)
@@ -315,14 +382,17 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp.", dir=out.parent))
     except OSError as exc:
-        raise InputPathError(f"{out.parent}: cannot write here: {exc.strerror or exc}") \
-            from None
+        raise InputPathError(f"{out.parent}: cannot write here: {exc.strerror or exc}") from None
     writer = None
     try:
         if video is not None:
-            writer = cv2.VideoWriter(str(tmp / "masks.avi"),
-                                     cv2.VideoWriter_fourcc(*VIDEO_CODECS[video]),
-                                     float(fps), (sc.width, sc.height), False)
+            writer = cv2.VideoWriter(
+                str(tmp / "masks.avi"),
+                cv2.VideoWriter_fourcc(*VIDEO_CODECS[video]),
+                float(fps),
+                (sc.width, sc.height),
+                False,
+            )
             if not writer.isOpened():
                 raise ConfigError(f"this OpenCV build cannot write {video} video")
         rows: list[dict] = []
@@ -331,20 +401,24 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
             parts = [instrument_parts(p, geom) for p in frame_poses]
             buf = caster.render(parts)
             clean = lut[buf.instance, buf.part]
-            alone = [lut[i + 1][a] for i, a in enumerate(buf.alone)] if instruments > 1 \
-                else []
-            rows += truth_rows(f, float(fps), clean, buf.instance, alone, parts, frame_poses,
-                               values, names)
+            alone = [lut[i + 1][a] for i, a in enumerate(buf.alone)] if instruments > 1 else []
+            rows += truth_rows(
+                f, float(fps), clean, buf.instance, alone, parts, frame_poses, values, names
+            )
             if corr.bias_px:  # the biased masks are rendered; the truth stays clean
                 bb = caster.render(parts, bias_px=float(corr.bias_px))
-                labels = corruptor.apply(lut[bb.instance, bb.part], bb.instance, bb.part, f,
-                                         all_values, biased=True)
+                labels = corruptor.apply(
+                    lut[bb.instance, bb.part], bb.instance, bb.part, f, all_values, biased=True
+                )
             elif corr.any():
                 labels = corruptor.apply(clean, buf.instance, buf.part, f, all_values)
             else:
                 labels = clean
-            if not cv2.imwrite(str(tmp / f"{f:06d}.png"), labels,
-                               [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]):
+            if not cv2.imwrite(
+                str(tmp / f"{f:06d}.png"),
+                labels,
+                [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)],
+            ):
                 raise InputPathError(f"{tmp / f'{f:06d}.png'}: cannot write")
             if writer is not None:
                 writer.write(labels)
@@ -355,15 +429,33 @@ def synthesize(out_dir: str | Path, frames: int = 100, instruments: int = 2, see
             writer = None
         truth = _add_paper_motion(_rows_to_table(rows), cam.camera.fx)
         write_csv(truth, tmp / "truth.csv")
-        opts = {"frames": frames, "instruments": instruments, "seed": seed,
-                "preset": preset, "fps": float(fps), "distinct_labels": distinct_labels,
-                "video": video, "corruptions": asdict(corr), "scene": asdict(sc)}
-        header = ("written by mistool synth; ground truth in truth.csv, options in "
-                  "synth.json")
+        opts = {
+            "frames": frames,
+            "instruments": instruments,
+            "seed": seed,
+            "preset": preset,
+            "fps": float(fps),
+            "distinct_labels": distinct_labels,
+            "video": video,
+            "corruptions": asdict(corr),
+            "scene": asdict(sc),
+        }
+        header = "written by mistool synth; ground truth in truth.csv, options in synth.json"
         ranges = _video_ranges(preset) if video is not None else None
         with atomic_write(tmp / "mistool.toml", "w", encoding="utf-8") as fh:
-            fh.write(_toml_text(preset, float(fps), cam.camera, geom, values,
-                                distinct_labels, names, ranges, header))
+            fh.write(
+                _toml_text(
+                    preset,
+                    float(fps),
+                    cam.camera,
+                    geom,
+                    values,
+                    distinct_labels,
+                    names,
+                    ranges,
+                    header,
+                )
+            )
         with atomic_write(tmp / "synth.json", "w", encoding="utf-8") as fh:
             json.dump(opts, fh, indent=2, sort_keys=True)
             fh.write("\n")

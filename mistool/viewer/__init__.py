@@ -43,5 +43,11 @@ from mistool.viewer.app import LoadedSequence, ReplayViewer, load_sequence
 from mistool.viewer.recording import export_html
 from mistool.viewer.replay import Replay, build_replay
 
-__all__ = ["LoadedSequence", "Replay", "ReplayViewer", "build_replay", "export_html",
-           "load_sequence"]
+__all__ = [
+    "LoadedSequence",
+    "Replay",
+    "ReplayViewer",
+    "build_replay",
+    "export_html",
+    "load_sequence",
+]

@@ -72,9 +72,14 @@ def _cache_key(seq_path: Path) -> str:
     return h.hexdigest()[:32]
 
 
-def load_sequence(path: str | Path | None, *, poses: str | Path | None = None,
-                  progress: bool = False, table: TrackTable | None = None,
-                  cache: bool = False) -> LoadedSequence:
+def load_sequence(
+    path: str | Path | None,
+    *,
+    poses: str | Path | None = None,
+    progress: bool = False,
+    table: TrackTable | None = None,
+    cache: bool = False,
+) -> LoadedSequence:
     """Open a sequence for the viewer: track it (or load its motion table) and index its
     frames. Every problem is raised here, before any server starts.
 
@@ -108,8 +113,10 @@ def load_sequence(path: str | Path | None, *, poses: str | Path | None = None,
         table = read_csv(poses)
     elif table is None:
         if seq_path.is_dir() and not list_frames(seq_path):
-            raise InputPathError(f"{seq_path}: no label images in this folder; pass a folder "
-                                 "of masks, a mask video, or --poses with a motion table")
+            raise InputPathError(
+                f"{seq_path}: no label images in this folder; pass a folder "
+                "of masks, a mask video, or --poses with a motion table"
+            )
         cached = cache_dir() / f"{_cache_key(seq_path)}.csv" if cache else None
         if cached is not None and cached.is_file():
             with contextlib.suppress(MistoolError):  # a bad cache entry: track again
@@ -153,9 +160,12 @@ def quiet_server(host: str, port: int) -> viser.ViserServer:
         return viser.ViserServer(host=host, port=port, verbose=False, label="mistool")
 
 
-def endoscope_layout(size_wh: tuple[int, int], intrinsics: tuple[float, float, float, float],
-                     image_wh: tuple[int, int], aspect: float,
-                     ) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int], float]:
+def endoscope_layout(
+    size_wh: tuple[int, int],
+    intrinsics: tuple[float, float, float, float],
+    image_wh: tuple[int, int],
+    aspect: float,
+) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int], float]:
     """How an image is laid out as the background of a window looking through the
     endoscope, so that the 3D scene drawn by viser's camera lines up with it.
 
@@ -198,9 +208,12 @@ def endoscope_layout(size_wh: tuple[int, int], intrinsics: tuple[float, float, f
     return (w, h), (big_w, big_h), (x0, y0), 2.0 * math.atan2(big_h / 2.0, fy)
 
 
-def endoscope_backdrop(rgb: np.ndarray, aspect: float,
-                       intrinsics: tuple[float, float, float, float],
-                       image_wh: tuple[int, int]) -> tuple[np.ndarray, float]:
+def endoscope_backdrop(
+    rgb: np.ndarray,
+    aspect: float,
+    intrinsics: tuple[float, float, float, float],
+    image_wh: tuple[int, int],
+) -> tuple[np.ndarray, float]:
     """An image (RGB uint8, (h, w, 3)) laid out by :func:`endoscope_layout` as the
     background of a window of ``aspect`` (width / height) looking through the endoscope.
 
@@ -209,23 +222,29 @@ def endoscope_backdrop(rgb: np.ndarray, aspect: float,
         field of view (radians) the window's camera needs.
     """
     h, w = rgb.shape[:2]
-    (w2, h2), (big_w, big_h), (x0, y0), fov = endoscope_layout((w, h), intrinsics,
-                                                                image_wh, aspect)
+    (w2, h2), (big_w, big_h), (x0, y0), fov = endoscope_layout((w, h), intrinsics, image_wh, aspect)
     if h2 != h:
         rgb = cv2.resize(rgb, (w2, h2), interpolation=cv2.INTER_LINEAR)
     if (big_w, big_h) == (w2, h2):
         return rgb, fov
     out = np.zeros((big_h, big_w, 3), dtype=rgb.dtype)
-    out[y0:y0 + h2, x0:x0 + w2] = rgb
+    out[y0 : y0 + h2, x0 : x0 + w2] = rgb
     return out, fov
 
 
 class ReplayViewer:
     """A running viewer: server, scene, overlay, timeline, plots."""
 
-    def __init__(self, sequence: LoadedSequence, *, host: str = "127.0.0.1", port: int = 8080,
-                 environment_map: bool = False, trail_frames: int = 25,
-                 opacity: float = 0.6) -> None:
+    def __init__(
+        self,
+        sequence: LoadedSequence,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        environment_map: bool = False,
+        trail_frames: int = 25,
+        opacity: float = 0.6,
+    ) -> None:
         """
         Args:
             sequence: from :func:`load_sequence`.
@@ -263,45 +282,56 @@ class ReplayViewer:
 
     def _build(self, environment_map: bool, trail_frames: int, opacity: float) -> None:
         server, replay, sequence = self.server, self.replay, self.sequence
-        server.gui.configure_theme(control_width="large", show_logo=False,
-                                   titlebar_content=None)
+        server.gui.configure_theme(control_width="large", show_logo=False, titlebar_content=None)
         if not environment_map:
             server.scene.configure_environment_map(None)
         # Shadow maps cost extra render passes and shader variants in software WebGL.
         server.scene.configure_default_lights(enabled=True, cast_shadow=False)
-        self.renderer = OverlayRenderer(replay, sequence.frames) \
-            if sequence.frames.has_masks or sequence.frames.has_source else None
+        self.renderer = (
+            OverlayRenderer(replay, sequence.frames)
+            if sequence.frames.has_masks or sequence.frames.has_source
+            else None
+        )
         self.overlays = OverlayCache(self.renderer) if self.renderer else None
         first = self.overlays.get(0, opacity, True)[0] if self.overlays else None
         mode = replay.default_mode
         self.scene = SceneView(server, replay, mode, overlay=first, trail_frames=trail_frames)
         gui = server.gui
-        gui.add_markdown(f"**mistool replay** · {sequence.name} · {replay.num_frames} frames "
-                         f"at {replay.fps:g} fps · {len(replay.instruments)} instrument(s)")
+        gui.add_markdown(
+            f"**mistool replay** · {sequence.name} · {replay.num_frames} frames "
+            f"at {replay.fps:g} fps · {len(replay.instruments)} instrument(s)"
+        )
         with gui.add_folder("Playback"):
             self.timeline = Timeline(server, replay.num_frames, replay.fps, self._draw)
         with gui.add_folder("View"):
             labels = {"metric": "Metric (mm)", "paper": "Paper (px)"}
-            self.mode = gui.add_dropdown("3D mode", tuple(labels[m] for m in replay.modes),
-                                         initial_value=labels[mode])
+            self.mode = gui.add_dropdown(
+                "3D mode", tuple(labels[m] for m in replay.modes), initial_value=labels[mode]
+            )
             if "metric" not in replay.modes:
-                gui.add_markdown("_Metric mode needs `[camera]` in mistool.toml and a "
-                                 "metric pose._")
+                gui.add_markdown(
+                    "_Metric mode needs `[camera]` in mistool.toml and a metric pose._"
+                )
             self.camera_buttons = gui.add_button_group("Camera", PRESETS)
-            self.trail = gui.add_slider("Trail (frames)", min=0, max=200, step=1,
-                                        initial_value=trail_frames)
-            self.opacity = gui.add_slider("Mask opacity", min=0.0, max=1.0, step=0.05,
-                                          initial_value=opacity)
+            self.trail = gui.add_slider(
+                "Trail (frames)", min=0, max=200, step=1, initial_value=trail_frames
+            )
+            self.opacity = gui.add_slider(
+                "Mask opacity", min=0.0, max=1.0, step=0.05, initial_value=opacity
+            )
             self.boxes = gui.add_checkbox("Rotated boxes", initial_value=True)
             gui.add_markdown(self._legend())
         with gui.add_folder("2D overlay"):
-            self.image = gui.add_image(first if first is not None else
-                                       np.zeros((4, 4, 3), np.uint8), format="jpeg",
-                                       jpeg_quality=80)
+            self.image = gui.add_image(
+                first if first is not None else np.zeros((4, 4, 3), np.uint8),
+                format="jpeg",
+                jpeg_quality=80,
+            )
         with gui.add_folder("Plots", expand_by_default=False):
             self.plots = PlotPanel(gui, replay, mode)
-        self.mode.on_update(lambda _: self._set_mode(
-            next(m for m in replay.modes if labels[m] == self.mode.value)))
+        self.mode.on_update(
+            lambda _: self._set_mode(next(m for m in replay.modes if labels[m] == self.mode.value))
+        )
         self.camera_buttons.on_click(lambda e: self._camera(e.client, str(e.target.value)))
         server.on_client_connect(lambda c: c.camera.on_update(self._camera_moved))
         server.on_client_disconnect(lambda c: self._leave_endoscope(c, reset=False))
@@ -381,8 +411,11 @@ class ReplayViewer:
             if self.timeline.playing:
                 n = self.replay.num_frames
                 ahead = [frame + d for d in (1, 2, 3)]
-                ahead = [k % n for k in ahead] if self.timeline.loop.value else \
-                    [k for k in ahead if k < n]
+                ahead = (
+                    [k % n for k in ahead]
+                    if self.timeline.loop.value
+                    else [k for k in ahead if k < n]
+                )
                 self.overlays.prefetch(ahead, opacity, boxes)
         return dt
 
@@ -488,8 +521,9 @@ class ReplayViewer:
         endoscope (see :func:`endoscope_layout`)."""
         replay = self.replay
         self._backdrop_aspect[client.client_id] = aspect = _aspect(client.camera)
-        return endoscope_layout(replay.image_wh, replay.view_intrinsics(self.scene.mode),
-                                replay.image_wh, aspect)[3]
+        return endoscope_layout(
+            replay.image_wh, replay.view_intrinsics(self.scene.mode), replay.image_wh, aspect
+        )[3]
 
     def _send_backdrops(self, rgb: np.ndarray, only: viser.ClientHandle | None = None) -> None:
         """Send the overlay ``rgb`` as the background of the browsers looking through the

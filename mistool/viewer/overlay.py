@@ -88,12 +88,15 @@ class FrameStore:
         src = config.source
         if src is not None:
             if not src.exists():
-                raise InputPathError(f"{config.path or 'mistool.toml'}: source {src} does not "
-                                     "exist; fix 'source' or remove it")
+                raise InputPathError(
+                    f"{config.path or 'mistool.toml'}: source {src} does not "
+                    "exist; fix 'source' or remove it"
+                )
             if src.is_dir():
                 self._source_files = sorted(
                     (p for p in src.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
-                    key=lambda p: natural_key(p.name))
+                    key=lambda p: natural_key(p.name),
+                )
             else:
                 self._source_video = _VideoReader(src)
 
@@ -135,8 +138,11 @@ class FrameStore:
                 return value
             if self._mask_video is not None:
                 img = self._mask_video.read(index)
-                value = None if img is None else (
-                    cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img)
+                value = (
+                    None
+                    if img is None
+                    else (cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img)
+                )
                 self._store(("mask", index), value)
                 return value
         value = None
@@ -159,8 +165,7 @@ class FrameStore:
             img = cv2.imread(str(self._source_files[index]), cv2.IMREAD_COLOR)
         value = None
         if img is not None:
-            value = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB if img.ndim == 2
-                                 else cv2.COLOR_BGR2RGB)
+            value = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB if img.ndim == 2 else cv2.COLOR_BGR2RGB)
         with self._lock:
             self._store(("source", index), value)
         return value
@@ -182,8 +187,9 @@ def display_size(image_wh: tuple[int, int], max_side: int = MAX_OVERLAY_SIDE) ->
 class OverlayRenderer:
     """Draws a frame's overlay: colourised mask, source blend, rotated boxes."""
 
-    def __init__(self, replay: Replay, frames: FrameStore,
-                 max_side: int = MAX_OVERLAY_SIDE) -> None:
+    def __init__(
+        self, replay: Replay, frames: FrameStore, max_side: int = MAX_OVERLAY_SIDE
+    ) -> None:
         self.replay = replay
         self.frames = frames
         self.size_wh = display_size(replay.image_wh, max_side)
@@ -197,15 +203,15 @@ class OverlayRenderer:
         if not cfg.colour_masks:
             for part, (lo, hi) in cfg.parts.items():
                 if part in parts:
-                    self._lut_part[lo:hi + 1] = parts.index(part) + 1
+                    self._lut_part[lo : hi + 1] = parts.index(part) + 1
             for spec in cfg.instruments:
                 if spec.name not in replay.instruments:
                     continue
                 i = replay.instruments.index(spec.name)
                 for part, (lo, hi) in spec.parts.items():
                     if part in parts:
-                        self._lut_part[lo:hi + 1] = parts.index(part) + 1
-                        self._lut_inst[lo:hi + 1] = i
+                        self._lut_part[lo : hi + 1] = parts.index(part) + 1
+                        self._lut_inst[lo : hi + 1] = i
         # Colour table: [colour class, part] -> RGB. Instruments cycle through the palette
         # (as in 3D), so there are at most len(PALETTE) classes, plus one for unassigned.
         n_i, n_p = len(replay.instruments), len(parts)
@@ -217,12 +223,12 @@ class OverlayRenderer:
         self._colours[n_c, 1:] = UNASSIGNED_RGB
         # Instrument index (uint8; >= n_i means unassigned) -> colour class * (n_p + 1).
         classes = np.full(256, n_c, dtype=np.int64)
-        classes[:min(n_i, 255)] = np.arange(min(n_i, 255)) % max(n_c, 1)
+        classes[: min(n_i, 255)] = np.arange(min(n_i, 255)) % max(n_c, 1)
         self._lut_class = (classes * (n_p + 1)).astype(np.uint8)
         self._background = np.empty((self.size_wh[1], self.size_wh[0], 3), dtype=np.uint8)
         self._background[:] = BACKGROUND_RGB
         self._lut_rgb = np.zeros((1, 256, 3), dtype=np.uint8)
-        self._lut_rgb[0, :(n_c + 1) * (n_p + 1)] = self._colours.reshape(-1, 3)
+        self._lut_rgb[0, : (n_c + 1) * (n_p + 1)] = self._colours.reshape(-1, 3)
 
     def _part_image(self, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Per display pixel: part index (0 = none) and, for own-value configs, instrument."""
@@ -265,8 +271,7 @@ class OverlayRenderer:
         else:
             base = self._background.copy()
         labels = self.frames.labels(frame)
-        corners = replay.corners[frame] * self._scale if 0 <= frame < replay.num_frames \
-            else None
+        corners = replay.corners[frame] * self._scale if 0 <= frame < replay.num_frames else None
         if labels is not None:
             part, inst = self._part_image(labels)
             if inst is None:
@@ -310,14 +315,16 @@ class OverlayRenderer:
                     continue
                 colour = self.replay.part_colour(i, pname)
                 pts = np.round(c * 4).astype(np.int32)  # 2 fractional bits
-                cv2.polylines(img, [pts], True, colour, 2 if pname == "shaft" else 1,
-                              cv2.LINE_AA, shift=2)
+                cv2.polylines(
+                    img, [pts], True, colour, 2 if pname == "shaft" else 1, cv2.LINE_AA, shift=2
+                )
 
 
 def encode_jpeg(rgb: np.ndarray, quality: int = 80) -> bytes:
     """JPEG bytes of an RGB uint8 image."""
-    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
-                           [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
+    ok, buf = cv2.imencode(
+        ".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)]
+    )
     if not ok:  # pragma: no cover - OpenCV always encodes uint8 RGB
         raise RuntimeError("JPEG encoding failed")
     return buf.tobytes()
@@ -338,8 +345,7 @@ class OverlayCache:
         self.quality = quality
         self._max = max_items
         self._lock = threading.Lock()
-        self._items: OrderedDict[tuple[int, float, bool], tuple[np.ndarray, bytes]] = \
-            OrderedDict()
+        self._items: OrderedDict[tuple[int, float, bool], tuple[np.ndarray, bytes]] = OrderedDict()
         self._pending: set[tuple[int, float, bool]] = set()
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mistool-overlay")
         self.hits = 0

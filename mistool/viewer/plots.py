@@ -46,8 +46,9 @@ class PlotPanel:
         self._stride = max(1, int(np.ceil(n / MAX_PLOT_POINTS)))
         self._idx = np.arange(0, n, self._stride)
         self._t = self._idx / replay.fps
-        self.instrument = gui.add_dropdown("Instrument", replay.instruments,
-                                           initial_value=replay.instruments[0])
+        self.instrument = gui.add_dropdown(
+            "Instrument", replay.instruments, initial_value=replay.instruments[0]
+        )
         self.part = gui.add_dropdown("Part", replay.parts, initial_value=replay.parts[-1])
         self._frame = 0
         self._cache: dict[tuple[str, ...], tuple[np.ndarray, dict[str, tuple]]] = {}
@@ -55,9 +56,14 @@ class PlotPanel:
         for kind in ("position", "rotation"):
             data, ranges = self._data(kind, 0)
             self.charts[kind] = gui.add_uplot(
-                data=data, series=self._series(kind), scales=self._scales(kind, ranges),
-                title=_LABELS[f"{mode}/{kind}"][1], aspect=1.6, axes=self._axes(kind),
-                legend={"show": True, "live": False})
+                data=data,
+                series=self._series(kind),
+                scales=self._scales(kind, ranges),
+                title=_LABELS[f"{mode}/{kind}"][1],
+                aspect=1.6,
+                axes=self._axes(kind),
+                legend={"show": True, "live": False},
+            )
         self.instrument.on_update(lambda _: self.refresh())
         self.part.on_update(lambda _: self.refresh())
 
@@ -69,8 +75,16 @@ class PlotPanel:
             if self.mode == "paper" and kind == "position" and j == 2:
                 s["scale"] = "z"
             out.append(s)
-        out.append({"label": "frame", "stroke": "#444444", "width": 1.0, "dash": (4.0, 3.0),
-                    "scale": "y", "points": {"show": False}})
+        out.append(
+            {
+                "label": "frame",
+                "stroke": "#444444",
+                "width": 1.0,
+                "dash": (4.0, 3.0),
+                "scale": "y",
+                "points": {"show": False},
+            }
+        )
         return tuple(out)
 
     def _axes(self, kind: str) -> tuple[uplot.Axis, ...]:
@@ -114,9 +128,11 @@ class PlotPanel:
 
     def _scales(self, kind: str, ranges: dict[str, tuple]) -> dict[str, uplot.Scale]:
         t1 = max(self._t[-1] if len(self._t) else 0.0, 1.0 / self.replay.fps)
-        return {"x": {"time": False, "auto": False, "range": (0.0, float(t1))},
-                "y": {"auto": False, "range": ranges["y"]},
-                "z": {"auto": False, "range": ranges["z"]}}
+        return {
+            "x": {"time": False, "auto": False, "range": (0.0, float(t1))},
+            "y": {"auto": False, "range": ranges["y"]},
+            "z": {"auto": False, "range": ranges["z"]},
+        }
 
     def set_mode(self, mode: str) -> None:
         """Follow the scene's display mode."""

@@ -40,10 +40,19 @@ class ExportSummary:
     """Display mode recorded."""
 
 
-def export_html(sequence: LoadedSequence, out: str | Path, *, mode: str | None = None,
-                stride: int = 1, max_frames: int | None = None, images: bool = True,
-                image_side: int = EXPORT_IMAGE_SIDE, opacity: float = 0.6,
-                trail_frames: int = 25, jpeg_quality: int = 70) -> ExportSummary:
+def export_html(
+    sequence: LoadedSequence,
+    out: str | Path,
+    *,
+    mode: str | None = None,
+    stride: int = 1,
+    max_frames: int | None = None,
+    images: bool = True,
+    image_side: int = EXPORT_IMAGE_SIDE,
+    opacity: float = 0.6,
+    trail_frames: int = 25,
+    jpeg_quality: int = 70,
+) -> ExportSummary:
     """Write a standalone HTML replay of a sequence (opens offline in any browser).
 
     Args:
@@ -64,15 +73,19 @@ def export_html(sequence: LoadedSequence, out: str | Path, *, mode: str | None =
     replay = sequence.replay
     mode = mode or replay.default_mode
     if mode not in replay.modes:
-        raise ConfigError(f"--mode {mode}: not available for this sequence; choose from "
-                          f"{', '.join(replay.modes)}")
+        raise ConfigError(
+            f"--mode {mode}: not available for this sequence; choose from {', '.join(replay.modes)}"
+        )
     if stride < 1:
         raise ConfigError(f"--stride {stride}: must be an integer >= 1")
     if max_frames is not None and max_frames < 1:
         raise ConfigError(f"--max-frames {max_frames}: must be an integer >= 1")
     frames = list(range(0, replay.num_frames, stride))[:max_frames]
-    renderer = OverlayRenderer(replay, sequence.frames, max_side=image_side) \
-        if images and (sequence.frames.has_masks or sequence.frames.has_source) else None
+    renderer = (
+        OverlayRenderer(replay, sequence.frames, max_side=image_side)
+        if images and (sequence.frames.has_masks or sequence.frames.has_source)
+        else None
+    )
     first = renderer.render(frames[0], opacity) if renderer else None
     server = quiet_server("127.0.0.1", 0)
     try:

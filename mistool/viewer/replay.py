@@ -38,9 +38,7 @@ from mistool.errors import TableError
 from mistool.model import PARTS, TrackTable
 
 #: Rotation of the camera frame into the z-up world frame (columns: camera x, y, z).
-R_WORLD_CAMERA = np.array([[1.0, 0.0, 0.0],
-                           [0.0, 0.0, 1.0],
-                           [0.0, -1.0, 0.0]])
+R_WORLD_CAMERA = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 #: World units per millimetre in metric mode (1 unit = 1 cm).
 METRIC_UNITS_PER_MM = 0.1
 #: World units per pixel in paper mode (1 unit = 100 px).
@@ -54,10 +52,21 @@ DEFAULT_SHAFT_LENGTH_MM = 60.0
 PART_RADIUS_RATIO = {"shaft": 1.0, "wrist": 0.9, "clasper": 0.7}
 
 #: One colour per instrument (RGB), in instrument order; cycled beyond ten.
-PALETTE = np.array([
-    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
-], dtype=np.uint8)
+PALETTE = np.array(
+    [
+        (31, 119, 180),
+        (255, 127, 14),
+        (44, 160, 44),
+        (214, 39, 40),
+        (148, 103, 189),
+        (140, 86, 75),
+        (227, 119, 194),
+        (127, 127, 127),
+        (188, 189, 34),
+        (23, 190, 207),
+    ],
+    dtype=np.uint8,
+)
 #: How much of white is mixed into an instrument's colour for each part.
 PART_LIGHTEN = {"shaft": 0.0, "wrist": 0.3, "clasper": 0.55}
 
@@ -192,8 +201,14 @@ class Replay:
         return part_colour(self.colours[instrument_index], part)
 
 
-def _dense(table: TrackTable, fi: np.ndarray, ii: np.ndarray, pi: np.ndarray,
-           shape: tuple[int, int, int], names: tuple[str, ...]) -> np.ndarray:
+def _dense(
+    table: TrackTable,
+    fi: np.ndarray,
+    ii: np.ndarray,
+    pi: np.ndarray,
+    shape: tuple[int, int, int],
+    names: tuple[str, ...],
+) -> np.ndarray:
     out = np.full((*shape, len(names)), np.nan)
     for c, name in enumerate(names):
         out[fi, ii, pi, c] = np.asarray(table[name], dtype=np.float64)
@@ -214,8 +229,13 @@ def _paper_columns(table: TrackTable) -> TrackTable:
     return paper_motion(table)
 
 
-def build_replay(table: TrackTable, config: Config, *, num_frames: int | None = None,
-                 image_wh: tuple[int, int] | None = None) -> Replay:
+def build_replay(
+    table: TrackTable,
+    config: Config,
+    *,
+    num_frames: int | None = None,
+    image_wh: tuple[int, int] | None = None,
+) -> Replay:
     """Precompute a replay from a track table.
 
     Args:
@@ -234,26 +254,33 @@ def build_replay(table: TrackTable, config: Config, *, num_frames: int | None = 
     """
     for name in ("frame", "instrument", "part", "cx_px", "cy_px", "length_px", "width_px"):
         if name not in table:
-            raise TableError(f"motion table: missing column {name!r}; the viewer needs the "
-                             "boxes (cx_px, cy_px, length_px, width_px, angle_deg)")
+            raise TableError(
+                f"motion table: missing column {name!r}; the viewer needs the "
+                "boxes (cx_px, cy_px, length_px, width_px, angle_deg)"
+            )
     if table.num_rows == 0:
         raise TableError("motion table: no rows (no instrument was found in any frame)")
     table = _paper_columns(table)
     frames = np.asarray(table["frame"], dtype=np.int64)
     if frames.min() < 0:
         raise TableError(f"motion table: negative frame index {int(frames.min())}")
-    n_frames = int(frames.max()) + 1 if num_frames is None else max(int(num_frames),
-                                                                    int(frames.max()) + 1)
+    n_frames = (
+        int(frames.max()) + 1 if num_frames is None else max(int(num_frames), int(frames.max()) + 1)
+    )
     inst_col = np.asarray(table["instrument"]).astype(str)
     present = {str(s) for s in inst_col}
-    instruments = tuple(dict.fromkeys(
-        [s.name for s in config.instruments if s.name in present]
-        + sorted(present, key=_natural_key)))
+    instruments = tuple(
+        dict.fromkeys(
+            [s.name for s in config.instruments if s.name in present]
+            + sorted(present, key=_natural_key)
+        )
+    )
     part_col = np.asarray(table["part"]).astype(str)
     unknown = sorted(set(part_col) - set(PARTS))
     if unknown:
-        raise TableError(f"motion table: unknown part(s) {', '.join(unknown)}; "
-                         f"expected {', '.join(PARTS)}")
+        raise TableError(
+            f"motion table: unknown part(s) {', '.join(unknown)}; expected {', '.join(PARTS)}"
+        )
     parts = tuple(str(p) for p in PARTS if p in set(part_col))
     ii = np.array([instruments.index(s) for s in inst_col], dtype=np.int64)
     pi = np.array([parts.index(s) for s in part_col], dtype=np.int64)
@@ -283,12 +310,23 @@ def build_replay(table: TrackTable, config: Config, *, num_frames: int | None = 
     if metric is not None:
         modes["metric"], series["metric/position"], series["metric/rotation"] = metric
     if not modes:
-        raise TableError("motion table: neither paper columns (paper_x_px ...) nor metric "
-                         "columns (end_x_mm ...) hold any value; nothing to show in 3D")
-    return Replay(table=table, config=config, num_frames=n_frames, fps=fps,
-                  image_wh=(int(image_wh[0]), int(image_wh[1])), instruments=instruments,
-                  parts=parts, colours=colours, corners=corners.astype(np.float32),
-                  modes=modes, series=series)
+        raise TableError(
+            "motion table: neither paper columns (paper_x_px ...) nor metric "
+            "columns (end_x_mm ...) hold any value; nothing to show in 3D"
+        )
+    return Replay(
+        table=table,
+        config=config,
+        num_frames=n_frames,
+        fps=fps,
+        image_wh=(int(image_wh[0]), int(image_wh[1])),
+        instruments=instruments,
+        parts=parts,
+        colours=colours,
+        corners=corners.astype(np.float32),
+        modes=modes,
+        series=series,
+    )
 
 
 def _natural_key(text: str) -> tuple[Any, ...]:
@@ -297,8 +335,11 @@ def _natural_key(text: str) -> tuple[Any, ...]:
     return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", text))
 
 
-def _cylinders(start: np.ndarray, end: np.ndarray, radius: np.ndarray,
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _cylinders(
+    start: np.ndarray,
+    end: np.ndarray,
+    radius: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Cylinder centre, wxyz, length and visibility from world start/end points."""
     vec = end - start
     length = np.linalg.norm(vec, axis=-1)
@@ -322,12 +363,26 @@ def _chain(start: np.ndarray, end: np.ndarray, parts: tuple[str, ...]) -> None:
         start[:, :, p][known] = prev_end[known]
 
 
-def _paper_geometry(table: TrackTable, fi: np.ndarray, ii: np.ndarray, pi: np.ndarray,
-                    shape: tuple[int, int, int], parts: tuple[str, ...], config: Config,
-                    image_wh: tuple[int, int],
-                    ) -> tuple[ModeGeometry, np.ndarray, np.ndarray] | None:
-    names = ("paper_x_px", "paper_y_px", "paper_z", "paper_roll_deg", "paper_pitch_deg",
-             "paper_yaw_deg", "length_px", "width_px")
+def _paper_geometry(
+    table: TrackTable,
+    fi: np.ndarray,
+    ii: np.ndarray,
+    pi: np.ndarray,
+    shape: tuple[int, int, int],
+    parts: tuple[str, ...],
+    config: Config,
+    image_wh: tuple[int, int],
+) -> tuple[ModeGeometry, np.ndarray, np.ndarray] | None:
+    names = (
+        "paper_x_px",
+        "paper_y_px",
+        "paper_z",
+        "paper_roll_deg",
+        "paper_pitch_deg",
+        "paper_yaw_deg",
+        "length_px",
+        "width_px",
+    )
     v = _dense(table, fi, ii, pi, shape, names)
     if not np.isfinite(v[..., 0]).any():
         return None
@@ -357,20 +412,47 @@ def _paper_geometry(table: TrackTable, fi: np.ndarray, ii: np.ndarray, pi: np.nd
     centre, wxyz, length, visible = _cylinders(start_w, end_w, radius)
     joint = _part_point(end_w, parts, "shaft")
     tip = _distal_point(end_w, visible)
-    geometry = ModeGeometry(centre=centre, wxyz=wxyz, length=length, radius=radius,
-                            visible=visible, joint=joint, tip=tip,
-                            image_distance=PAPER_IMAGE_BEHIND * f_px * s, units="100 px")
+    geometry = ModeGeometry(
+        centre=centre,
+        wxyz=wxyz,
+        length=length,
+        radius=radius,
+        visible=visible,
+        joint=joint,
+        tip=tip,
+        image_distance=PAPER_IMAGE_BEHIND * f_px * s,
+        units="100 px",
+    )
     return geometry, v[..., 0:3].copy(), v[..., 3:6].copy()
 
 
-def _metric_geometry(table: TrackTable, fi: np.ndarray, ii: np.ndarray, pi: np.ndarray,
-                     shape: tuple[int, int, int], parts: tuple[str, ...],
-                     instruments: tuple[str, ...], config: Config,
-                     ) -> tuple[ModeGeometry, np.ndarray, np.ndarray] | None:
+def _metric_geometry(
+    table: TrackTable,
+    fi: np.ndarray,
+    ii: np.ndarray,
+    pi: np.ndarray,
+    shape: tuple[int, int, int],
+    parts: tuple[str, ...],
+    instruments: tuple[str, ...],
+    config: Config,
+) -> tuple[ModeGeometry, np.ndarray, np.ndarray] | None:
     if config.camera is None:
         return None
-    names = ("start_x_mm", "start_y_mm", "start_z_mm", "end_x_mm", "end_y_mm", "end_z_mm",
-             "axis_x", "axis_y", "axis_z", "qw", "qx", "qy", "qz")
+    names = (
+        "start_x_mm",
+        "start_y_mm",
+        "start_z_mm",
+        "end_x_mm",
+        "end_y_mm",
+        "end_z_mm",
+        "axis_x",
+        "axis_y",
+        "axis_z",
+        "qw",
+        "qx",
+        "qy",
+        "qz",
+    )
     v = _dense(table, fi, ii, pi, shape, names)
     start, end, axis, quat = v[..., 0:3].copy(), v[..., 3:6].copy(), v[..., 6:9], v[..., 9:13]
     if not np.isfinite(end).all(axis=-1).any():
@@ -403,10 +485,17 @@ def _metric_geometry(table: TrackTable, fi: np.ndarray, ii: np.ndarray, pi: np.n
         axis_dir = axis_dir / np.linalg.norm(axis_dir, axis=-1, keepdims=True)
     q[no_q] = quat_z_to(axis_dir[no_q]) if no_q.any() else q[no_q]
     rotation = euler_from_quat(q)
-    geometry = ModeGeometry(centre=centre, wxyz=wxyz, length=length, radius=radius,
-                            visible=visible, joint=_part_point(end_w, parts, "shaft"),
-                            tip=_distal_point(end_w, visible),
-                            image_distance=20.0 * s, units="1 cm")
+    geometry = ModeGeometry(
+        centre=centre,
+        wxyz=wxyz,
+        length=length,
+        radius=radius,
+        visible=visible,
+        joint=_part_point(end_w, parts, "shaft"),
+        tip=_distal_point(end_w, visible),
+        image_distance=20.0 * s,
+        units="1 cm",
+    )
     return geometry, end.copy(), rotation
 
 
@@ -444,4 +533,3 @@ def scene_extent(replay: Replay, mode: str) -> tuple[np.ndarray, np.ndarray]:
     lo = np.minimum(np.percentile(pts, 2, axis=0), 0.0)
     hi = np.maximum(np.percentile(pts, 98, axis=0), 0.0)
     return lo, hi
-

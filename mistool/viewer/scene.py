@@ -23,12 +23,15 @@ PRESETS = ("Endoscope", "Side", "Top", "Reset")
 def _wxyz_from_matrix(r: np.ndarray) -> np.ndarray:
     """Unit quaternion (wxyz) of a rotation matrix."""
     w = math.sqrt(max(0.0, 1.0 + r[0, 0] + r[1, 1] + r[2, 2])) / 2.0
-    x = math.copysign(math.sqrt(max(0.0, 1.0 + r[0, 0] - r[1, 1] - r[2, 2])) / 2.0,
-                      r[2, 1] - r[1, 2])
-    y = math.copysign(math.sqrt(max(0.0, 1.0 - r[0, 0] + r[1, 1] - r[2, 2])) / 2.0,
-                      r[0, 2] - r[2, 0])
-    z = math.copysign(math.sqrt(max(0.0, 1.0 - r[0, 0] - r[1, 1] + r[2, 2])) / 2.0,
-                      r[1, 0] - r[0, 1])
+    x = math.copysign(
+        math.sqrt(max(0.0, 1.0 + r[0, 0] - r[1, 1] - r[2, 2])) / 2.0, r[2, 1] - r[1, 2]
+    )
+    y = math.copysign(
+        math.sqrt(max(0.0, 1.0 - r[0, 0] + r[1, 1] - r[2, 2])) / 2.0, r[0, 2] - r[2, 0]
+    )
+    z = math.copysign(
+        math.sqrt(max(0.0, 1.0 - r[0, 0] - r[1, 1] + r[2, 2])) / 2.0, r[1, 0] - r[0, 1]
+    )
     q = np.array([w, x, y, z])
     return q / np.linalg.norm(q)
 
@@ -41,8 +44,14 @@ def node_name(text: str) -> str:
 class SceneView:
     """Owns the scene nodes and updates them for one frame at a time."""
 
-    def __init__(self, server: viser.ViserServer, replay: Replay, mode: str,
-                 overlay: np.ndarray | None = None, trail_frames: int = 25) -> None:
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        replay: Replay,
+        mode: str,
+        overlay: np.ndarray | None = None,
+        trail_frames: int = 25,
+    ) -> None:
         """
         Args:
             server: the viser server (the scene is shared by every client).
@@ -61,21 +70,41 @@ class SceneView:
         scene.set_up_direction("+z")
         # Without the environment map only viser's directional lights remain; a sky/ground
         # hemisphere light keeps the cylinders' undersides readable.
-        scene.add_light_hemisphere("/lights/hemisphere", sky_color=(255, 255, 255),
-                                   ground_color=(110, 110, 120), intensity=1.6)
+        scene.add_light_hemisphere(
+            "/lights/hemisphere",
+            sky_color=(255, 255, 255),
+            ground_color=(110, 110, 120),
+            intensity=1.6,
+        )
         self.cylinders: dict[tuple[int, int], viser.CylinderHandle] = {}
         for i, inst in enumerate(replay.instruments):
             for p, part in enumerate(replay.parts):
                 self.cylinders[i, p] = scene.add_cylinder(
-                    f"/instruments/{node_name(inst)}/{part}", radius=1.0, height=1.0,
-                    color=replay.part_colour(i, part), radial_segments=24,
-                    cast_shadow=False, receive_shadow=False, visible=False)
+                    f"/instruments/{node_name(inst)}/{part}",
+                    radius=1.0,
+                    height=1.0,
+                    color=replay.part_colour(i, part),
+                    radial_segments=24,
+                    cast_shadow=False,
+                    receive_shadow=False,
+                    visible=False,
+                )
         fov, aspect = replay.fov_aspect()
         self.frustum = scene.add_camera_frustum(
-            "/endoscope", fov=fov, aspect=aspect, scale=1.0, color=(90, 90, 90),
-            thickness=0.02, image=overlay, format="jpeg", jpeg_quality=80,
-            wxyz=_wxyz_from_matrix(R_WORLD_CAMERA), position=(0.0, 0.0, 0.0),
-            cast_shadow=False, receive_shadow=False)
+            "/endoscope",
+            fov=fov,
+            aspect=aspect,
+            scale=1.0,
+            color=(90, 90, 90),
+            thickness=0.02,
+            image=overlay,
+            format="jpeg",
+            jpeg_quality=80,
+            wxyz=_wxyz_from_matrix(R_WORLD_CAMERA),
+            position=(0.0, 0.0, 0.0),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
         self._canonical_depth = self.frustum.compute_canonical_frustum_size()[2]
         self.grid: viser.GridHandle | None = None
         self.trails: dict[tuple[int, str], viser.LineSegmentsHandle] = {}
@@ -83,17 +112,22 @@ class SceneView:
             for kind, part in (("tip", replay.parts[-1]), ("joint", "shaft")):
                 colour = np.array(replay.part_colour(i, part), dtype=np.uint8)
                 self.trails[i, kind] = scene.add_line_segments(
-                    f"/trails/{node_name(inst)}/{kind}", points=np.zeros((1, 2, 3)),
-                    colors=colour, thickness=3.0 if kind == "tip" else 2.0,
-                    thickness_units="screen", visible=False)
+                    f"/trails/{node_name(inst)}/{kind}",
+                    points=np.zeros((1, 2, 3)),
+                    colors=colour,
+                    thickness=3.0 if kind == "tip" else 2.0,
+                    thickness_units="screen",
+                    visible=False,
+                )
         self.set_mode(mode)
 
     # -- modes and static parts ---------------------------------------------------------
     def set_mode(self, mode: str) -> None:
         """Switch display mode (metric or paper): regrid, rescale the frustum, redraw."""
         if mode not in self.replay.modes:
-            raise ValueError(f"mode {mode!r} not available; choose from "
-                             f"{', '.join(self.replay.modes)}")
+            raise ValueError(
+                f"mode {mode!r} not available; choose from {', '.join(self.replay.modes)}"
+            )
         self.mode = mode
         geometry = self.replay.modes[mode]
         self.frustum.scale = geometry.image_distance / self._canonical_depth
@@ -105,9 +139,15 @@ class SceneView:
         if self.grid is not None:
             self.grid.remove()
         self.grid = self.server.scene.add_grid(
-            "/grid", width=size, height=size, cell_size=0.5, section_size=2.0,
-            position=(float(centre[0]), float(centre[1]), floor), shadow_opacity=0.0,
-            visible=self.show_frustum_image)
+            "/grid",
+            width=size,
+            height=size,
+            cell_size=0.5,
+            section_size=2.0,
+            position=(float(centre[0]), float(centre[1]), floor),
+            shadow_opacity=0.0,
+            visible=self.show_frustum_image,
+        )
         self.show(self.frame)
 
     def set_frustum_image_visible(self, visible: bool) -> None:
@@ -149,7 +189,7 @@ class SceneView:
         n = self.trail_frames
         lo = max(0, frame - n + 1)
         for (i, kind), handle in self.trails.items():
-            pts = (g.tip if kind == "tip" else g.joint)[lo:frame + 1, i]
+            pts = (g.tip if kind == "tip" else g.joint)[lo : frame + 1, i]
             if n < 2 or len(pts) < 2:
                 if handle.visible:
                     handle.visible = False
@@ -179,15 +219,24 @@ class SceneView:
             return target + np.array([1.6 * radius, 0.0, 0.0]), target, up, math.radians(50)
         if preset == "Top":
             # Looking down; a small offset along -y keeps the up vector well defined.
-            return (target + np.array([0.0, -0.01 * radius, 1.8 * radius]), target,
-                    np.array([0.0, 1.0, 0.0]), math.radians(50))
+            return (
+                target + np.array([0.0, -0.01 * radius, 1.8 * radius]),
+                target,
+                np.array([0.0, 1.0, 0.0]),
+                math.radians(50),
+            )
         if preset == "Reset":
-            return (target + np.array([0.75 * radius, -0.85 * radius, 0.6 * radius]), target,
-                    up, math.radians(50))
+            return (
+                target + np.array([0.75 * radius, -0.85 * radius, 0.6 * radius]),
+                target,
+                up,
+                math.radians(50),
+            )
         raise ValueError(f"unknown camera preset {preset!r}; choose from {', '.join(PRESETS)}")
 
-    def apply_camera(self, client: viser.ClientHandle, preset: str,
-                     fov: float | None = None) -> None:
+    def apply_camera(
+        self, client: viser.ClientHandle, preset: str, fov: float | None = None
+    ) -> None:
         """Move one client's camera to a preset (cameras are per browser); ``fov``
         (vertical, rad) overrides the preset's."""
         position, look_at, up, preset_fov = self.camera_pose(preset)

@@ -25,8 +25,9 @@ class Timeline:
     """Playback state and its GUI; calls ``draw(frame)`` from its own thread (started by
     :meth:`start`)."""
 
-    def __init__(self, server: viser.ViserServer, num_frames: int, fps: float,
-                 draw: Callable[[int], None]) -> None:
+    def __init__(
+        self, server: viser.ViserServer, num_frames: int, fps: float, draw: Callable[[int], None]
+    ) -> None:
         """
         Args:
             server: the viser server (GUI shared by all clients).
@@ -52,10 +53,12 @@ class Timeline:
         self.draw_error_count = 0
         gui = server.gui
         last = max(self.num_frames - 1, 1)
-        self.slider = gui.add_slider("Frame", min=0, max=last, step=1, initial_value=0,
-                                     disabled=self.num_frames < 2)
-        self.play_button = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY,
-                                          hint="Play / pause (space or K)")
+        self.slider = gui.add_slider(
+            "Frame", min=0, max=last, step=1, initial_value=0, disabled=self.num_frames < 2
+        )
+        self.play_button = gui.add_button(
+            "Play", icon=viser.Icon.PLAYER_PLAY, hint="Play / pause (space or K)"
+        )
         self.step_buttons = gui.add_button_group("Step", ("-1 (J)", "+1 (L)"))
         self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1x")
         self.loop = gui.add_checkbox("Loop", initial_value=True)
@@ -63,7 +66,8 @@ class Timeline:
         self.slider.on_update(lambda _: self.request(int(self.slider.value)))
         self.play_button.on_click(lambda _: self.toggle())
         self.step_buttons.on_click(
-            lambda e: self.step(-1 if str(e.target.value).startswith("-") else 1))
+            lambda e: self.step(-1 if str(e.target.value).startswith("-") else 1)
+        )
         self.commands = [
             gui.add_command("Play / pause", hotkey="space", description="Toggle playback"),
             gui.add_command("Play / pause (K)", hotkey="K", description="Toggle playback"),
@@ -76,8 +80,7 @@ class Timeline:
         self.commands[2].on_trigger(lambda _: self.step(-1))
         self.commands[3].on_trigger(lambda _: self.step(1))
         self.commands[4].on_trigger(lambda _: self.seek(0))
-        self._thread = threading.Thread(target=self._run, name="mistool-timeline",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._run, name="mistool-timeline", daemon=True)
 
     def start(self) -> None:
         """Start the render thread (once everything ``draw`` uses exists)."""
@@ -138,8 +141,7 @@ class Timeline:
                 self.seek(0)
             self.playing = playing
             self.play_button.label = "Pause" if playing else "Play"
-            self.play_button.icon = (viser.Icon.PLAYER_PAUSE if playing
-                                     else viser.Icon.PLAYER_PLAY)
+            self.play_button.icon = viser.Icon.PLAYER_PAUSE if playing else viser.Icon.PLAYER_PLAY
         self._wake.set()
 
     def stop(self) -> None:
@@ -160,8 +162,7 @@ class Timeline:
 
     # -- render thread ------------------------------------------------------------------
     def _info_text(self, frame: int) -> str:
-        return (f"**Frame** {frame} / {self.num_frames - 1} &nbsp; "
-                f"**Time** {frame / self.fps:.2f} s")
+        return f"**Frame** {frame} / {self.num_frames - 1} &nbsp; **Time** {frame / self.fps:.2f} s"
 
     def _run(self) -> None:
         next_tick = time.monotonic()
