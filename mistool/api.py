@@ -2,74 +2,55 @@
 
 Pipeline (one direction)::
 
-    open_sequence  ->  per frame, in worker threads (decode, Algorithm 1 observations,
-                       metric pose when a camera is known)
-                   ->  in frame order: instrument identities (IdentityTracker.resolve)
-                   ->  rows -> TrackTable -> paper motion (Algorithm 2)
-                   ->  sequence-level metric refinement (trocar, smoothing) -> sorted table
+    open_sequence  ->  per frame, in worker processes (decode, Algorithm 1 observations,
+                       metric pose when a camera is known): mistool.parallel
+                   ->  in frame order, here: instrument identities (IdentityTracker.resolve;
+                       split blobs are measured again here) -> rows (mistool.rows)
+                   ->  raw chunks of rows (iter_track)
+                   ->  refine: paper motion (Algorithm 2), sequence-level metric refinement
+                       (trocar, smoothing) -> sorted table
 
-Decoding (zlib inflate, OpenCV) and most of the per-frame work release the GIL, so worker
-threads use every core; at most two frames per worker are in flight (memory stays flat in
-sequence length) and results are consumed in frame order.
+Only the identity step and the refinement are sequential; at most a few batches of frames
+per worker are in flight, so memory does not grow with the sequence length beyond the
+table's own rows. The output is the same whatever the number of workers.
 
-Two entry points:
+Entry points:
 
 - :func:`track` for a whole sequence (a folder, a mask video or an iterable of arrays);
+- :func:`iter_track` + :func:`refine` for the same, chunk by chunk (a viewer that shows
+  the first frames while the rest is tracked);
 - :class:`Tracker` for a segmentation network's own loop, frame by frame.
 """
 
 from __future__ import annotations
 
-import collections
-import importlib
-import math
 import os
 import time
 import warnings
-from collections.abc import Iterable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
-from typing import Any
 
-import cv2
 import numpy as np
 
-from mistool import paper, tracking
+from mistool import paper, parallel, tracking
 from mistool.config import Config, load_config
 from mistool.errors import ConfigError
-from mistool.model import COLUMN_NAMES, PARTS, TrackTable
-from mistool.sequence import VIDEO_TOLERANCE, Frame, MaskSequence, open_sequence, to_labels
-
-#: Default worker threads: the CPU count, at most this (the GIL-bound parts of a frame's
-#: work keep more threads from helping).
-MAX_DEFAULT_WORKERS = 8
+from mistool.model import PARTS, TrackTable
+from mistool.rows import RowBuilder
+from mistool.sequence import MaskSequence, open_sequence, to_labels
 
 #: Allowed values of ``smoothing``.
 SMOOTHING = ("none", "offline", "online")
 
-# Columns every table built here has, in order (the rest come from the metric pose).
-_BASE = (
-    "frame",
-    "time_s",
-    "instrument",
-    "part",
-    "cx_px",
-    "cy_px",
-    "length_px",
-    "width_px",
-    "angle_deg",
-    "area_px",
-    "x1_px",
-    "y1_px",
-    "x2_px",
-    "y2_px",
-    "x3_px",
-    "y3_px",
-    "x4_px",
-    "y4_px",
-)
+#: Frames per chunk yielded by :func:`iter_track`.
+DEFAULT_CHUNK_FRAMES = 256
+
+#: ``track``/``run`` with the default workers use a process pool only for sequences of at
+#: least this many frames (known length): starting the workers costs more than it saves on
+#: a short sequence. The output is the same either way.
+POOL_MIN_FRAMES = 200
 
 
 class MistoolWarning(UserWarning):
@@ -109,17 +90,6 @@ class TrackResult:
         return tuple(p for p in PARTS if p in seen)
 
 
-def _pose_module() -> ModuleType | None:
-    """``mistool.pose`` when it is installed with its interface, else None."""
-    try:
-        pose = importlib.import_module("mistool.pose")
-    except ModuleNotFoundError as exc:
-        if exc.name in ("mistool.pose",):
-            return None
-        raise
-    return pose if hasattr(pose, "measure_instance") else None
-
-
 def _resolve_config(config: Config | str | Path | None) -> Config | None:
     if config is None or isinstance(config, Config):
         return config
@@ -135,185 +105,198 @@ def _check_smoothing(smoothing: str) -> None:
         raise ConfigError(f"smoothing = {smoothing!r}: choose one of {', '.join(SMOOTHING)}")
 
 
-# --- per frame ------------------------------------------------------------------------
-
-
-@dataclass
-class _FrameResult:
-    instances: list[Any]
-    metrics: list[dict[str, dict[str, float]] | None]
-    unknown: np.ndarray
-    shape: tuple[int, int]
-
-
-def _process(
-    labels: np.ndarray, config: Config, pose: ModuleType | None, lossy: bool = False
-) -> _FrameResult:
-    """The per-frame work (thread-safe): observations, metric pose, unknown values
-    (``lossy``: a mask video, see :func:`_unknown_values`)."""
-    instances = tracking.observe_frame(labels, config)
-    shape = (int(labels.shape[0]), int(labels.shape[1]))
-    metrics = [_measure(inst, shape, config, pose) for inst in instances]
-    unknown = _unknown_values(labels, config, lossy)
-    return _FrameResult(instances, metrics, unknown, shape)
-
-
-def _measure(
-    inst: Any, shape: tuple[int, int], config: Config, pose: ModuleType | None
-) -> dict[str, dict[str, float]] | None:
-    """The per-frame metric pose of one instance, or None without a camera/pose step."""
-    if pose is None or config.camera is None:
-        return None
-    name = inst.label
-    return pose.measure_instance(
-        inst,
-        shape,
-        config.camera,
-        config.shaft_diameter_for(name) if name else config.shaft_diameter_mm,
-        config.clasper_length_for(name) if name else config.clasper_length_mm,
-    )
-
-
-def _unknown_values(labels: np.ndarray, config: Config, lossy: bool = False) -> np.ndarray:
-    """``tracking.unknown_values``, on the values present (an 8-bit histogram is ~7x faster
-    than scanning the image in numpy).
-
-    In a mask video (``lossy``) the codec smears values around every edge, so a value
-    counts only where it covers at least ``min_area_px`` pixels of the frame, and values
-    up to :data:`~mistool.sequence.VIDEO_TOLERANCE` are background."""
-    if labels.dtype == np.uint8 and labels.ndim == 2:
-        hist = cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel()
-        values = np.flatnonzero(hist >= (max(config.min_area_px, 1) if lossy else 1))
-        if lossy:
-            values = values[values > VIDEO_TOLERANCE]
-        return np.asarray(tracking.unknown_values(values.astype(np.uint8)[None, :], config))
-    return np.asarray(tracking.unknown_values(labels, config))
+# --- the sequential steps ---------------------------------------------------------------
 
 
 def _identify(
     tracker: tracking.IdentityTracker,
     index: int,
-    result: _FrameResult,
+    result: parallel.FrameResult,
     config: Config,
     pose: ModuleType | None,
-) -> tuple[list[str], _FrameResult]:
+) -> tuple[list[str], parallel.FrameResult]:
     """Instrument names for a frame's instances, in frame order (sequential).
 
     Uses :meth:`~mistool.tracking.IdentityTracker.resolve`, which splits a blob holding
     several known instruments (crossing or grasping in merged masks) into its instruments;
-    the metric pose is then measured again for the split pieces only."""
+    the metric pose is then measured again for the split pieces only (here, in the
+    caller's process)."""
     instances, names = tracker.resolve(index, result.instances)
     if instances is result.instances:
         return list(names), result
-    metrics = [_measure(inst, result.shape, config, pose) for inst in instances]
-    return list(names), _FrameResult(list(instances), metrics, result.unknown, result.shape)
+    metrics = [parallel.measure(inst, result.shape, config, pose) for inst in instances]
+    return list(names), parallel.FrameResult(list(instances), metrics, result.unknown, result.shape)
 
 
-def _load_and_process(
-    frame: Frame, config: Config, pose: ModuleType | None, lossy: bool
-) -> _FrameResult:
-    return _process(frame.load(), config, pose, lossy)
+@dataclass
+class Chunk:
+    """Raw (unrefined) rows of consecutive frames, with what a run summary needs."""
+
+    table: TrackTable
+    """Rows of frames ``start .. start + num_frames - 1`` in frame order (no paper
+    motion, no refinement: see :func:`refine`)."""
+    start: int
+    """Index of the chunk's first frame."""
+    num_frames: int
+    """Frames in the chunk."""
+    unknown: frozenset[int]
+    """Label values in these frames that the config does not know."""
+    shape: tuple[int, int] | None
+    """``(H, W)`` of the frames (None when the sequence has none)."""
 
 
-class _Rows:
-    """Row accumulator: one row per (frame, instrument, part)."""
-
-    def __init__(self, fps: float) -> None:
-        self.fps = fps
-        self.base: dict[str, list[Any]] = {c: [] for c in _BASE}
-        self.extra: dict[str, list[float]] = {}
-        self.n = 0
-
-    def add_frame(self, index: int, names: list[str], result: _FrameResult) -> None:
-        for name, inst, metric in zip(names, result.instances, result.metrics, strict=True):
-            for part in PARTS:
-                obs = inst.parts.get(part)
-                if obs is None:
-                    continue
-                self._add(index, name, part, obs, (metric or {}).get(part, {}))
-
-    def _add(self, index: int, name: str, part: str, obs: Any, metric: dict[str, float]) -> None:
-        b, base = obs.box, self.base
-        corners = np.asarray(obs.corners, dtype=np.float64).reshape(4, 2)
-        values = (
-            index,
-            index / self.fps,
-            name,
-            part,
-            b.cx,
-            b.cy,
-            b.length,
-            b.width,
-            b.angle_deg,
-            float(obs.area_px),
-            *corners.ravel().tolist(),
-        )
-        for col, v in zip(_BASE, values, strict=True):
-            base[col].append(v)
-        for col, v in metric.items():
-            if col not in self.extra:
-                self.extra[col] = [math.nan] * self.n
-            self.extra[col].append(float(v) if v is not None else math.nan)
-        self.n += 1
-        for col in self.extra:
-            if len(self.extra[col]) < self.n:
-                self.extra[col].append(math.nan)
-
-    def table(self) -> TrackTable:
-        cols: dict[str, Any] = dict(self.base)
-        cols["frame"] = np.asarray(cols["frame"], dtype=np.int64)
-        for col in _BASE[4:]:
-            cols[col] = np.asarray(cols[col], dtype=np.float64)
-        cols["time_s"] = np.asarray(cols["time_s"], dtype=np.float64)
-        known = [c for c in COLUMN_NAMES if c in self.extra]
-        for col in known + [c for c in self.extra if c not in known]:
-            cols[col] = np.asarray(self.extra[col], dtype=np.float64)
-        return TrackTable(cols)
+def _check_workers(workers: int | None) -> None:
+    if workers is not None and (
+        isinstance(workers, bool) or not isinstance(workers, int) or workers < 1
+    ):
+        raise ConfigError(f"workers = {workers!r}: must be an integer >= 1")
 
 
-def _finish(
-    table: TrackTable, config: Config, pose: ModuleType | None, smoothing: str
-) -> TrackTable:
-    """Sequence-level steps: paper motion (Algorithm 2), metric refinement, sort."""
-    table = table.sorted()
-    focal = config.camera.fx if config.camera is not None else 1.0
-    table = paper.paper_motion(table, focal_px=focal)
-    if pose is not None and config.camera is not None and hasattr(pose, "refine_sequence"):
-        table = pose.refine_sequence(table, config, smoothing=smoothing)
-    return table.sorted()
+def _check_chunk(chunk_frames: int) -> None:
+    if isinstance(chunk_frames, bool) or not isinstance(chunk_frames, int) or chunk_frames < 1:
+        raise ConfigError(f"chunk_frames = {chunk_frames!r}: must be an integer >= 1")
 
 
-def _ordered_results(
-    frames: Iterator[Frame],
-    config: Config,
-    pose: ModuleType | None,
-    workers: int,
-    lossy: bool = False,
-) -> Iterator[tuple[Frame, _FrameResult]]:
-    """``(frame, result)`` in frame order; at most ``2 * workers`` frames in flight."""
-    if workers <= 1:
-        for frame in frames:
-            yield frame, _load_and_process(frame, config, pose, lossy)
-        return
-    pending: collections.deque[tuple[Frame, Future[_FrameResult]]] = collections.deque()
-    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="mistool")
-    # Our pool already uses every core; OpenCV's own threads on top of it only add
-    # contention (observe_frame: 1.55 ms CPU with OpenCV's threads vs 0.75 ms without,
-    # scripts/bench_paper.py). The setting is process-wide, so it is restored afterwards.
-    cv_threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
+def _open(
+    source: str | Path | Iterable[np.ndarray] | MaskSequence,
+    config: Config | str | Path | None,
+) -> MaskSequence:
+    if isinstance(source, MaskSequence):
+        return source
+    return open_sequence(source, _resolve_config(config))
+
+
+def iter_chunks(
+    seq: MaskSequence,
+    *,
+    metric: bool = True,
+    pool: parallel.FramePool | None = None,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    on_frames: Callable[[int], None] | None = None,
+) -> Iterator[Chunk]:
+    """The sequence's raw rows chunk by chunk, in frame order (see :func:`iter_track`).
+
+    Args:
+        seq: an opened sequence (:func:`mistool.sequence.open_sequence`).
+        metric: measure the metric pose when the config has a camera.
+        pool: where the per-frame work runs (:mod:`mistool.parallel`); None: here.
+        chunk_frames: frames per chunk.
+        on_frames: called with the number of frames just consumed (progress).
+
+    Yields:
+        :class:`Chunk` objects; at least one (an empty one for an empty sequence).
+    """
+    _check_chunk(chunk_frames)
+    cfg = seq.config
+    pose = parallel.pose_module(metric, cfg)
+    tracker = tracking.IdentityTracker(cfg)
+    rows = RowBuilder(cfg.fps)
+    batch = pool.batch_frames if pool is not None else 1
+    work = parallel.batches(seq, pose is not None, batch)
+    start, count, unknown, yielded = 0, 0, set(), False
+    index = 0
+    for index, (name, result) in enumerate(parallel.ordered_results(work, pool)):
+        seq.check_shape(name, result.shape)
+        names, result = _identify(tracker, index, result, cfg, pose)
+        rows.add_frame(index, names, result.instances, result.metrics)
+        unknown.update(int(v) for v in result.unknown.ravel())
+        count += 1
+        if on_frames is not None:
+            on_frames(1)
+        if count == chunk_frames:
+            yield Chunk(rows.take(), start, count, frozenset(unknown), seq.shape)
+            start, count, unknown, yielded = index + 1, 0, set(), True
+    if count or not yielded:
+        yield Chunk(rows.take(), start, count, frozenset(unknown), seq.shape)
+
+
+def _local_pool(workers: int | None, seq: MaskSequence) -> parallel.LocalPool | None:
+    """A process pool for ``workers`` (None: the default, which skips short sequences)."""
+    if workers is None:
+        short = seq.num_frames is not None and seq.num_frames < POOL_MIN_FRAMES
+        workers = 1 if short else parallel.default_workers()
+    return parallel.LocalPool(workers) if workers > 1 else None
+
+
+def iter_track(
+    source: str | Path | Iterable[np.ndarray] | MaskSequence,
+    config: Config | str | Path | None = None,
+    *,
+    metric: bool = True,
+    workers: int = 1,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    pool: parallel.FramePool | None = None,
+) -> Iterator[TrackTable]:
+    """Track a sequence chunk by chunk: raw rows, in frame order, as they are ready.
+
+    ``refine(TrackTable.concat(iter_track(src, cfg)), cfg)`` is ``track(src, cfg)``.
+
+    Args:
+        source: a folder of label images, a mask video, an iterable of ``(H, W)``
+            integer label arrays, or an opened :class:`~mistool.sequence.MaskSequence`.
+        config: a :class:`Config`, a path to a ``mistool.toml``, or None to read
+            ``mistool.toml`` beside the frames.
+        metric: measure the per-frame metric pose when the config has a ``[camera]``.
+        workers: processes for the per-frame work (1: in this process). The output is
+            the same whatever the number.
+        chunk_frames: frames per yielded chunk.
+        pool: a :mod:`mistool.parallel` pool to use instead of starting ``workers``
+            processes (e.g. a :class:`~mistool.parallel.DaskPool`); it is not closed.
+
+    Yields:
+        One :class:`TrackTable` per ``chunk_frames`` frames (the last may be shorter; an
+        empty sequence yields one zero-row table): one row per (frame, instrument, part)
+        seen, with the boxes, the identities and the per-frame metric pose, without the
+        paper motion and the sequence-level refinement (:func:`refine` adds both).
+        Rows within a frame are in no particular order.
+
+    Raises:
+        MistoolError: bad input path, mask format or config (one-line message).
+
+    Close the generator (or consume it) to stop the worker processes early.
+    """
+    _check_workers(workers)
+    seq = _open(source, config)
+    own = None if pool is not None else _local_pool(workers, seq)
     try:
-        for frame in frames:
-            pending.append((frame, pool.submit(_load_and_process, frame, config, pose, lossy)))
-            if len(pending) >= 2 * workers:
-                done, fut = pending.popleft()
-                yield done, fut.result()
-        while pending:
-            done, fut = pending.popleft()
-            yield done, fut.result()
+        for chunk in iter_chunks(seq, metric=metric, pool=pool or own, chunk_frames=chunk_frames):
+            yield chunk.table
+    except BaseException:
+        if own is not None:
+            own.close(terminate=True)
+            own = None
+        raise
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-        cv2.setNumThreads(cv_threads)
+        if own is not None:
+            own.close()
+
+
+def refine(
+    table: TrackTable, config: Config | str | Path | None = None, smoothing: str = "offline"
+) -> TrackTable:
+    """The sequence-level steps on raw rows (:func:`iter_track`'s chunks, concatenated).
+
+    Sorts the rows, adds the paper's frame-to-frame motion (Algorithm 2) and, when the
+    config has a camera and the rows have a metric pose, refines it over the sequence
+    (trocar, trocar constraint, temporal filtering).
+
+    Args:
+        table: raw rows of a whole sequence (``TrackTable.concat`` of the chunks).
+        config: the sequence's config (camera, fps, diameters); None: defaults.
+        smoothing: ``"none"``, ``"offline"`` (zero-phase) or ``"online"`` (causal).
+
+    Returns:
+        The motion table, sorted by (frame, instrument, part).
+    """
+    _check_smoothing(smoothing)
+    cfg = _resolve_config(config) or Config()
+    table = table.sorted()
+    focal = cfg.camera.fx if cfg.camera is not None else 1.0
+    table = paper.paper_motion(table, focal_px=focal)
+    pose = parallel.pose_module(True, cfg)
+    if pose is not None and hasattr(pose, "refine_sequence"):
+        table = pose.refine_sequence(table, cfg, smoothing=smoothing)
+    return table.sorted()
 
 
 def run(
@@ -324,26 +307,19 @@ def run(
     workers: int | None = None,
     metric: bool = True,
     smoothing: str = "offline",
+    pool: parallel.FramePool | None = None,
+    on_frames: Callable[[int], None] | None = None,
 ) -> TrackResult:
     """Like :func:`track`, but returns a :class:`TrackResult` (table + run summary) and
-    does not warn: unknown label values are in ``result.unknown_values``."""
+    does not warn: unknown label values are in ``result.unknown_values``.
+
+    ``pool``: a :mod:`mistool.parallel` pool to run the per-frame work in (not closed);
+    ``on_frames``: called with the number of frames just consumed (progress)."""
     _check_smoothing(smoothing)
-    if workers is not None and (
-        isinstance(workers, bool) or not isinstance(workers, int) or workers < 1
-    ):
-        raise ConfigError(f"workers = {workers!r}: must be an integer >= 1")
-    n_workers = workers or min(MAX_DEFAULT_WORKERS, max(1, os.cpu_count() or 1))
+    _check_workers(workers)
     start = time.perf_counter()
-    seq = (
-        source
-        if isinstance(source, MaskSequence)
-        else open_sequence(source, _resolve_config(config))
-    )
+    seq = _open(source, config)
     cfg = seq.config
-    pose = _pose_module() if metric and cfg.camera is not None else None
-    tracker = tracking.IdentityTracker(cfg)
-    rows = _Rows(cfg.fps)
-    unknown: set[int] = set()
     bar = None
     if progress:
         from tqdm import tqdm  # only when a progress bar is wanted
@@ -356,20 +332,33 @@ def run(
             dynamic_ncols=True,
             leave=False,
         )
+
+    def advance(n: int) -> None:
+        if bar is not None:
+            bar.update(n)
+        if on_frames is not None:
+            on_frames(n)
+
+    own = None if pool is not None else _local_pool(workers, seq)
+    chunks: list[TrackTable] = []
+    unknown: set[int] = set()
     num_frames = 0
     try:
-        for frame, result in _ordered_results(seq.frames(), cfg, pose, n_workers, lossy=seq.lossy):
-            seq.check_shape(frame, result.shape)
-            names, result = _identify(tracker, frame.index, result, cfg, pose)
-            rows.add_frame(frame.index, names, result)
-            unknown.update(int(v) for v in result.unknown.ravel())
-            num_frames += 1
-            if bar is not None:
-                bar.update(1)
+        for chunk in iter_chunks(seq, metric=metric, pool=pool or own, on_frames=advance):
+            chunks.append(chunk.table)
+            unknown |= chunk.unknown
+            num_frames += chunk.num_frames
+    except BaseException:
+        if own is not None:
+            own.close(terminate=True)
+            own = None
+        raise
     finally:
+        if own is not None:
+            own.close()
         if bar is not None:
             bar.close()
-    table = _finish(rows.table(), cfg, pose, smoothing)
+    table = refine(TrackTable.concat(chunks), cfg, smoothing)
     return TrackResult(
         table=table,
         num_frames=num_frames,
@@ -377,7 +366,7 @@ def run(
         unknown_values=tuple(sorted(unknown)),
         seconds=time.perf_counter() - start,
         name=seq.name,
-        metric=pose is not None,
+        metric=parallel.pose_module(metric, cfg) is not None,
         config=cfg,
     )
 
@@ -410,8 +399,9 @@ def track(
         config: a :class:`Config`, a path to a ``mistool.toml``, or None to read
             ``mistool.toml`` beside the frames (EndoVis'15 defaults without one).
         progress: show a tqdm progress bar on stderr.
-        workers: worker threads for decoding and per-frame work (default: the CPU count,
-            at most :data:`MAX_DEFAULT_WORKERS`).
+        workers: processes for decoding and the per-frame work (default: the CPU
+            cores, or 1 for a sequence shorter than :data:`POOL_MIN_FRAMES` frames). The
+            output is the same whatever the number.
         metric: compute the metric 3D pose when the config has a ``[camera]``.
         smoothing: temporal filtering of the metric pose: ``"none"``, ``"offline"``
             (uses past and future frames) or ``"online"`` (causal).
@@ -465,7 +455,7 @@ class Tracker:
         self.config: Config = _resolve_config(config) or Config()
         """The config the pixels are read with."""
         self.smoothing = smoothing
-        self._pose = _pose_module() if metric and self.config.camera is not None else None
+        self._pose = parallel.pose_module(metric, self.config)
         self._tracker = tracking.IdentityTracker(self.config)
         self._frames: list[TrackTable] = []
         self._last: dict[tuple[str, str], tuple[TrackTable, ...]] = {}
@@ -500,11 +490,11 @@ class Tracker:
                 f"{where}: frame size changed: {shape[1]}x{shape[0]} px, "
                 f"earlier frames are {self._shape[1]}x{self._shape[0]} px"
             )
-        result = _process(arr, self.config, self._pose)
+        result = parallel.observe_labels(arr, self.config, self._pose)
         names, result = _identify(self._tracker, index, result, self.config, self._pose)
-        rows = _Rows(self.config.fps)
-        rows.add_frame(index, names, result)
-        raw = rows.table()
+        rows = RowBuilder(self.config.fps)
+        rows.add_frame(index, names, result.instances, result.metrics)
+        raw = rows.take()
         self._frames.append(raw)
         new = {int(v) for v in result.unknown.ravel()} - self._unknown
         if new:
@@ -527,5 +517,5 @@ class Tracker:
     def table(self) -> TrackTable:
         """Every frame so far as one table (paper motion and metric refinement applied)."""
         if not self._frames:
-            return _finish(_Rows(self.config.fps).table(), self.config, None, "none")
-        return _finish(TrackTable.concat(self._frames), self.config, self._pose, self.smoothing)
+            return refine(RowBuilder(self.config.fps).take(), self.config, "none")
+        return refine(TrackTable.concat(self._frames), self.config, self.smoothing)

@@ -19,6 +19,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("config", "resources", "export"),
     ("geometry",),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
+    # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools)
+    ("rows", "parallel"),
     ("api",),
     ("viewer",),
     ("cli",),

@@ -109,7 +109,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--workers",
         type=int,
         metavar="N",
-        help="worker threads (default: number of CPUs, at most 8)",
+        help="worker processes for the per-frame work (default: the CPU cores; the output "
+        "is the same whatever N)",
     )
     p.set_defaults(func=run_track)
 

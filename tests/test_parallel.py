@@ -1,0 +1,157 @@
+"""Per-frame work in worker processes: identical outputs whatever the number of workers,
+the chunked API (iter_track + refine = track), bounded work in flight, one-line errors
+from a worker, and no worker process left behind on errors or interrupts."""
+
+from __future__ import annotations
+
+import multiprocessing
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mistool import parallel
+from mistool.api import iter_track, refine, run, track
+from mistool.config import Config
+from mistool.errors import MaskFormatError
+from mistool.model import TrackTable
+from mistool.sequence import open_sequence
+from mistool.synth import synthesize
+
+
+def assert_same(a: TrackTable, b: TrackTable) -> None:
+    """Every column equal, NaN where NaN (bit for bit on numbers)."""
+    assert a.columns == b.columns and a.num_rows == b.num_rows
+    for c in a.columns:
+        if a[c].dtype == object:
+            assert a[c].tolist() == b[c].tolist(), c
+        else:
+            np.testing.assert_array_equal(a[c], b[c], err_msg=c)
+
+
+@pytest.fixture(scope="module")
+def crossing(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """60 frames, two instruments with merged labels that cross (seed 3: the identity
+    step splits their blob in 3 frames), with a camera (metric pose)."""
+    out = tmp_path_factory.mktemp("cross") / "seq"
+    synthesize(out, frames=60, instruments=2, seed=3)
+    return out
+
+
+def test_the_fixture_takes_the_split_path(crossing: Path) -> None:
+    from mistool import tracking
+
+    seq = open_sequence(crossing)
+    tracker = tracking.IdentityTracker(seq.config)
+    splits = 0
+    for i, _, labels in seq:
+        found = tracking.observe_frame(labels, seq.config)
+        splits += tracker.resolve(i, found)[0] is not found
+    assert splits >= 1 and seq.config.camera is not None
+
+
+def test_workers_1_and_2_give_identical_tables(crossing: Path) -> None:
+    one = track(crossing, workers=1)
+    two = track(crossing, workers=2)
+    assert one.num_rows > 100 and np.isfinite(one["end_x_mm"]).sum() > 50
+    assert set(one["instrument"].tolist()) == {"1", "2"}
+    assert_same(one, two)
+
+
+def test_iter_track_chunks_in_frame_order_and_refine_gives_track(crossing: Path) -> None:
+    chunks = list(iter_track(crossing, workers=2, chunk_frames=7))
+    assert len(chunks) == 9  # 60 frames: 8 x 7 + 4
+    for k, chunk in enumerate(chunks):
+        frames = chunk["frame"]
+        assert frames.size == 0 or (frames.min() >= 7 * k and frames.max() < 7 * (k + 1))
+        assert "dx_px" not in chunk.columns  # raw rows: no paper motion yet
+    seq = open_sequence(crossing)
+    whole = refine(TrackTable.concat(chunks), seq.config)
+    assert_same(whole, track(crossing, workers=1))
+    online = refine(TrackTable.concat(chunks), seq.config, smoothing="online")
+    assert_same(online, track(crossing, workers=1, smoothing="online"))
+
+
+def test_iter_track_of_nothing_yields_one_empty_table() -> None:
+    chunks = list(iter_track([np.zeros((20, 30), np.uint8)] * 3, Config(), workers=1))
+    assert len(chunks) == 1 and chunks[0].num_rows == 0 and "cx_px" in chunks[0]
+
+
+def test_arrays_through_the_pool_equal_in_process(crossing: Path) -> None:
+    frames = [labels for _, _, labels in open_sequence(crossing)]
+    cfg = open_sequence(crossing).config
+    assert_same(track(frames, cfg, workers=2), track(crossing, workers=1))
+
+
+def _pool_children() -> list[multiprocessing.process.BaseProcess]:
+    return list(multiprocessing.active_children())
+
+
+def test_a_bad_frame_in_a_worker_names_the_frame_and_stops_the_workers(
+    tmp_path: Path,
+) -> None:
+    img = np.zeros((40, 60), np.uint8)
+    img[15:25, 5:40] = 160
+    for i in range(40):
+        cv2.imwrite(str(tmp_path / f"f{i:03d}.png"), img)
+    (tmp_path / "f031.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    before = set(_pool_children())
+    with pytest.raises(MaskFormatError, match=r"f031\.png: cannot decode"):
+        track(tmp_path, workers=2)
+    assert not set(_pool_children()) - before
+
+
+def test_stopping_early_terminates_the_workers(crossing: Path) -> None:
+    before = set(_pool_children())
+    gen = iter_track(crossing, workers=2, chunk_frames=5)
+    next(gen)
+    started = set(_pool_children()) - before
+    assert len(started) == 2
+    gen.close()  # what a consumer's error or Ctrl+C does to the generator
+    assert not any(p.is_alive() for p in started)
+
+    def interrupt(_: int) -> None:  # Ctrl+C in the caller while frames are in flight
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run(crossing, workers=2, on_frames=interrupt)
+    assert not set(_pool_children()) - before
+
+
+def test_frames_in_flight_are_bounded_per_worker(tmp_path: Path) -> None:
+    """A pool that counts submitted-but-unconsumed batches (in this process)."""
+    from concurrent.futures import Future
+
+    class CountingPool:
+        workers = 3
+        batch_frames = 2
+
+        def __init__(self) -> None:
+            self.pending: list[Future] = []
+            self.peak = 0
+
+        def submit(self, fn, *args):  # type: ignore[no-untyped-def]
+            fut: Future = Future()
+            fut.set_result(fn(*args))
+            self.pending = [f for f in self.pending if not getattr(f, "taken", False)]
+            self.pending.append(fut)
+            self.peak = max(self.peak, len(self.pending))
+            original = fut.result
+
+            def result(timeout: float | None = None) -> object:
+                fut.taken = True  # type: ignore[attr-defined]
+                return original(timeout)
+
+            fut.result = result  # type: ignore[method-assign]
+            return fut
+
+        def close(self) -> None:
+            pass
+
+    img = np.zeros((40, 60), np.uint8)
+    img[15:25, 5:40] = 160
+    pool = CountingPool()
+    chunks = list(iter_track([img] * 50, Config(), pool=pool))
+    assert sum(c.num_rows for c in chunks) == 50
+    assert pool.peak <= parallel.IN_FLIGHT_PER_WORKER * pool.workers
