@@ -200,7 +200,7 @@ class TrackTable(Mapping[str, np.ndarray]):
         self._cols = {c: cols[c] for c in known + extra}
 
     # Mapping interface -------------------------------------------------------------
-    def __getitem__(self, key: Any) -> Any:  # type: ignore[override]
+    def __getitem__(self, key: Any) -> Any:
         if isinstance(key, str):
             if key in self._cols:
                 return self._cols[key]

@@ -206,7 +206,9 @@ def _inflate_module() -> Any:
     try:
         from zlib_ng import zlib_ng
     except ImportError:  # optional: the standard library's zlib gives the same bytes
-        import zlib as zlib_ng
+        import zlib
+
+        return zlib
     return zlib_ng
 
 

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Set up (once) and run every check: lint, then the test suite (the browser tests included).
+# Set up (once) and run every check: lint, format, types (mypy, zero errors), then the test
+# suite (the browser tests included).
 # Installs Debian's chromium when it is missing (needs root or sudo), as CI does.
 source "$(dirname "$0")/_env.sh" "[test]"
 if [ ! -x /usr/bin/chromium ]; then
@@ -9,6 +10,7 @@ if [ ! -x /usr/bin/chromium ]; then
 fi
 "$VPY" -m ruff check mistool tests scripts
 "$VPY" -m ruff format --check mistool tests scripts
+"$VPY" -m mypy  # checks mistool/ with the settings in pyproject.toml
 set +e
 "$VPY" -m pytest -n 2 "$@"
 rc=$?

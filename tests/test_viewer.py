@@ -436,6 +436,18 @@ def test_export_html_is_standalone(sequence, tmp_path: Path) -> None:
     assert not (tmp_path / "y.html").exists()
 
 
+def test_export_html_jpeg_quality_reaches_the_images(sequence, tmp_path: Path) -> None:
+    # The option used to set an attribute viser never reads: both files came out the same.
+    # Frames 0, 10, 20, 30: the overlays show instruments (the first frames are nearly blank).
+    def size(images: bool, quality: int) -> int:
+        out = tmp_path / "x.html"
+        return export_html(sequence, out, stride=10, images=images, jpeg_quality=quality).bytes
+
+    base = size(False, 95)
+    low, high = size(True, 5) - base, size(True, 95) - base
+    assert 0 < low < 0.5 * high
+
+
 def test_serve_reuses_the_tracked_table_until_the_sequence_changes(
     synth_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -441,7 +441,7 @@ def measure_instance(
     # the direction away from where the shaft leaves the view
     tr, det = mu20 + mu02, mu20 * mu02 - mu11 * mu11
     disc = math.sqrt(max(tr * tr / 4.0 - det, 0.0))
-    d0 = None
+    d0: np.ndarray | None = None
     med_other = _median_rows(bnd.other) if len(bnd.other) >= 3 else None
     if med_other is not None:
         d0 = med_other - centre
@@ -449,7 +449,7 @@ def measure_instance(
         if border.any():
             d0 = centre - pix[border].mean(axis=0)
     nd0 = math.hypot(d0[0], d0[1]) if d0 is not None else 0.0
-    if nd0 > 2.0:
+    if d0 is not None and nd0 > 2.0:
         e = d0 / nd0
     s_pix = (pix - centre) @ e
 
@@ -598,10 +598,9 @@ def measure_instance(
         far = pix[s_pix >= s_max - 1.0].mean(axis=0)
         t_far = _closest1(far, K, p0, a)
         t_end = float((joint - p0) @ a) if joint is not None else t_far
-        if start[2] <= 0 or t_end <= t_start:
-            start = None
-        _fill_pose(row, joint, a, start)
-        if start is not None:
+        start_ok = start[2] > 0 and t_end > t_start
+        _fill_pose(row, joint, a, start if start_ok else None)
+        if start_ok:
             poly = hull_of_cylinder(start, p0 + t_end * a, radius, radius, K)
             row["quality"] = iou_polygon_mask(poly, shaft_mask, shaft.offset, image_shape)
     else:
@@ -646,7 +645,7 @@ _TIP_CAP = 1.0
 
 def _jaw_tips(
     mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray, width_px: float
-) -> tuple[list[np.ndarray], list[np.ndarray]]:
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[float]]:
     """Far ends of the clasper's jaws in the image.
 
     The jaw ends are the local maxima of the distance from J's pixel along the clasper's
@@ -667,7 +666,7 @@ def _jaw_tips(
     """
     contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
-        return [], []
+        return [], [], [], []
     c = max(contours, key=len).reshape(-1, 2).astype(np.float64) + offset
     dj = c - jpx
     d = np.sqrt(np.einsum("ij,ij->i", dj, dj))
@@ -688,9 +687,12 @@ def _jaw_tips(
     rad = _JAW_RAD * width_px
     if len(picks) == 2:
         rad = min(rad, 0.5 * math.hypot(*(c[picks[0]] - c[picks[1]])))
-    ends, nears, dirs, halfw = [], [], [], []
-    for i in picks:
-        dc = area - c[i]
+    ends: list[np.ndarray] = []
+    nears: list[np.ndarray] = []
+    dirs: list[np.ndarray] = []
+    halfw: list[float] = []
+    for k in picks:
+        dc = area - c[k]
         nb = area[np.einsum("ij,ij->i", dc, dc) <= rad * rad]
         if len(nb) < 3:
             continue
@@ -699,12 +701,12 @@ def _jaw_tips(
         cov = dd.T @ dd
         phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
         e = np.array([math.cos(phi), math.sin(phi)])
-        if e @ (c[i] - jpx) < 0:
+        if e @ (c[k] - jpx) < 0:
             e = -e
         ends.append(m + (float((dd @ e).max()) + 0.5) * e)
         dirs.append(e)
         halfw.append(min(0.5 * float(np.ptp(dd @ np.array([-e[1], e[0]]))) + 0.5, width_px))
-        dc = c - c[i]
+        dc = c - c[k]
         nears.append(c[np.einsum("ij,ij->i", dc, dc) <= rad * rad])
     return ends, nears, dirs, halfw
 

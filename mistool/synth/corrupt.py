@@ -156,8 +156,8 @@ class Corruptor:
         if c.jitter_px > 0:
             rng = _rng(self.seed, _JITTER, frame)
             gh, gw = 6, 8
-            dx = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
-            dy = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
+            dx: np.ndarray = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
+            dy: np.ndarray = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
             dx = cv2.resize(dx, (w, h), interpolation=cv2.INTER_CUBIC)
             dy = cv2.resize(dy, (w, h), interpolation=cv2.INTER_CUBIC)
             gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
@@ -175,9 +175,9 @@ class Corruptor:
             if len(xs) and n:
                 pick = rng.integers(0, len(xs), n)
                 for x, y in zip(xs[pick], ys[pick], strict=True):
-                    axes = (int(rng.integers(2, 8)), int(rng.integers(1, 4)))
+                    hole_axes = (int(rng.integers(2, 8)), int(rng.integers(1, 4)))
                     cv2.ellipse(
-                        out, (int(x), int(y)), axes, float(rng.uniform(0, 180)), 0, 360, 0, -1
+                        out, (int(x), int(y)), hole_axes, float(rng.uniform(0, 180)), 0, 360, 0, -1
                     )
         if c.occluders > 0:
             t = frame / self.fps

@@ -388,7 +388,7 @@ def synthesize(
         if video is not None:
             writer = cv2.VideoWriter(
                 str(tmp / "masks.avi"),
-                cv2.VideoWriter_fourcc(*VIDEO_CODECS[video]),
+                cv2.VideoWriter.fourcc(*VIDEO_CODECS[video]),
                 float(fps),
                 (sc.width, sc.height),
                 False,

@@ -333,7 +333,7 @@ class ReplayViewer:
             lambda _: self._set_mode(next(m for m in replay.modes if labels[m] == self.mode.value))
         )
         self.camera_buttons.on_click(lambda e: self._camera(e.client, str(e.target.value)))
-        server.on_client_connect(lambda c: c.camera.on_update(self._camera_moved))
+        server.on_client_connect(self._watch_camera)
         server.on_client_disconnect(lambda c: self._leave_endoscope(c, reset=False))
         self.trail.on_update(lambda _: self._redraw(trails=True))
         self.opacity.on_update(lambda _: self._redraw())
@@ -498,6 +498,10 @@ class ReplayViewer:
         if was and reset:
             with contextlib.suppress(Exception):  # the browser may be gone
                 client.scene.set_background_image(None)
+
+    def _watch_camera(self, client: viser.ClientHandle) -> None:
+        """A new browser: follow its camera (the endoscope view's background)."""
+        client.camera.on_update(self._camera_moved)
 
     def _camera_moved(self, camera: viser.CameraHandle) -> None:
         client = camera.client

@@ -235,7 +235,7 @@ class OverlayRenderer:
         w, h = self.size_wh
         small = cv2.resize(labels, (w, h), interpolation=cv2.INTER_NEAREST)
         if self.replay.config.colour_masks:
-            part = np.zeros((h, w), dtype=np.uint8)
+            part: np.ndarray = np.zeros((h, w), dtype=np.uint8)
             inst = np.full((h, w), 255, dtype=np.uint8)
             cfg = self.replay.config
             specs = [(None, cfg.parts)] + [(s.name, s.parts) for s in cfg.instruments]

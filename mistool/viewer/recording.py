@@ -90,8 +90,14 @@ def export_html(
     server = quiet_server("127.0.0.1", 0)
     try:
         server.scene.configure_environment_map(None)
-        scene = SceneView(server, replay, mode, overlay=first, trail_frames=trail_frames)
-        scene.frustum.jpeg_quality = jpeg_quality
+        scene = SceneView(
+            server,
+            replay,
+            mode,
+            overlay=first,
+            trail_frames=trail_frames,
+            jpeg_quality=jpeg_quality,
+        )
         position, look_at, up, fov = scene.camera_pose("Reset")
         server.initial_camera.position = tuple(position)
         server.initial_camera.look_at = tuple(look_at)

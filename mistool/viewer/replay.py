@@ -461,12 +461,12 @@ def _metric_geometry(
     for p, part in enumerate(parts):
         missing = ~np.isfinite(start[:, :, p]).all(axis=-1)
         if part == "shaft":
-            length = DEFAULT_SHAFT_LENGTH_MM
+            back_mm = DEFAULT_SHAFT_LENGTH_MM
         else:
-            length = config.clasper_length_mm or 10.0
+            back_mm = config.clasper_length_mm or 10.0
             if part == "wrist":
-                length *= 0.5
-        start[:, :, p][missing] = end[:, :, p][missing] - length * axis[:, :, p][missing]
+                back_mm *= 0.5
+        start[:, :, p][missing] = end[:, :, p][missing] - back_mm * axis[:, :, p][missing]
     _chain(start, end, parts)
     s = METRIC_UNITS_PER_MM
     start_w = (start @ R_WORLD_CAMERA.T) * s

@@ -51,6 +51,7 @@ class SceneView:
         mode: str,
         overlay: np.ndarray | None = None,
         trail_frames: int = 25,
+        jpeg_quality: int = 80,
     ) -> None:
         """
         Args:
@@ -59,6 +60,7 @@ class SceneView:
             mode: ``"metric"`` or ``"paper"`` (must be in ``replay.modes``).
             overlay: first overlay image (RGB) for the frustum, or None.
             trail_frames: initial trail length N (frames; 0 = off).
+            jpeg_quality: JPEG quality (1-100) of the overlay images on the frustum.
         """
         self.server = server
         self.replay = replay
@@ -99,7 +101,7 @@ class SceneView:
             thickness=0.02,
             image=overlay,
             format="jpeg",
-            jpeg_quality=80,
+            jpeg_quality=jpeg_quality,
             wxyz=_wxyz_from_matrix(R_WORLD_CAMERA),
             position=(0.0, 0.0, 0.0),
             cast_shadow=False,
@@ -211,7 +213,7 @@ class SceneView:
         fov, _ = self.replay.fov_aspect()
         lo, hi = scene_extent(self.replay, self.mode)
         target = 0.5 * (lo + hi)
-        radius = float(max(np.linalg.norm(hi - lo), 1.0))
+        radius = max(float(np.linalg.norm(hi - lo)), 1.0)
         up = np.array([0.0, 0.0, 1.0])
         if preset == "Endoscope":
             return np.zeros(3), np.array([0.0, 1.0, 0.0]), up, fov

@@ -26,7 +26,7 @@ class Timeline:
     :meth:`start`)."""
 
     def __init__(
-        self, server: viser.ViserServer, num_frames: int, fps: float, draw: Callable[[int], None]
+        self, server: viser.ViserServer, num_frames: int, fps: float, draw: Callable[[int], object]
     ) -> None:
         """
         Args:
@@ -116,7 +116,8 @@ class Timeline:
     def seek(self, frame: int) -> None:
         """Move the slider (and so every browser) to ``frame``."""
         frame = min(max(int(frame), 0), self.num_frames - 1)
-        self.slider.value = frame
+        # viser 1.1.1 defines the value setter apart from its getter: mypy reads it as read-only
+        self.slider.value = frame  # type: ignore[misc]
         self.request(frame)
 
     def step(self, delta: int) -> None:
@@ -196,7 +197,7 @@ class Timeline:
                             continue
                     with self._lock:
                         self._target = frame
-                    self.slider.value = frame
+                    self.slider.value = frame  # type: ignore[misc]  # (see seek)
                     self._draw_target()
             else:
                 self._wake.wait(0.5)
