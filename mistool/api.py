@@ -193,7 +193,8 @@ def iter_chunks(
     rows = RowBuilder(cfg.fps)
     batch = pool.batch_frames if pool is not None else 1
     work = parallel.batches(seq, pose is not None, batch)
-    start, count, unknown, yielded = 0, 0, set(), False
+    start, count, yielded = 0, 0, False
+    unknown: set[int] = set()
     index = 0
     for index, (name, result) in enumerate(parallel.ordered_results(work, pool)):
         seq.check_shape(name, result.shape)
