@@ -96,8 +96,18 @@ def linear_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
     return sorted(pairs)
 
 
-def match_instruments(pred: TrackTable, truth: TrackTable) -> dict[str, str]:
-    """Map predicted instrument names to truth names (see the module docstring)."""
+def match_instruments(
+    pred: TrackTable, truth: TrackTable, *, join_fragments: bool = True
+) -> dict[str, str]:
+    """Map predicted instrument names to truth names (see the module docstring).
+
+    Args:
+        pred: the predicted motion table.
+        truth: the truth table.
+        join_fragments: let a left-over predicted instrument join its nearest truth
+            instrument when they never share a frame; False keeps the mapping strictly
+            one-to-one (every renamed tool's later rows then count as misses).
+    """
     p_names = sorted({str(x) for x in pred["instrument"]})
     t_names = sorted({str(x) for x in truth["instrument"]})
     if not p_names or not t_names:
@@ -130,6 +140,8 @@ def match_instruments(pred: TrackTable, truth: TrackTable) -> dict[str, str]:
     mapping = {
         p_names[a]: t_names[b] for a, b in linear_assignment(cost) if np.isfinite(mean[a, b])
     }
+    if not join_fragments:
+        return dict(sorted(mapping.items()))
     # fragments: a predicted instrument left over (the tracker changed the identity of a
     # tool, e.g. after a crossing) joins its nearest truth instrument if it never shares a
     # frame with the predicted instruments already matched to it
@@ -236,16 +248,31 @@ def _angle_diff_mod180(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.minimum(d, 180.0 - d)
 
 
-def evaluate_one(
-    pred: TrackTable, truth: TrackTable, name: str = "pred", min_area_px: int = 20
-) -> MethodReport:
-    """Score one prediction against the truth (see the module docstring)."""
-    for t, what in ((pred, f"prediction {name}"), (truth, "truth")):
-        require_columns(t, ("frame", "instrument", "part", "cx_px", "cy_px", "angle_deg"), what)
+def _visible_truth(truth: TrackTable, min_area_px: int) -> TrackTable:
+    """The truth rows whose clean ``area_px`` is at least ``min_area_px`` (all without it)."""
     if "area_px" in truth and min_area_px > 0:
         area = truth["area_px"]
         truth = truth[~(np.isfinite(area) & (area < min_area_px))]
-    mapping = match_instruments(pred, truth)
+    return truth
+
+
+def evaluate_one(
+    pred: TrackTable,
+    truth: TrackTable,
+    name: str = "pred",
+    min_area_px: int = 20,
+    *,
+    join_fragments: bool = True,
+) -> MethodReport:
+    """Score one prediction against the truth (see the module docstring).
+
+    ``join_fragments=False`` matches instruments strictly one-to-one (see
+    :func:`match_instruments`).
+    """
+    for t, what in ((pred, f"prediction {name}"), (truth, "truth")):
+        require_columns(t, ("frame", "instrument", "part", "cx_px", "cy_px", "angle_deg"), what)
+    truth = _visible_truth(truth, min_area_px)
+    mapping = match_instruments(pred, truth, join_fragments=join_fragments)
     p_index: dict[tuple[int, str, str], int] = {}
     for r, (f, inst, part) in enumerate(
         zip(pred["frame"], pred["instrument"], pred["part"], strict=True)
@@ -340,6 +367,87 @@ def evaluate(
         raise TableError("truth table has no rows: nothing to score against")
     return EvalReport(
         [evaluate_one(t, truth, name, min_area_px) for name, t in preds.items()], min_area_px
+    )
+
+
+@dataclass(frozen=True)
+class IdentityCoverage:
+    """Strict (one-to-one) identity coverage of one prediction against the truth."""
+
+    coverage: float
+    """Truth rows (all parts, visible: ``area_px >= min_area_px``) found under the one
+    predicted name matched to their instrument *and* nearer to that instrument's box
+    than to any other instrument's box of the part, over all such rows; NaN without
+    truth rows."""
+    parts: dict[str, float]
+    """The same per part (``shaft``, ``wrist``, ``clasper``), in :data:`PARTS` order."""
+    names: int
+    """Distinct instrument names the prediction handed out."""
+    true_names: int
+    """Distinct instruments of the truth."""
+
+
+def identity_coverage(
+    pred: TrackTable, truth: TrackTable, min_area_px: int = 20
+) -> IdentityCoverage:
+    """Strict identity coverage: how much of the truth one stable name per tool explains.
+
+    Predicted instruments are matched one-to-one to the truth's by the Hungarian algorithm
+    on mean box-centre distance (:func:`match_instruments` with ``join_fragments=False``).
+    A visible truth row counts when the name matched to its instrument has a row of that
+    part in that frame whose box centre is nearer to this instrument's box than to every
+    other truth instrument's box of the part in that frame. So a tool the tracker renamed
+    midway counts its second name's rows as misses, and two tools whose names swapped
+    after a crossing count the swapped rows as misses.
+
+    Args:
+        pred: the predicted motion table (``frame``, ``instrument``, ``part``, box centre).
+        truth: the truth (e.g. ``truth.csv`` of ``mistool synth``).
+        min_area_px: truth rows whose clean ``area_px`` is smaller are left out.
+
+    Returns:
+        An :class:`IdentityCoverage`.
+    """
+    for t, what in ((pred, "prediction"), (truth, "truth")):
+        require_columns(t, ("frame", "instrument", "part", "cx_px", "cy_px"), what)
+    truth = _visible_truth(truth, min_area_px)
+    mapping = match_instruments(pred, truth, join_fragments=False)
+    name_of = {t: p for p, t in mapping.items()}
+    p_xy: dict[tuple[int, str, str], tuple[float, float]] = {}
+    for f, i, p, x, y in zip(
+        pred["frame"], pred["instrument"], pred["part"], pred["cx_px"], pred["cy_px"], strict=True
+    ):
+        p_xy.setdefault((int(f), str(i), str(p)), (float(x), float(y)))
+    t_rows = list(
+        zip(
+            (int(f) for f in truth["frame"]),
+            (str(i) for i in truth["instrument"]),
+            (str(p) for p in truth["part"]),
+            truth["cx_px"].astype(float),
+            truth["cy_px"].astype(float),
+            strict=True,
+        )
+    )
+    by_frame_part: dict[tuple[int, str], list[tuple[str, float, float]]] = {}
+    for f, i, p, x, y in t_rows:
+        by_frame_part.setdefault((f, p), []).append((i, x, y))
+    hits: dict[str, list[bool]] = {}
+    for f, i, p, _, _ in t_rows:
+        got = p_xy.get((f, name_of.get(i, ""), p))
+        ok = (
+            got is not None
+            and min(by_frame_part[(f, p)], key=lambda r: math.hypot(r[1] - got[0], r[2] - got[1]))[
+                0
+            ]
+            == i
+        )
+        hits.setdefault(p, []).append(ok)
+    every = [h for p in hits for h in hits[p]]
+    return IdentityCoverage(
+        coverage=sum(every) / len(every) if every else math.nan,
+        parts={p: sum(hits[p]) / len(hits[p]) for p in PARTS if p in hits},
+        names=len({str(x) for x in pred["instrument"]}),
+        true_names=len({str(x) for x in truth["instrument"]}),
     )
 
 

@@ -1,12 +1,13 @@
 #!/usr/bin/env python
-"""Strict tracking coverage on sequences with ground truth (mistool synth folders).
+"""Strict identity coverage against truth per sequence (mistool synth folders).
 
 For each folder, tracks it (``mistool.track``, no metric pose) and scores it with
-``mistool.evaluation`` against its ``truth.csv``: instruments are matched one-to-one
-(Hungarian on box centres), so a tool the tracker renamed midway counts its second name's
-rows as misses. Prints names handed out vs true, and coverage per part; then the mean
-shaft coverage. Stricter than ``scripts/eval_identity.py`` (which maps several names to one
-tool).
+:func:`mistool.evaluation.identity_coverage` against its ``truth.csv``: instruments are
+matched one-to-one (Hungarian on box centres), and a truth row counts only when the name
+matched to its tool has a row there nearer to this tool than to any other; so a tool the
+tracker renamed midway, or two tools swapped after a crossing, count as misses. Prints
+names handed out vs true, and coverage overall and per part; then the means. Stricter than
+``scripts/eval_identity.py`` (which maps several names to one tool).
 
 Usage::
 
@@ -17,11 +18,10 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from mistool.api import track
-from mistool.evaluation import evaluate
+from mistool.evaluation import identity_coverage
 from mistool.export import read_csv
 
 
@@ -29,17 +29,20 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("folders", nargs="+", type=Path)
     args = ap.parse_args()
-    shaft = []
+    overall, shaft = [], []
     for folder in args.folders:
-        table = track(folder, metric=False)
-        truth = read_csv(folder / "truth.csv")
-        parts = evaluate({"p": table}, truth).methods[0].parts
-        names = len(set(table["instrument"].tolist()))
-        true = len(set(truth["instrument"].tolist()))
-        shaft.append(parts["shaft"]["coverage"] if "shaft" in parts else math.nan)
-        cov = "  ".join(f"{p} {100 * s['coverage']:5.1f}%" for p, s in parts.items())
-        print(f"{folder.name:16s} names {names}/{true}  {cov}")
-    print(f"mean shaft coverage {100 * sum(shaft) / len(shaft):.1f}% over {len(shaft)} sequence(s)")
+        c = identity_coverage(track(folder, metric=False), read_csv(folder / "truth.csv"))
+        overall.append(c.coverage)
+        shaft.append(c.parts.get("shaft", float("nan")))
+        cov = "  ".join(f"{p} {100 * v:5.1f}%" for p, v in c.parts.items())
+        print(
+            f"{folder.name:16s} names {c.names}/{c.true_names}  all {100 * c.coverage:5.1f}%  {cov}"
+        )
+    n = len(overall)
+    print(
+        f"mean coverage {100 * sum(overall) / n:.1f}% (shaft {100 * sum(shaft) / n:.1f}%) "
+        f"over {n} sequence(s)"
+    )
     return 0
 
 

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from mistool.errors import TableError
-from mistool.evaluation import evaluate, format_report, linear_assignment, match_instruments
+from mistool.evaluation import (
+    evaluate,
+    format_report,
+    identity_coverage,
+    linear_assignment,
+    match_instruments,
+)
 from mistool.model import TrackTable
 
 
@@ -243,3 +249,29 @@ def test_a_new_identity_after_a_gap_is_a_fragment_of_the_same_tool():
     )
     m = evaluate({"p": dup}, t).methods[0]
     assert "9" not in m.instrument_map and m.parts["shaft"]["extra"] == 10
+
+
+def test_identity_coverage_is_strict_one_to_one():
+    t = _truth(10)  # 2 tools x 2 parts x 10 frames, every row visible
+    exact = identity_coverage(t, t)
+    assert exact.coverage == 1.0 and exact.parts == {"shaft": 1.0, "clasper": 1.0}
+    assert (exact.names, exact.true_names) == (2, 2)
+    inst = t["instrument"].copy()
+    inst[(inst == "1") & (t["frame"] >= 6)] = "7"  # tool 1 renamed at frame 6: 4 frames lost
+    renamed = identity_coverage(t.with_columns(instrument=inst), t)
+    assert renamed.coverage == pytest.approx(1 - 4 * 2 / 40) and renamed.names == 3
+    # the lenient evaluation joins the fragment back and counts every row
+    assert evaluate({"p": t.with_columns(instrument=inst)}, t).methods[0].fragments == 1
+    swapped = t["instrument"].copy()
+    late = t["frame"] >= 7
+    swapped[late] = np.where(swapped[late] == "1", "2", "1")  # names swap for 3 frames
+    got = identity_coverage(t.with_columns(instrument=swapped), t)
+    assert got.coverage == pytest.approx(0.7) and got.parts["shaft"] == pytest.approx(0.7)
+    small = identity_coverage(t, t.with_columns(area_px=np.where(late, 5.0, 500.0)))
+    assert small.coverage == 1.0  # rows below min_area_px are left out, not missed
+
+
+def test_identity_coverage_of_nothing_found():
+    t = _truth(4)
+    got = identity_coverage(t[t["frame"] < 0], t)
+    assert got.coverage == 0.0 and got.names == 0 and got.parts["shaft"] == 0.0
