@@ -157,6 +157,16 @@ def _check_chunk(chunk_frames: int) -> None:
         raise ConfigError(f"chunk_frames = {chunk_frames!r}: must be an integer >= 1")
 
 
+def _with_status(table: TrackTable, config: Config) -> TrackTable:
+    """The table with its ``pose_status`` column (:mod:`mistool.pose.status`): as the
+    metric refinement wrote it, else ``"no camera"`` or ``"off"`` (metric pose not run)
+    on every row."""
+    if "pose_status" in table:
+        return table
+    reason = "no camera" if config.camera is None else "off"
+    return table.with_columns(pose_status=np.full(table.num_rows, reason, dtype=object))
+
+
 def _open(
     source: str | Path | Iterable[np.ndarray] | MaskSequence,
     config: Config | str | Path | None,
@@ -297,7 +307,7 @@ def refine(
     pose = parallel.pose_module(True, cfg)
     if pose is not None and hasattr(pose, "refine_sequence"):
         table = pose.refine_sequence(table, cfg, smoothing=smoothing)
-    return table.sorted()
+    return _with_status(table, cfg).sorted()
 
 
 def run(
@@ -503,6 +513,11 @@ class Tracker:
             warnings.warn(
                 unknown_values_message(new, self.config.colour_masks), MistoolWarning, stacklevel=2
             )
+        if self._pose is not None:
+            from mistool.pose.status import status_column
+
+            raw = raw.with_columns(pose_status=status_column(raw, raw.num_rows))
+        raw = _with_status(raw, self.config)
         focal = self.config.camera.fx if self.config.camera is not None else 1.0
         if raw.num_rows == 0:
             return paper.paper_motion(raw, focal_px=focal)

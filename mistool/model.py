@@ -122,6 +122,7 @@ COLUMNS: tuple[tuple[str, Any], ...] = (
     ("trocar_x_mm", _F),
     ("trocar_y_mm", _F),
     ("trocar_z_mm", _F),  # per instrument
+    ("pose_status", object),  # "ok" or why the metric pose is empty (mistool.pose.status)
 )
 COLUMN_NAMES: tuple[str, ...] = tuple(name for name, _ in COLUMNS)
 COLUMN_DTYPES: dict[str, Any] = dict(COLUMNS)
@@ -243,8 +244,13 @@ class TrackTable(Mapping[str, np.ndarray]):
         return out
 
     def full(self) -> TrackTable:
-        """A new table holding every known column (NaN where unknown), then the extras."""
-        cols = {c: self[c] for c in COLUMN_NAMES if c in self._cols or COLUMN_DTYPES[c] is _F}
+        """A new table holding every known column (NaN, or '' for text, where unknown),
+        then the extras."""
+        empty = np.full(self._n, "", dtype=object)
+        cols = {
+            c: self._cols.get(c, empty) if COLUMN_DTYPES[c] is object else self[c]
+            for c in COLUMN_NAMES
+        }
         cols.update({c: v for c, v in self._cols.items() if c not in cols})
         return TrackTable(cols)
 

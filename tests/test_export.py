@@ -19,7 +19,7 @@ GOLDEN_HEADER = (
     "x1_px,y1_px,x2_px,y2_px,x3_px,y3_px,x4_px,y4_px,dx_px,dy_px,dz,droll_deg,dpitch_deg,"
     "dyaw_deg,paper_x_px,paper_y_px,paper_z,paper_roll_deg,paper_pitch_deg,paper_yaw_deg,"
     "end_x_mm,end_y_mm,end_z_mm,axis_x,axis_y,axis_z,start_x_mm,start_y_mm,start_z_mm,"
-    "qw,qx,qy,qz,quality,trocar_x_mm,trocar_y_mm,trocar_z_mm"
+    "qw,qx,qy,qz,quality,trocar_x_mm,trocar_y_mm,trocar_z_mm,pose_status"
 )
 
 

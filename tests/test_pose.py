@@ -20,6 +20,7 @@ from mistool.pose import measure_instance, refine_sequence
 from mistool.pose.cylinder import axis_from_lines, quat_from_z
 from mistool.pose.filtering import filter_series
 from mistool.pose.raycast import render_instrument
+from mistool.pose.status import AUX_STATUS, reason_code
 from mistool.pose.trocar import intersect_lines
 
 CAM = Camera(600.0, 600.0, 359.5, 287.5)
@@ -236,13 +237,14 @@ def test_absent_parts_and_unknown_camera():
     J, a = np.array([0.0, 0.0, 100.0]), unit([1.0, 0.2, 0.3])
     labels, _ = render(J, a)
     obs = observe(labels)
-    out = measure_instance(obs, SHAPE, None, 2 * R, 10.0)
-    assert all(math.isnan(v) for row in out.values() for v in row.values())
-    out = measure_instance(obs, SHAPE, CAM, None, 10.0)
-    assert all(math.isnan(v) for row in out.values() for v in row.values())
+    for camera, diameter, reason in ((None, 2 * R, "no camera"), (CAM, None, "no shaft diameter")):
+        out = measure_instance(obs, SHAPE, camera, diameter, 10.0)
+        assert all(math.isnan(v) for row in out.values() for k, v in row.items() if k != AUX_STATUS)
+        assert all(row[AUX_STATUS] == reason_code(reason) for row in out.values())
     only_clasper = SimpleNamespace(label=None, parts={"clasper": obs.parts["clasper"]})
     out = measure_instance(only_clasper, SHAPE, CAM, 2 * R, 10.0)
     assert set(out) == {"clasper"} and math.isnan(out["clasper"]["end_x_mm"])
+    assert out["clasper"][AUX_STATUS] == reason_code("not visible")
 
 
 def test_wrong_diameter_lowers_nothing_but_depth_scales():

@@ -39,6 +39,7 @@ from mistool.pose.cylinder import (
 )
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask
 from mistool.pose.silhouette import boundary_points, fit_line_robust, make_canvas
+from mistool.pose.status import AUX_STATUS, reason_code
 
 __all__ = ["AUX_KEYS", "MAX_SIGMA_DEG", "MAX_SIGMA_MM", "POSE_KEYS", "measure_instance"]
 
@@ -81,6 +82,7 @@ AUX_KEYS: tuple[str, ...] = (
     "aux_sigma_mm",
     "aux_sigma_deg",
     "aux_distal",
+    AUX_STATUS,
 )
 
 #: Above this 1-sigma joint error (mm) the shaft pose is left empty: the view is too close
@@ -96,6 +98,9 @@ _MAX_CAP_SPREAD_MM = 1.0
 _PX_BIAS = 0.1
 _MIN_LINE_POINTS = 10
 _MIN_LINE_SPAN_PX = 12.0
+#: A shaft whose depth is too uncertain is reported as ``"pointing at camera"`` when its
+#: axis is within this angle (degrees) of the viewing ray, else as ``"low quality"``.
+_END_ON_DEG = 30.0
 
 
 _NAN_ROW = {k: math.nan for k in POSE_KEYS + AUX_KEYS}
@@ -209,6 +214,15 @@ def _window_max(x: np.ndarray, size: int) -> np.ndarray:
 def _on_border(px: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
     H, W = image_shape
     return (px[:, 0] <= 0) | (px[:, 1] <= 0) | (px[:, 0] >= W - 1) | (px[:, 1] >= H - 1)
+
+
+def _why(out: dict[str, dict[str, float]], reason: str, parts: Any = None) -> None:
+    """Record why the pose is empty (:mod:`mistool.pose.status`) on the given parts' rows
+    (default: all), keeping a reason already recorded."""
+    code = reason_code(reason)
+    for name in out if parts is None else parts:
+        if name in out and not out[name][AUX_STATUS] >= 0:
+            out[name][AUX_STATUS] = code
 
 
 def _fill_pose(
@@ -397,6 +411,12 @@ def measure_instance(
         or not shaft_diameter_mm > 0
         or not np.any(shaft.mask)
     ):
+        if camera is None:
+            _why(out, "no camera")
+        elif shaft is None or not np.any(shaft.mask):
+            _why(out, "not visible")
+        else:
+            _why(out, "no shaft diameter")
         return out
     K = np.asarray(camera.K, dtype=np.float64)
     radius = 0.5 * float(shaft_diameter_mm)
@@ -425,6 +445,7 @@ def measure_instance(
     # principal axis of the shaft's region
     pix, mom = _outline(smask, shaft.offset, contours)
     if mom["m00"] <= 0:
+        _why(out, "rejected")
         return out
     bnd = boundary_points(canvas, pix)
     border = _on_border(pix, image_shape)
@@ -504,6 +525,12 @@ def measure_instance(
     if jpx is not None:
         row["aux_u_px"], row["aux_v_px"] = float(jpx[0]), float(jpx[1])
     if lines[0] is None or lines[1] is None:
+        _why(
+            out,
+            "no silhouette line"
+            if lines[0] is None and lines[1] is None
+            else "one silhouette line",
+        )
         return out  # one limb line: refine_sequence may solve it with the trocar
 
     def solve(lines: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -534,6 +561,7 @@ def measure_instance(
         p0: np.ndarray, a: np.ndarray, lines: list[np.ndarray], stats: list[_LineStats]
     ) -> np.ndarray | None:
         if distal == 0 or (dist_at_border and len(bnd.other) < 3):
+            why["joint"] = "joint out of view"
             return None
         near = np.flatnonzero(s >= s_max - zone)
         pn = pts[near]
@@ -553,16 +581,20 @@ def measure_instance(
             qc = (pts[cap] - centre) @ eperp
             sc = s[cap]
             if len(qc) < 5 or spread > _MAX_CAP_SPREAD_MM:
+                why["joint"] = "occluded"
                 return None
             x2 = (qc - 0.5 * (qc.max() + qc.min())) ** 2
             x2c = x2 - x2.mean()
             if float(x2c @ (sc - sc.mean())) >= 0:  # along-axis coordinate grows outward
+                why["joint"] = "occluded"
                 return None
         joint = p0 + tj * a
         return joint if joint[2] > 0 else None
 
+    why = {"joint": "rejected"}  # why joint_of found no joint
     res = solve(lines)  # type: ignore[arg-type]
     if res is None:
+        _why(out, "rejected")
         return out
     p0, a, xc = res
     joint = joint_of(p0, a, lines, stats)  # type: ignore[arg-type]
@@ -590,6 +622,9 @@ def measure_instance(
     sig_p, sig_a = _uncertainty(lines, stats, K, radius, ref, a)  # type: ignore[arg-type]
     row["aux_sigma_mm"], row["aux_sigma_deg"] = sig_p, sig_a
     if not sig_p <= MAX_SIGMA_MM:
+        ray = ref / math.sqrt(float(ref @ ref))
+        end_on = abs(float(ray @ a)) > math.cos(math.radians(_END_ON_DEG))
+        _why(out, "pointing at camera" if end_on else "low quality")
         return out
     if sig_a <= MAX_SIGMA_DEG:
         # proximal end: where the shaft leaves the view (or its proximal end)
@@ -608,9 +643,11 @@ def measure_instance(
         # the direction from the trocar when it can); the clasper still uses the
         # measured direction as its (weak) bend prior
         _fill_pose(row, joint, None, None)
+        _why(out, "uncertain axis", ("shaft",))
 
     # clasper / wrist
     if joint is None or merged:
+        _why(out, why["joint"] if joint is None else "merged")
         return out
     clasper = parts.get("clasper")
     c_axis = None
@@ -625,6 +662,10 @@ def measure_instance(
             _fill_pose(crow, tip, c_axis, joint)
             poly = hull_of_cylinder(joint, tip, 0.5 * radius, 0.25 * radius, K)
             crow["quality"] = iou_polygon_mask(poly, clasper.mask, clasper.offset, image_shape)
+        else:
+            _why(out, "tip not found", ("clasper", "wrist"))
+    else:
+        _why(out, "no clasper", ("wrist",))
     if "wrist" in parts:
         _fill_pose(out["wrist"], None, c_axis, joint)
     return out

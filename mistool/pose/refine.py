@@ -17,7 +17,8 @@
 3. **Temporal filtering** (:mod:`mistool.pose.filtering`) of end, start and axis per
    (instrument, part): ``"offline"`` zero-phase smoother, ``"online"`` causal filter,
    ``"none"``. Quaternions are recomputed from the filtered axes.
-4. The per-frame auxiliary columns (``aux_*``) are dropped.
+4. ``pose_status`` says per row whether the pose is filled (``"ok"``) or why not
+   (:mod:`mistool.pose.status`); the per-frame auxiliary columns (``aux_*``) are dropped.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from mistool.pose.cylinder import (
 )
 from mistool.pose.filtering import MODES, filter_series, noise_scale
 from mistool.pose.measure import AUX_KEYS, MAX_SIGMA_DEG
+from mistool.pose.status import status_column
 from mistool.pose.trocar import Trocar, intersect_lines
 
 __all__ = ["ACCEL_MM_S2", "refine_sequence"]
@@ -197,7 +199,8 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
             (causal filter).
 
     Returns:
-        A new table: metric columns updated, ``trocar_*_mm`` filled, ``aux_*`` dropped.
+        A new table: metric columns updated, ``trocar_*_mm`` and ``pose_status`` filled,
+        ``aux_*`` dropped.
 
     Raises:
         ConfigError: unknown ``smoothing``.
@@ -205,6 +208,7 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
     if smoothing not in MODES:
         raise ConfigError(f"smoothing = {smoothing!r}: choose one of {', '.join(MODES)}")
     if table.num_rows == 0 or "end_x_mm" not in table:
+        # no per-frame pose (e.g. measured without it): leave pose_status to the caller
         return TrackTable({c: v for c, v in table.items() if c not in AUX_KEYS})
     cols = {c: np.array(table[c], copy=True) for c in table.columns}
     for name in (*_END, *_START, *_AXIS, *_QUAT, *_TROCAR, "quality", *AUX_KEYS):
@@ -259,4 +263,5 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
         q = quat_from_z(ax[i] / np.linalg.norm(ax[i]))
         for j, n in enumerate(_QUAT):
             cols[n][i] = q[j]
+    cols["pose_status"] = status_column(cols, table.num_rows)
     return TrackTable({c: v for c, v in cols.items() if c not in AUX_KEYS})

@@ -1,0 +1,117 @@
+"""The ``pose_status`` column: "ok" where the metric pose is filled, else why not."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_pose import CAM, SHAPE, R, observe, render
+
+from mistool.api import Tracker, track
+from mistool.config import Config
+from mistool.model import TrackTable
+from mistool.pose import measure_instance, refine_sequence
+from mistool.pose.status import AUX_STATUS, REASONS, reason_code, status_column
+
+
+def _reasons(J, a, clasper: bool = True) -> dict[str, str]:
+    labels, _ = render(np.asarray(J, float), a, clasper=clasper)
+    out = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 10.0)
+    table = TrackTable(
+        {
+            "frame": [0] * len(out),
+            "instrument": ["1"] * len(out),
+            "part": list(out),
+            **{k: [row[k] for row in out.values()] for k in next(iter(out.values()))},
+        }
+    )
+    return dict(zip(out, status_column(table, table.num_rows).tolist(), strict=True))
+
+
+@pytest.mark.parametrize(
+    "J,a,clasper,expected",
+    [
+        ([0, 0, 100], [1, 0.2, 0.3], True, {"shaft": "ok", "clasper": "ok"}),
+        # the joint beyond the right border, no clasper in view
+        ([60, 0, 80], [1, 0, 0.1], False, {"shaft": "joint out of view"}),
+        # the shaft half out of the top border: one outline line; the clasper says why
+        (
+            [0, -46, 100],
+            [1, 0, 0.2],
+            True,
+            {"shaft": "one silhouette line", "clasper": "one silhouette line"},
+        ),
+        # seen end-on: the outline is a disc, no lines
+        (
+            [0, 0, 100],
+            [0.02, 0.02, 1],
+            True,
+            {"shaft": "no silhouette line", "clasper": "no silhouette line"},
+        ),
+    ],
+)
+def test_reasons_per_row(J, a, clasper, expected):
+    assert _reasons(J, a, clasper) == expected
+
+
+def test_status_column_rules():
+    """ok needs the part's own metric columns; a wrist needs its axis and its start."""
+    nan = math.nan
+    cols = {
+        "frame": [0, 0, 0, 0, 0],
+        "instrument": ["1"] * 5,
+        "part": ["shaft", "shaft", "wrist", "clasper", "clasper"],
+        "end_x_mm": [1.0, nan, nan, 2.0, 2.0],
+        "end_y_mm": [1.0, nan, nan, 2.0, 2.0],
+        "end_z_mm": [1.0, nan, nan, 2.0, 2.0],
+        "axis_x": [0.0, nan, 1.0, 1.0, nan],
+        "axis_y": [0.0, nan, 0.0, 0.0, nan],
+        "axis_z": [1.0, nan, 0.0, 0.0, nan],
+        "start_x_mm": [nan, nan, 1.0, nan, nan],
+        "start_y_mm": [nan, nan, 1.0, nan, nan],
+        "start_z_mm": [nan, nan, 1.0, nan, nan],
+        AUX_STATUS: [nan, reason_code("merged"), nan, reason_code("ok"), nan],
+    }
+    table = TrackTable(cols)
+    got = status_column(table, table.num_rows).tolist()
+    # an emptied row with no reason (or "ok" per frame) is "rejected"
+    assert got == ["ok", "merged", "ok", "ok", "rejected"]
+    assert set(got) <= set(REASONS)
+
+
+def test_refine_writes_status_and_drops_aux():
+    """A one-line shaft that the trocar constraint fills becomes "ok" after refinement;
+    one it cannot fill keeps its reason."""
+    rows = []
+    rng = np.random.default_rng(0)
+    trocar = np.array([0.0, -60.0, -20.0])
+    for f in range(30):
+        J = np.array([10.0 * math.sin(f / 5), 5.0 * math.cos(f / 7), 100.0 + 3 * f / 10])
+        J += rng.normal(0, 0.05, 3)
+        labels, _ = render(J, J - trocar)
+        out = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 10.0)
+        for part, row in out.items():
+            rows.append({"frame": f, "instrument": "1", "part": part, **row})
+    table = TrackTable({k: [r[k] for r in rows] for k in rows[0]})
+    refined = refine_sequence(table, Config(camera=CAM, fps=10.0))
+    assert not any(c.startswith("aux_") for c in refined.columns)
+    status = refined["pose_status"]
+    assert len(status) == table.num_rows and set(status.tolist()) <= set(REASONS)
+    ok = status == "ok"
+    assert np.all(np.isfinite(refined["end_x_mm"][ok]))
+    assert ok.mean() > 0.9
+
+
+def test_track_without_camera_or_metric_says_so():
+    labels, _ = render(np.array([0.0, 0.0, 100.0]), [1, 0.2, 0.3])
+    frames = [labels.astype(np.uint8)] * 3
+    no_cam = track(frames, Config())
+    assert no_cam.num_rows == 6 and set(no_cam["pose_status"].tolist()) == {"no camera"}
+    off = track(frames, Config(camera=CAM), metric=False)
+    assert set(off["pose_status"].tolist()) == {"off"}
+    on = track(frames, Config(camera=CAM))
+    assert set(on["pose_status"].tolist()) == {"ok"}
+    tracker = Tracker(Config(camera=CAM))
+    rows = tracker.update(frames[0])
+    assert rows["pose_status"].tolist() == ["ok", "ok"]
