@@ -13,7 +13,16 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
-__all__ = ["Config", "MistoolError", "RotatedBox", "TrackTable", "Tracker", "load_config", "track"]
+__all__ = [
+    "Config",
+    "MistoolError",
+    "RotatedBox",
+    "TrackTable",
+    "Tracker",
+    "load_config",
+    "skill",
+    "track",
+]
 
 # name -> module that defines it
 _LAZY = {
@@ -34,6 +43,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 
 def __getattr__(name: str) -> Any:
+    if name == "skill":  # the module mistool.skill is callable: mistool.skill(table)
+        import importlib
+
+        return importlib.import_module("mistool.skill")
     if name in _LAZY:
         import importlib
 

@@ -16,11 +16,13 @@ LAYERS: list[tuple[str, ...]] = [
     ("errors",),
     ("model",),
     # export (CSV and atomic writes) needs only errors and model; synth writes truth.csv
-    ("config", "resources", "export"),
+    ("config", "resources", "export", "annotations"),
     ("geometry",),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
     # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools)
     ("rows", "parallel"),
+    # teaching: skill metrics, the report and the video export (tables and sequences in)
+    ("skill", "report", "video"),
     ("api",),
     ("viewer",),
     ("cli",),

@@ -15,7 +15,16 @@ from mistool import __version__
 from mistool.errors import MistoolError
 
 # Subcommand modules, in the order --help lists them.
-_COMMANDS = ("track", "synth", "evaluate", "serve", "export_html")
+_COMMANDS = (
+    "track",
+    "synth",
+    "evaluate",
+    "serve",
+    "export_html",
+    "skill",
+    "report",
+    "export_video",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
