@@ -24,6 +24,7 @@ _COMMANDS = (
     "skill",
     "report",
     "export_video",
+    "bookmark",
 )
 
 
