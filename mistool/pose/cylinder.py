@@ -16,14 +16,21 @@ interior on the positive side.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+
 import numpy as np
 
 __all__ = [
+    "Vec3",
+    "axis_from_image_lines",
     "axis_from_lines",
+    "axis_from_normals",
     "axis_through_point",
     "closest_on_axis",
     "cross3",
     "pixel_rays",
+    "plane_normal",
     "project",
     "quat_from_z",
     "ray_cylinder",
@@ -53,10 +60,67 @@ def tangent_plane(line: np.ndarray, K: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n)
 
 
+#: A 3-vector as plain floats: the closed forms below run per frame on 3-vectors, where
+#: numpy's per-call overhead costs more than the arithmetic.
+Vec3 = tuple[float, float, float]
+
+
+def plane_normal(line: Sequence[float], K: Sequence[Sequence[float]]) -> Vec3:
+    """:func:`tangent_plane` in plain floats: unit ``K^T line``.
+
+    Args:
+        line: image line ``(a, b, c)`` (px), interior positive.
+        K: the 3x3 intrinsic matrix as nested sequences (``K.tolist()``).
+    """
+    (k00, k01, k02), (k10, k11, k12), (k20, k21, k22) = K
+    a0, a1, a2 = line
+    m0 = a0 * k00 + a1 * k10 + a2 * k20
+    m1 = a0 * k01 + a1 * k11 + a2 * k21
+    m2 = a0 * k02 + a1 * k12 + a2 * k22
+    mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    return m0 / mn, m1 / mn, m2 / mn
+
+
+def axis_from_normals(n1: Vec3, n2: Vec3, radius_mm: float) -> tuple[Vec3, Vec3] | None:
+    """The cylinder axis tangent to two planes through the camera centre (the closed form;
+    every axis-from-limb-lines solve in mistool goes through here).
+
+    Args:
+        n1, n2: unit plane normals, each oriented toward the cylinder.
+        radius_mm: cylinder radius (mm).
+
+    Returns:
+        ``(P0, a)``: the axis point ``r (n1 + n2) / (1 + n1.n2)`` (mm) and the unit direction
+        ``unit(n1 x n2)`` (sign arbitrary: callers orient it distally), or None when the
+        planes are (nearly) parallel or opposite.
+    """
+    p, q, r = n1
+    u, v, w = n2
+    c = p * u + q * v + r * w
+    if c <= -0.999999:  # opposite normals: the two lines coincide, no wedge
+        return None
+    cx, cy, cz = q * w - r * v, r * u - p * w, p * v - q * u
+    sn = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if sn < 1e-9:
+        return None
+    f = radius_mm / (1.0 + c)
+    return (f * (p + u), f * (q + v), f * (r + w)), (cx / sn, cy / sn, cz / sn)
+
+
+def axis_from_image_lines(
+    l1: Sequence[float], l2: Sequence[float], K: Sequence[Sequence[float]], radius_mm: float
+) -> tuple[Vec3, Vec3] | None:
+    """The cylinder axis from its two limb lines in the image (plain floats).
+
+    ``axis_from_normals(plane_normal(l1, K), plane_normal(l2, K), radius_mm)``.
+    """
+    return axis_from_normals(plane_normal(l1, K), plane_normal(l2, K), radius_mm)
+
+
 def axis_from_lines(
     n1: np.ndarray, n2: np.ndarray, radius_mm: float
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The cylinder axis tangent to two planes through the camera centre.
+    """:func:`axis_from_normals` for (3,) numpy normals.
 
     Args:
         n1, n2: (3,) unit plane normals, each oriented toward the cylinder.
@@ -66,15 +130,12 @@ def axis_from_lines(
         ``(P0, a)``: (3,) point of the axis (mm) and (3,) unit direction (sign arbitrary,
         callers orient it distally), or None when the planes are (nearly) parallel.
     """
-    c = float(n1 @ n2)
-    if c <= -0.999999:  # opposite normals: the two lines coincide, no wedge
+    x, y, z = n1.tolist()
+    u, v, w = n2.tolist()
+    sol = axis_from_normals((x, y, z), (u, v, w), radius_mm)
+    if sol is None:
         return None
-    a = cross3(n1, n2)
-    s = np.linalg.norm(a)
-    if s < 1e-9:
-        return None
-    p0 = radius_mm * (n1 + n2) / (1.0 + c)
-    return p0, a / s
+    return np.array(sol[0]), np.array(sol[1])
 
 
 def axis_through_point(

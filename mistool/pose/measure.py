@@ -25,12 +25,16 @@ shaft seen end-on, J out of the image, numerically unstable solutions) the cells
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
 import numpy as np
 
+from mistool.config import Camera
 from mistool.pose.cylinder import (
+    axis_from_image_lines,
     closest_on_axis,
     pixel_rays,
     project,
@@ -38,7 +42,7 @@ from mistool.pose.cylinder import (
     ray_cylinder,
 )
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask
-from mistool.pose.silhouette import boundary_points, fit_line_robust, make_canvas
+from mistool.pose.silhouette import Boundary, boundary_points, fit_line_robust, make_canvas
 from mistool.pose.status import AUX_STATUS, reason_code
 
 __all__ = ["AUX_KEYS", "MAX_SIGMA_DEG", "MAX_SIGMA_MM", "POSE_KEYS", "measure_instance"]
@@ -169,31 +173,6 @@ def _ray(px: np.ndarray, K: np.ndarray) -> np.ndarray:
 _UNIT_GRID = np.linspace(0.0, 1.0, 81)
 
 
-def _axis_from_lines_f(
-    l1: np.ndarray, l2: np.ndarray, K: np.ndarray, radius: float
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """``axis_from_lines(tangent_plane(l1, K), tangent_plane(l2, K), radius)`` in plain
-    floats (numpy's per-call overhead dominates for 3-vectors)."""
-    (k00, k01, k02), (k10, k11, k12), (k20, k21, k22) = K.tolist()
-    normals = []
-    for a0, a1, a2 in (l1.tolist(), l2.tolist()):
-        m0 = a0 * k00 + a1 * k10 + a2 * k20  # K^T l
-        m1 = a0 * k01 + a1 * k11 + a2 * k21
-        m2 = a0 * k02 + a1 * k12 + a2 * k22
-        mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-        normals.append((m0 / mn, m1 / mn, m2 / mn))
-    (p, q, r), (u, v, w) = normals
-    c = p * u + q * v + r * w
-    if c <= -0.999999:
-        return None
-    cx, cy, cz = q * w - r * v, r * u - p * w, p * v - q * u
-    sn = math.sqrt(cx * cx + cy * cy + cz * cz)
-    if sn < 1e-9:
-        return None
-    f = radius / (1.0 + c)
-    return np.array([f * (p + u), f * (q + v), f * (r + w)]), np.array([cx / sn, cy / sn, cz / sn])
-
-
 def _closest1(px: np.ndarray, K: np.ndarray, p0: np.ndarray, a: np.ndarray) -> float:
     """``closest_on_axis`` for a single pixel's ray (mm)."""
     d = _ray(px, K)
@@ -301,18 +280,25 @@ def _fit_limbs(
                 continue
         lines.append(None)
         stats.append(None)
-    if lines[0] is not None and lines[1] is not None and float(lines[0][:2] @ lines[1][:2]) > 0:
+    s0, s1 = stats
+    if (
+        lines[0] is not None
+        and lines[1] is not None
+        and s0 is not None
+        and s1 is not None
+        and float(lines[0][:2] @ lines[1][:2]) > 0
+    ):
         # both fits found the same limb (e.g. the other one is out of the view and the
         # visible part's centroid is off-axis): keep the better one
-        worse = 0 if stats[0].sigma > stats[1].sigma else 1  # type: ignore[union-attr]
+        worse = 0 if s0.sigma > s1.sigma else 1
         lines[worse] = None
         stats[worse] = None
     return lines, stats
 
 
 def _uncertainty(
-    lines: list[np.ndarray],
-    stats: list[_LineStats],
+    lines: Sequence[np.ndarray],
+    stats: Sequence[_LineStats],
     K: np.ndarray,
     radius: float,
     ref: np.ndarray,
@@ -327,7 +313,7 @@ def _uncertainty(
     offset (e.g. segmentation bias).
     """
     # plain floats: four solves of 3-vectors are much cheaper without numpy's overhead
-    (k00, k01, k02), (k10, k11, k12), (k20, k21, k22) = K.tolist()
+    k_rows = K.tolist()
     rx, ry, rz = ref.tolist()
     nr = math.sqrt(rx * rx + ry * ry + rz * rz)
     ux, uy, uz = rx / nr, ry / nr, rz / nr
@@ -348,23 +334,11 @@ def _uncertainty(
         for ln in (shifted, turned):
             variants.append((ln, base[1]) if k == 0 else (base[0], ln))
     var_p = var_a = 0.0
-    for la, lb in variants:  # closed form of cylinder.axis_from_lines
-        normals = []
-        for l0, l1, l2 in (la, lb):
-            m0 = l0 * k00 + l1 * k10 + l2 * k20  # K^T l
-            m1 = l0 * k01 + l1 * k11 + l2 * k21
-            m2 = l0 * k02 + l1 * k12 + l2 * k22
-            mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-            normals.append((m0 / mn, m1 / mn, m2 / mn))
-        (p, q, r), (u, v, w) = normals
-        c = p * u + q * v + r * w
-        cx, cy, cz = q * w - r * v, r * u - p * w, p * v - q * u
-        sn = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if sn < 1e-9 or c <= -0.999999:
+    for la, lb in variants:
+        sol = axis_from_image_lines(la, lb, k_rows, radius)
+        if sol is None:
             return math.inf, math.inf
-        cx, cy, cz = cx / sn, cy / sn, cz / sn
-        f = radius / (1.0 + c)
-        px, py, pz = f * (p + u), f * (q + v), f * (r + w)
+        (px, py, pz), (cx, cy, cz) = sol
         # the axis point closest to the reference ray
         da = cx * ux + cy * uy + cz * uz
         dp = px * ux + py * uy + pz * uz
@@ -376,22 +350,468 @@ def _uncertainty(
     return math.sqrt(var_p), math.sqrt(var_a)
 
 
+@dataclass(frozen=True)
+class _ShaftPoints:
+    """Every image point of the shaft that the pose uses (full-image px).
+
+    Gathered in one place (:func:`_shaft_points`); the clasper's points enter separately,
+    in :func:`_jaw_tips`.
+    """
+
+    pix: np.ndarray
+    """(N, 2) outline pixels of the measured shaft region."""
+    moments: dict[str, float]
+    """Region moments of that region (crop coordinates, as ``cv2.moments``)."""
+    offset: tuple[int, int]
+    """(x0, y0) of the crop the moments refer to."""
+    bnd: Boundary
+    """Sub-pixel boundary points: ``bg`` next to background, ``other`` next to the
+    instrument's other parts."""
+    border: np.ndarray
+    """(N,) bool: the outline pixel is on the image border."""
+    mask: np.ndarray
+    """The measured shaft region (bool crop at ``offset``), for the quality IoU."""
+    merged: bool
+    """Two shafts were found in the instance (only the larger is measured)."""
+
+
+@dataclass(frozen=True)
+class _ShaftFrame:
+    """The shaft's image frame: centroid and axis direction (distal when known)."""
+
+    centre: np.ndarray
+    """(2,) region centroid (px)."""
+    e: np.ndarray
+    """(2,) unit image direction of the axis, distal when ``distal_seen``."""
+    eperp: np.ndarray
+    """(2,) ``e`` turned by +90 degrees."""
+    s_pix: np.ndarray
+    """(N,) the outline pixels' coordinate along ``e`` from the centre (px)."""
+    s_min: float
+    s_max: float
+    distal_seen: bool
+    """The distal direction was seen (other parts, or one end at the image border)."""
+    prox_at_border: bool
+    """The proximal end of the outline touches the image border."""
+    dist_at_border: bool
+    """The distal end of the outline touches the image border."""
+    med_other: np.ndarray | None
+    """(2,) median of the boundary points next to other parts (the joint's pixel), or None."""
+    width: float
+    """Widest apparent width across ``e`` (px)."""
+
+
+@dataclass(frozen=True)
+class _LimbPoints:
+    """The background boundary points that may lie on the limb lines."""
+
+    pts: np.ndarray
+    """(M, 2) background boundary points (px)."""
+    s: np.ndarray
+    """(M,) their coordinate along the axis direction (px)."""
+    q: np.ndarray
+    """(M,) their coordinate across it (px; the side of the axis)."""
+    keep_base: np.ndarray
+    """(M,) bool: away from the proximal end zone and from other parts."""
+    keep: np.ndarray
+    """(M,) bool: ``keep_base`` and away from the distal end zone."""
+    zone: float
+    """Length (px) of the end zones left out."""
+
+
+@dataclass(frozen=True)
+class _ShaftSolution:
+    """The shaft's axis (camera frame, mm) and joint, with the limb lines they came from."""
+
+    lines: tuple[np.ndarray, np.ndarray]
+    stats: tuple[_LineStats, _LineStats]
+    p0: np.ndarray
+    """(3,) a point of the axis (mm)."""
+    a: np.ndarray
+    """(3,) unit axis direction, distal."""
+    xc: np.ndarray
+    """(3,) the axis point seen at the region's centroid (mm)."""
+    joint: np.ndarray | None
+    """(3,) J (mm), or None."""
+    joint_why: str
+    """Why there is no joint (:mod:`mistool.pose.status`); empty when there is one."""
+
+
+def _shaft_points(parts: Mapping[str, Any], image_shape: tuple[int, int]) -> _ShaftPoints | None:
+    """Gather the shaft's image points (the pose's pixel input), or None for no region.
+
+    Two shafts in one instance (two tools touching in a merged mask): only the larger
+    shaft is kept (and ``merged`` set: the clasper, whose jaws may be either tool's, is
+    then left empty).
+    """
+    shaft = parts["shaft"]
+    smask = _as_u8(shaft.mask)
+    shaft_mask = shaft.mask
+    contours, _ = cv2.findContours(smask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    merged = False
+    if len(contours) > 1:
+        areas = np.array([cv2.contourArea(c) for c in contours])
+        big = int(np.argmax(areas))
+        if np.count_nonzero(areas >= 0.25 * areas[big]) > 1:
+            merged = True
+            keep_u8 = np.zeros_like(smask)
+            cv2.drawContours(keep_u8, contours, big, 1, thickness=-1)
+            smask = np.ascontiguousarray(keep_u8 & smask)
+            shaft_mask = smask.view(bool)
+            contours = (contours[big],)
+    others = [(p.mask, p.offset) for n, p in parts.items() if n != "shaft"]
+    canvas = make_canvas(shaft_mask, shaft.offset, others, image_shape)
+    pix, mom = _outline(smask, shaft.offset, contours)
+    if mom["m00"] <= 0:
+        return None
+    return _ShaftPoints(
+        pix=pix,
+        moments=mom,
+        offset=shaft.offset,
+        bnd=boundary_points(canvas, pix),
+        border=_on_border(pix, image_shape),
+        mask=shaft_mask,
+        merged=merged,
+    )
+
+
+def _initial_direction(sp: _ShaftPoints, centre: np.ndarray, mu: tuple[float, ...]) -> np.ndarray:
+    """(2,) unit image direction of the axis (sign not yet distal).
+
+    The principal axis of the region, except where it fails: on a short visible stretch (as
+    wide as long, or wider) the joint is on the axis, so the direction toward the
+    shaft-clasper boundary is the axis' direction whatever the shape; without a clasper, a
+    short stretch uses the direction away from where the shaft leaves the view.
+    """
+    mu20, mu02, mu11 = mu
+    theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
+    e = np.array([math.cos(theta), math.sin(theta)])
+    tr, det = mu20 + mu02, mu20 * mu02 - mu11 * mu11
+    disc = math.sqrt(max(tr * tr / 4.0 - det, 0.0))
+    d0: np.ndarray | None = None
+    if len(sp.bnd.other) >= 3:
+        d0 = _median_rows(sp.bnd.other) - centre
+    elif tr / 2.0 + disc < 9.0 * max(tr / 2.0 - disc, 1e-9):
+        if sp.border.any():
+            d0 = centre - sp.pix[sp.border].mean(axis=0)
+    nd0 = math.hypot(d0[0], d0[1]) if d0 is not None else 0.0
+    if d0 is not None and nd0 > 2.0:
+        e = d0 / nd0
+    return e
+
+
+def _distal_sign(sp: _ShaftPoints, centre: np.ndarray, e: np.ndarray, s_pix: np.ndarray) -> int:
+    """+1 / -1 when ``e`` / ``-e`` is distal (toward the other parts, else away from the
+    image border), 0 when nothing tells."""
+    if len(sp.bnd.other) >= 3:
+        return 1 if float(((sp.bnd.other - centre) @ e).sum()) >= 0 else -1
+    lo, hi = s_pix.min(), s_pix.max()
+    t_lo = bool(np.any(sp.border & (s_pix <= lo + 2.0)))
+    t_hi = bool(np.any(sp.border & (s_pix >= hi - 2.0)))
+    return 1 if (t_lo and not t_hi) else (-1 if (t_hi and not t_lo) else 0)
+
+
+def _shaft_frame(sp: _ShaftPoints) -> _ShaftFrame:
+    """The shaft's image frame from its region moments and outline."""
+    mom = sp.moments
+    xm, ym = mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]
+    mu20 = mom["m20"] / mom["m00"] - xm * xm
+    mu02 = mom["m02"] / mom["m00"] - ym * ym
+    mu11 = mom["m11"] / mom["m00"] - xm * ym
+    centre = np.array([xm + sp.offset[0], ym + sp.offset[1]])
+    e = _initial_direction(sp, centre, (mu20, mu02, mu11))
+    s_pix = (sp.pix - centre) @ e
+    distal = _distal_sign(sp, centre, e, s_pix)
+    if distal < 0:
+        e = -e
+        s_pix = -s_pix
+    s_min, s_max = float(s_pix.min()), float(s_pix.max())
+    eperp = np.array([-e[1], e[0]])
+    return _ShaftFrame(
+        centre=centre,
+        e=e,
+        eperp=eperp,
+        s_pix=s_pix,
+        s_min=s_min,
+        s_max=s_max,
+        distal_seen=distal != 0,
+        prox_at_border=bool(np.any(sp.border & (s_pix <= s_min + 2.0))),
+        dist_at_border=bool(np.any(sp.border & (s_pix >= s_max - 2.0))),
+        med_other=_median_rows(sp.bnd.other) if len(sp.bnd.other) >= 3 else None,
+        width=float(np.ptp((sp.pix - centre) @ eperp)),
+    )
+
+
+def _limb_points(sp: _ShaftPoints, fr: _ShaftFrame) -> _LimbPoints:
+    """The limb-line candidates: background boundary points minus the end zones (the
+    joint's cap; the proximal end when inside the image) and points next to other parts."""
+    # the joint's end cap reaches at most about half the width along the axis; on short
+    # visible stretches keep most of the stretch for the lines (the robust fit rejects
+    # the cap's points that curve away)
+    zone = min(0.6 * fr.width + 2.0, max(3.0, 0.15 * (fr.s_max - fr.s_min)))
+    pts = sp.bnd.bg
+    s = (pts - fr.centre) @ fr.e
+    keep_base = np.ones(len(pts), dtype=bool)
+    if not fr.prox_at_border:
+        keep_base &= s > fr.s_min + zone
+    other = sp.bnd.other
+    if len(other):  # leave out points within 2 px of another part
+        lo, hi = other.min(axis=0) - 2.0, other.max(axis=0) + 2.0
+        box = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
+        if len(box):
+            d2 = ((pts[box, None, :] - other[None, ::2, :]) ** 2).sum(axis=2)
+            keep_base[box[d2.min(axis=1) < 4.0]] = False
+    return _LimbPoints(
+        pts=pts,
+        s=s,
+        q=(pts - fr.centre) @ fr.eperp,
+        keep_base=keep_base,
+        keep=keep_base & (s < fr.s_max - zone),
+        zone=zone,
+    )
+
+
+def _joint_pixel(sp: _ShaftPoints, fr: _ShaftFrame) -> np.ndarray | None:
+    """(2,) the joint's pixel (for a later trocar-constrained solve), or None."""
+    if fr.med_other is not None:
+        return fr.med_other
+    if fr.distal_seen and not fr.dist_at_border:
+        return sp.pix[fr.s_pix >= fr.s_max - 1.0].mean(axis=0)
+    return None
+
+
+def _solve_axis(
+    lines: tuple[np.ndarray, np.ndarray], K: np.ndarray, radius: float, fr: _ShaftFrame
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The axis ``(p0, a distal, xc)`` (mm) from two limb lines, or None when the solution
+    is behind the camera or its apparent width disagrees with the mask's."""
+    sol = axis_from_image_lines(lines[0].tolist(), lines[1].tolist(), K.tolist(), radius)
+    if sol is None:
+        return None
+    p0, a = np.array(sol[0]), np.array(sol[1])
+    tc = _closest1(fr.centre, K, p0, a)
+    xc = p0 + tc * a
+    x0, y0, z0 = xc.tolist()
+    if z0 <= 0:
+        return None
+    ax, ay, az = a.tolist()
+    z1 = z0 + az  # the image direction of a at xc, by a 1 mm step
+    du = K[0, 0] * ((x0 + ax) / z1 - x0 / z0)
+    dv = K[1, 1] * ((y0 + ay) / z1 - y0 / z0)
+    if du * fr.e[0] + dv * fr.e[1] < 0:
+        a = -a
+    if not fr.distal_seen and a[2] < 0:  # no distal cue: by convention, into the scene
+        a = -a
+    # sanity: apparent width at the centroid vs the mask's
+    c = fr.centre
+    wc = float(lines[0][:2] @ c + lines[0][2] + lines[1][:2] @ c + lines[1][2])
+    if not 0.5 * fr.width <= wc <= 1.6 * fr.width + 2.0:
+        return None
+    return p0, a, xc
+
+
+def _is_round_end(cap_q: np.ndarray, cap_s: np.ndarray, spread: float) -> bool:
+    """A free distal end is the shaft's round end (its outline bulges distally and sits at
+    one axial coordinate), not an occluder's cut across the shaft.
+
+    Args:
+        cap_q, cap_s: (n,) the end's outline points across / along the axis (px).
+        spread: robust spread of their axial coordinates on the cylinder (mm).
+    """
+    if len(cap_q) < 5 or spread > _MAX_CAP_SPREAD_MM:
+        return False
+    x2 = (cap_q - 0.5 * (cap_q.max() + cap_q.min())) ** 2
+    x2c = x2 - x2.mean()
+    return float(x2c @ (cap_s - cap_s.mean())) < 0  # along-axis coordinate shrinks outward
+
+
+def _joint(
+    p0: np.ndarray,
+    a: np.ndarray,
+    lines: tuple[np.ndarray, np.ndarray],
+    stats: tuple[_LineStats, _LineStats],
+    sp: _ShaftPoints,
+    fr: _ShaftFrame,
+    lp: _LimbPoints,
+    radius: float,
+    K: np.ndarray,
+) -> tuple[np.ndarray | None, str]:
+    """J (3,) (mm) on the axis ``(p0, a)`` from the shaft's distal outline, or None when
+    the distal end is not seen, out of view, or not the shaft's own end; with the reason
+    (:mod:`mistool.pose.status`) when None."""
+    other = sp.bnd.other
+    if not fr.distal_seen or (fr.dist_at_border and len(other) < 3):
+        return None, "joint out of view"
+    near = np.flatnonzero(lp.s >= fr.s_max - lp.zone)
+    pn = lp.pts[near]
+    d1 = np.abs(pn @ lines[0][:2] + lines[0][2])
+    d2 = np.abs(pn @ lines[1][:2] + lines[1][2])
+    tol = max(1.0, 2.5 * max(st.sigma for st in stats))
+    cap = near[(d1 > tol) & (d2 > tol)]
+    end_pts = np.concatenate([other, lp.pts[cap]])
+    is_other = np.zeros(len(end_pts), dtype=bool)
+    is_other[: len(other)] = True
+    if len(end_pts) < 3:
+        return None, "rejected"
+    tj, spread = _joint_t(end_pts, is_other, p0, a, radius, K)
+    if len(other) < 3 and not _is_round_end(lp.q[cap], lp.s[cap], spread):
+        return None, "occluded"
+    joint = p0 + tj * a
+    return (joint, "") if joint[2] > 0 else (None, "rejected")
+
+
+def _both(
+    lines: list[np.ndarray | None], stats: list[_LineStats | None]
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[_LineStats, _LineStats]] | None:
+    """The two limb lines and their stats, or None when a side has no line."""
+    l1, l2 = lines
+    s1, s2 = stats
+    if l1 is None or l2 is None or s1 is None or s2 is None:
+        return None
+    return (l1, l2), (s1, s2)
+
+
+def _solve_shaft(
+    lines: tuple[np.ndarray, np.ndarray],
+    stats: tuple[_LineStats, _LineStats],
+    sp: _ShaftPoints,
+    fr: _ShaftFrame,
+    lp: _LimbPoints,
+    radius: float,
+    K: np.ndarray,
+) -> _ShaftSolution | None:
+    """Axis and joint from the limb lines; on a short visible stretch, once more with the
+    lines refitted proximal of the first joint (see below)."""
+    res = _solve_axis(lines, K, radius, fr)
+    if res is None:
+        return None
+    p0, a, xc = res
+    joint, why = _joint(p0, a, lines, stats, sp, fr, lp, radius, K)
+    first = _ShaftSolution(lines, stats, p0, a, xc, joint, why)
+    if joint is None or fr.s_max - fr.s_min >= 2.5 * fr.width:
+        return first
+    # short visible stretch: the end-zone cut was small, so the joint's cap may have leaked
+    # into the lines; refit with the points the first solution puts proximal of J (the limb
+    # lines exist only there) and solve again
+    t_pts = closest_on_axis(pixel_rays(lp.pts, K), p0, a)
+    keep2 = lp.keep_base & (t_pts < float((joint - p0) @ a) - 0.5)
+    refit = _both(*_fit_limbs(lp.pts, lp.s, lp.q, keep2, fr.centre, None))
+    if refit is None:
+        return first
+    res2 = _solve_axis(refit[0], K, radius, fr)
+    if res2 is None:
+        return first
+    joint2, _ = _joint(res2[0], res2[1], refit[0], refit[1], sp, fr, lp, radius, K)
+    if joint2 is None:
+        return first
+    return _ShaftSolution(refit[0], refit[1], res2[0], res2[1], res2[2], joint2, "")
+
+
+def _store_lines(row: dict[str, float], lines: Sequence[np.ndarray | None]) -> None:
+    """The limb lines in the ``aux_l*`` cells."""
+    for k, line in enumerate(lines):
+        if line is not None:
+            for j, c in enumerate("abc"):
+                row[f"aux_l{k + 1}{c}"] = float(line[j])
+
+
+def _shaft_row(
+    out: dict[str, dict[str, float]],
+    sol: _ShaftSolution,
+    sp: _ShaftPoints,
+    fr: _ShaftFrame,
+    K: np.ndarray,
+    radius: float,
+    image_shape: tuple[int, int],
+) -> bool:
+    """Fill the shaft's row (J, axis, proximal end, quality, uncertainties); False when
+    the joint's uncertainty is too large for any pose (the reason recorded on every row)."""
+    row = out["shaft"]
+    p0, a, joint = sol.p0, sol.a, sol.joint
+    prox = sp.pix[fr.s_pix <= fr.s_min + 1.0].mean(axis=0)
+    row["aux_su_px"], row["aux_sv_px"] = float(prox[0]), float(prox[1])
+    # uncertainty of the joint (or the centroid's axis point) and of the direction
+    ref = joint if joint is not None else sol.xc
+    sig_p, sig_a = _uncertainty(sol.lines, sol.stats, K, radius, ref, a)
+    row["aux_sigma_mm"], row["aux_sigma_deg"] = sig_p, sig_a
+    if not sig_p <= MAX_SIGMA_MM:
+        ray = ref / math.sqrt(float(ref @ ref))
+        end_on = abs(float(ray @ a)) > math.cos(math.radians(_END_ON_DEG))
+        _why(out, "pointing at camera" if end_on else "low quality")
+        return False
+    if not sig_a <= MAX_SIGMA_DEG:
+        # the position is known but not the direction: J only (refine_sequence restores
+        # the direction from the trocar when it can); the clasper still uses the
+        # measured direction as its (weak) bend prior
+        _fill_pose(row, joint, None, None)
+        _why(out, "uncertain axis", ("shaft",))
+        return True
+    # proximal end: where the shaft leaves the view (or its proximal end)
+    t_start = _closest1(prox, K, p0, a)
+    start = p0 + t_start * a
+    far = sp.pix[fr.s_pix >= fr.s_max - 1.0].mean(axis=0)
+    t_far = _closest1(far, K, p0, a)
+    t_end = float((joint - p0) @ a) if joint is not None else t_far
+    start_ok = start[2] > 0 and t_end > t_start
+    _fill_pose(row, joint, a, start if start_ok else None)
+    if start_ok:
+        poly = hull_of_cylinder(start, p0 + t_end * a, radius, radius, K)
+        row["quality"] = iou_polygon_mask(poly, sp.mask, sp.offset, image_shape)
+    return True
+
+
+def _clasper_rows(
+    out: dict[str, dict[str, float]],
+    parts: Mapping[str, Any],
+    joint: np.ndarray,
+    a: np.ndarray,
+    K: np.ndarray,
+    radius: float,
+    image_shape: tuple[int, int],
+    clasper_length_mm: float | None,
+) -> None:
+    """Fill the clasper's row (tip, clasper axis, quality) and the wrist's (its axis)."""
+    clasper = parts.get("clasper")
+    c_axis = None
+    if clasper is not None and np.any(clasper.mask):
+        tip, c_axis, tip_px = _tip(
+            clasper, joint, a, K, image_shape, clasper_length_mm, 2.0 * radius
+        )
+        crow = out["clasper"]
+        if tip_px is not None:
+            crow["aux_u_px"], crow["aux_v_px"] = float(tip_px[0]), float(tip_px[1])
+        if tip is not None:
+            _fill_pose(crow, tip, c_axis, joint)
+            poly = hull_of_cylinder(joint, tip, 0.5 * radius, 0.25 * radius, K)
+            crow["quality"] = iou_polygon_mask(poly, clasper.mask, clasper.offset, image_shape)
+        else:
+            _why(out, "tip not found", ("clasper", "wrist"))
+    else:
+        _why(out, "no clasper", ("wrist",))
+    if "wrist" in parts:
+        _fill_pose(out["wrist"], None, c_axis, joint)
+
+
 def measure_instance(
     instance: Any,
     image_shape: tuple[int, int],
-    camera: Any,
+    camera: Camera | None,
     shaft_diameter_mm: float | None,
     clasper_length_mm: float | None,
 ) -> dict[str, dict[str, float]]:
     """Metric pose of one instrument in one frame.
 
-    Pure and thread-safe (no shared state; RANSAC uses a fixed table of draws).
+    Pure and thread-safe (no shared state; RANSAC uses a fixed table of draws). The steps
+    (see the module docstring): gather the shaft's points (:func:`_shaft_points`), its image
+    frame (:func:`_shaft_frame`), the limb-line candidates (:func:`_limb_points`) and
+    lines (:func:`_fit_limbs`), the axis and joint (:func:`_solve_shaft`), then the rows
+    (:func:`_shaft_row`, :func:`_clasper_rows`).
 
     Args:
         instance: an ``InstanceObservation`` (``.parts``: part name -> observation with
             ``.mask`` (h, w) bool crop, ``.offset`` (x0, y0) px, ``.box`` RotatedBox).
         image_shape: (H, W) of the frame (px).
-        camera: ``mistool.config.Camera`` or None (then every value is NaN).
+        camera: the pinhole intrinsics, or None (then every value is NaN).
         shaft_diameter_mm: the shaft's diameter (mm), or None (then NaN).
         clasper_length_mm: joint-to-tip length (mm), or None (the tip is then placed on
             the shaft axis' extension, i.e. assuming no bend out of the image plane).
@@ -421,253 +841,34 @@ def measure_instance(
     K = np.asarray(camera.K, dtype=np.float64)
     radius = 0.5 * float(shaft_diameter_mm)
     row = out["shaft"]
-    rng = None  # fixed RANSAC draws: deterministic and thread-safe
-
-    smask = _as_u8(shaft.mask)
-    shaft_mask = shaft.mask
-    # two shafts in one instance (two tools touching in a merged mask): measure the
-    # larger shaft only, and leave the clasper (whose jaws may be either tool's) empty
-    contours, _ = cv2.findContours(smask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    merged = False
-    if len(contours) > 1:
-        areas = np.array([cv2.contourArea(c) for c in contours])
-        big = int(np.argmax(areas))
-        if np.count_nonzero(areas >= 0.25 * areas[big]) > 1:
-            merged = True
-            keep_u8 = np.zeros_like(smask)
-            cv2.drawContours(keep_u8, contours, big, 1, thickness=-1)
-            smask = np.ascontiguousarray(keep_u8 & smask)
-            shaft_mask = smask.view(bool)
-            contours = (contours[big],)
-    others = [(p.mask, p.offset) for n, p in parts.items() if n != "shaft"]
-    canvas = make_canvas(shaft_mask, shaft.offset, others, image_shape)
-
-    # principal axis of the shaft's region
-    pix, mom = _outline(smask, shaft.offset, contours)
-    if mom["m00"] <= 0:
+    sp = _shaft_points(parts, image_shape)
+    if sp is None:
         _why(out, "rejected")
         return out
-    bnd = boundary_points(canvas, pix)
-    border = _on_border(pix, image_shape)
-    xm, ym = mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]
-    mu20 = mom["m20"] / mom["m00"] - xm * xm
-    mu02 = mom["m02"] / mom["m00"] - ym * ym
-    mu11 = mom["m11"] / mom["m00"] - xm * ym
-    theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
-    e = np.array([math.cos(theta), math.sin(theta)])
-    centre = np.array([xm + shaft.offset[0], ym + shaft.offset[1]])
-    # the principal axis fails on a short visible stretch (as wide as long, or wider):
-    # the joint is on the axis, so the direction toward the shaft-clasper boundary is
-    # the axis' direction whatever the shape; without a clasper, a short stretch uses
-    # the direction away from where the shaft leaves the view
-    tr, det = mu20 + mu02, mu20 * mu02 - mu11 * mu11
-    disc = math.sqrt(max(tr * tr / 4.0 - det, 0.0))
-    d0: np.ndarray | None = None
-    med_other = _median_rows(bnd.other) if len(bnd.other) >= 3 else None
-    if med_other is not None:
-        d0 = med_other - centre
-    elif tr / 2.0 + disc < 9.0 * max(tr / 2.0 - disc, 1e-9):
-        if border.any():
-            d0 = centre - pix[border].mean(axis=0)
-    nd0 = math.hypot(d0[0], d0[1]) if d0 is not None else 0.0
-    if d0 is not None and nd0 > 2.0:
-        e = d0 / nd0
-    s_pix = (pix - centre) @ e
-
-    # which end is distal: toward the other parts, else away from the image border
-    if len(bnd.other) >= 3:
-        distal = 1 if float(((bnd.other - centre) @ e).sum()) >= 0 else -1
-    else:
-        lo, hi = s_pix.min(), s_pix.max()
-        t_lo = bool(np.any(border & (s_pix <= lo + 2.0)))
-        t_hi = bool(np.any(border & (s_pix >= hi - 2.0)))
-        distal = 1 if (t_lo and not t_hi) else (-1 if (t_hi and not t_lo) else 0)
-    if distal < 0:
-        e = -e
-        s_pix = -s_pix
-    s_min, s_max = float(s_pix.min()), float(s_pix.max())
-    prox_at_border = bool(np.any(border & (s_pix <= s_min + 2.0)))
-    dist_at_border = bool(np.any(border & (s_pix >= s_max - 2.0)))
-    row["aux_distal"] = 1.0 if distal != 0 else 0.0
-
-    # limb-line candidates
-    eperp = np.array([-e[1], e[0]])
-    width = float(np.ptp((pix - centre) @ eperp))  # widest apparent width (px)
-    # the joint's end cap reaches at most about half the width along the axis; on short
-    # visible stretches keep most of the stretch for the lines (the robust fit rejects
-    # the cap's points that curve away)
-    zone = min(0.6 * width + 2.0, max(3.0, 0.15 * (s_max - s_min)))
-    pts = bnd.bg
-    s = (pts - centre) @ e
-    keep_base = np.ones(len(pts), dtype=bool)
-    if not prox_at_border:
-        keep_base &= s > s_min + zone
-    if len(bnd.other):  # leave out points within 2 px of another part
-        lo, hi = bnd.other.min(axis=0) - 2.0, bnd.other.max(axis=0) + 2.0
-        box = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
-        if len(box):
-            d2 = ((pts[box, None, :] - bnd.other[None, ::2, :]) ** 2).sum(axis=2)
-            keep_base[box[d2.min(axis=1) < 4.0]] = False
-    keep = keep_base & (s < s_max - zone)
-    q = (pts - centre) @ eperp
-    lines, stats = _fit_limbs(pts, s, q, keep, centre, rng)
-    for k, line in enumerate(lines):
-        if line is not None:
-            for j, c in enumerate("abc"):
-                row[f"aux_l{k + 1}{c}"] = float(line[j])
-    # the joint's pixel (for a later trocar-constrained solve)
-    if med_other is not None:
-        jpx = med_other
-    elif distal != 0 and not dist_at_border:
-        jpx = pix[s_pix >= s_max - 1.0].mean(axis=0)
-    else:
-        jpx = None
+    fr = _shaft_frame(sp)
+    row["aux_distal"] = 1.0 if fr.distal_seen else 0.0
+    lp = _limb_points(sp, fr)
+    fitted, fitted_stats = _fit_limbs(lp.pts, lp.s, lp.q, lp.keep, fr.centre, None)
+    _store_lines(row, fitted)
+    jpx = _joint_pixel(sp, fr)
     if jpx is not None:
         row["aux_u_px"], row["aux_v_px"] = float(jpx[0]), float(jpx[1])
-    if lines[0] is None or lines[1] is None:
-        _why(
-            out,
-            "no silhouette line"
-            if lines[0] is None and lines[1] is None
-            else "one silhouette line",
-        )
-        return out  # one limb line: refine_sequence may solve it with the trocar
-
-    def solve(lines: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        sol = _axis_from_lines_f(lines[0], lines[1], K, radius)
-        if sol is None:
-            return None
-        p0, a = sol
-        tc = _closest1(centre, K, p0, a)
-        xc = p0 + tc * a
-        x0, y0, z0 = xc.tolist()
-        if z0 <= 0:
-            return None
-        ax, ay, az = a.tolist()
-        z1 = z0 + az  # the image direction of a at xc, by a 1 mm step
-        du = K[0, 0] * ((x0 + ax) / z1 - x0 / z0)
-        dv = K[1, 1] * ((y0 + ay) / z1 - y0 / z0)
-        if du * e[0] + dv * e[1] < 0:
-            a = -a
-        if distal == 0 and a[2] < 0:  # no distal cue: by convention, into the scene
-            a = -a
-        # sanity: apparent width at the centroid vs the mask's
-        wc = float(lines[0][:2] @ centre + lines[0][2] + lines[1][:2] @ centre + lines[1][2])
-        if not 0.5 * width <= wc <= 1.6 * width + 2.0:
-            return None
-        return p0, a, xc
-
-    def joint_of(
-        p0: np.ndarray, a: np.ndarray, lines: list[np.ndarray], stats: list[_LineStats]
-    ) -> np.ndarray | None:
-        if distal == 0 or (dist_at_border and len(bnd.other) < 3):
-            why["joint"] = "joint out of view"
-            return None
-        near = np.flatnonzero(s >= s_max - zone)
-        pn = pts[near]
-        d1 = np.abs(pn @ lines[0][:2] + lines[0][2])
-        d2 = np.abs(pn @ lines[1][:2] + lines[1][2])
-        tol = max(1.0, 2.5 * max(st.sigma for st in stats))
-        cap = near[(d1 > tol) & (d2 > tol)]
-        end_pts = np.concatenate([bnd.other, pts[cap]])
-        is_other = np.zeros(len(end_pts), dtype=bool)
-        is_other[: len(bnd.other)] = True
-        if len(end_pts) < 3:
-            return None
-        tj, spread = _joint_t(end_pts, is_other, p0, a, radius, K)
-        if len(bnd.other) < 3:
-            # a free end must be the shaft's round end (its outline bulges distally and
-            # sits at one axial coordinate), not an occluder's cut across the shaft
-            qc = (pts[cap] - centre) @ eperp
-            sc = s[cap]
-            if len(qc) < 5 or spread > _MAX_CAP_SPREAD_MM:
-                why["joint"] = "occluded"
-                return None
-            x2 = (qc - 0.5 * (qc.max() + qc.min())) ** 2
-            x2c = x2 - x2.mean()
-            if float(x2c @ (sc - sc.mean())) >= 0:  # along-axis coordinate grows outward
-                why["joint"] = "occluded"
-                return None
-        joint = p0 + tj * a
-        return joint if joint[2] > 0 else None
-
-    why = {"joint": "rejected"}  # why joint_of found no joint
-    res = solve(lines)  # type: ignore[arg-type]
-    if res is None:
+    both = _both(fitted, fitted_stats)
+    if both is None:  # one limb line: refine_sequence may solve it with the trocar
+        none = fitted[0] is None and fitted[1] is None
+        _why(out, "no silhouette line" if none else "one silhouette line")
+        return out
+    sol = _solve_shaft(both[0], both[1], sp, fr, lp, radius, K)
+    if sol is None:
         _why(out, "rejected")
         return out
-    p0, a, xc = res
-    joint = joint_of(p0, a, lines, stats)  # type: ignore[arg-type]
-    if joint is not None and s_max - s_min < 2.5 * width:
-        # short visible stretch: the end-zone cut was small, so the joint's cap may
-        # have leaked into the lines; refit with the points the first solution puts
-        # proximal of J (the limb lines exist only there) and solve again
-        t_pts = closest_on_axis(pixel_rays(pts, K), p0, a)
-        keep2 = keep_base & (t_pts < float((joint - p0) @ a) - 0.5)
-        lines2, stats2 = _fit_limbs(pts, s, q, keep2, centre, rng)
-        if lines2[0] is not None and lines2[1] is not None:
-            res2 = solve(lines2)  # type: ignore[arg-type]
-            if res2 is not None:
-                joint2 = joint_of(res2[0], res2[1], lines2, stats2)  # type: ignore[arg-type]
-                if joint2 is not None:
-                    lines, stats, (p0, a, xc), joint = lines2, stats2, res2, joint2
-                    for k, line in enumerate(lines):
-                        for j, c in enumerate("abc"):
-                            row[f"aux_l{k + 1}{c}"] = float(line[j])  # type: ignore[index]
-
-    prox = pix[s_pix <= s_min + 1.0].mean(axis=0)
-    row["aux_su_px"], row["aux_sv_px"] = float(prox[0]), float(prox[1])
-    # uncertainty of the joint (or the centroid's axis point) and of the direction
-    ref = joint if joint is not None else xc
-    sig_p, sig_a = _uncertainty(lines, stats, K, radius, ref, a)  # type: ignore[arg-type]
-    row["aux_sigma_mm"], row["aux_sigma_deg"] = sig_p, sig_a
-    if not sig_p <= MAX_SIGMA_MM:
-        ray = ref / math.sqrt(float(ref @ ref))
-        end_on = abs(float(ray @ a)) > math.cos(math.radians(_END_ON_DEG))
-        _why(out, "pointing at camera" if end_on else "low quality")
+    _store_lines(row, sol.lines)
+    if not _shaft_row(out, sol, sp, fr, K, radius, image_shape):
         return out
-    if sig_a <= MAX_SIGMA_DEG:
-        # proximal end: where the shaft leaves the view (or its proximal end)
-        t_start = _closest1(prox, K, p0, a)
-        start = p0 + t_start * a
-        far = pix[s_pix >= s_max - 1.0].mean(axis=0)
-        t_far = _closest1(far, K, p0, a)
-        t_end = float((joint - p0) @ a) if joint is not None else t_far
-        start_ok = start[2] > 0 and t_end > t_start
-        _fill_pose(row, joint, a, start if start_ok else None)
-        if start_ok:
-            poly = hull_of_cylinder(start, p0 + t_end * a, radius, radius, K)
-            row["quality"] = iou_polygon_mask(poly, shaft_mask, shaft.offset, image_shape)
-    else:
-        # the position is known but not the direction: J only (refine_sequence restores
-        # the direction from the trocar when it can); the clasper still uses the
-        # measured direction as its (weak) bend prior
-        _fill_pose(row, joint, None, None)
-        _why(out, "uncertain axis", ("shaft",))
-
-    # clasper / wrist
-    if joint is None or merged:
-        _why(out, why["joint"] if joint is None else "merged")
+    if sol.joint is None or sp.merged:
+        _why(out, sol.joint_why if sol.joint is None else "merged")
         return out
-    clasper = parts.get("clasper")
-    c_axis = None
-    if clasper is not None and np.any(clasper.mask):
-        tip, c_axis, tip_px = _tip(
-            clasper, joint, a, K, image_shape, clasper_length_mm, 2.0 * radius
-        )
-        crow = out["clasper"]
-        if tip_px is not None:
-            crow["aux_u_px"], crow["aux_v_px"] = float(tip_px[0]), float(tip_px[1])
-        if tip is not None:
-            _fill_pose(crow, tip, c_axis, joint)
-            poly = hull_of_cylinder(joint, tip, 0.5 * radius, 0.25 * radius, K)
-            crow["quality"] = iou_polygon_mask(poly, clasper.mask, clasper.offset, image_shape)
-        else:
-            _why(out, "tip not found", ("clasper", "wrist"))
-    else:
-        _why(out, "no clasper", ("wrist",))
-    if "wrist" in parts:
-        _fill_pose(out["wrist"], None, c_axis, joint)
+    _clasper_rows(out, parts, sol.joint, sol.a, K, radius, image_shape, clasper_length_mm)
     return out
 
 
