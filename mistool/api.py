@@ -401,6 +401,7 @@ def track(
     workers: int | None = None,
     metric: bool = True,
     smoothing: str = "offline",
+    pool: parallel.FramePool | None = None,
 ) -> TrackTable:
     """Track every instrument part through a mask sequence.
 
@@ -416,6 +417,8 @@ def track(
         metric: compute the metric 3D pose when the config has a ``[camera]``.
         smoothing: temporal filtering of the metric pose: ``"none"``, ``"offline"``
             (uses past and future frames) or ``"online"`` (causal).
+        pool: run the per-frame work there instead (a :mod:`mistool.parallel` pool, e.g.
+            a :class:`~mistool.parallel.DaskPool`; not closed); ``workers`` is then unused.
 
     Returns:
         The motion table, one row per (frame, instrument, part) seen, sorted; columns in
@@ -428,7 +431,13 @@ def track(
         MistoolWarning: once, listing label values the config does not know.
     """
     result = run(
-        source, config, progress=progress, workers=workers, metric=metric, smoothing=smoothing
+        source,
+        config,
+        progress=progress,
+        workers=workers,
+        metric=metric,
+        smoothing=smoothing,
+        pool=pool,
     )
     if result.unknown_values:
         warnings.warn(

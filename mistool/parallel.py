@@ -47,6 +47,8 @@ from mistool.sequence import VIDEO_TOLERANCE, FastPathGate, MaskSequence, read_l
 LOCAL_BATCH_FRAMES = 8
 #: Frames per task on a Dask cluster (a task's scheduling costs ~1 ms or more).
 DASK_BATCH_FRAMES = 64
+#: Seconds to wait for a Dask scheduler to answer before giving up.
+DASK_CONNECT_TIMEOUT_S = 10.0
 #: Batches in flight per worker: one running, one queued, so no worker waits on the caller.
 IN_FLIGHT_PER_WORKER = 2
 
@@ -297,7 +299,7 @@ class DaskPool:
                     '--dask needs the distributed package: pip install "mistool[dask]"'
                 ) from None
             try:
-                client = Client(address, timeout="10s")
+                client = Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S}s")
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(
                     f"--dask {address}: cannot reach the Dask scheduler: {exc}"

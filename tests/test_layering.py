@@ -16,7 +16,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("errors",),
     ("model",),
     # export (CSV and atomic writes) needs only errors and model; synth writes truth.csv
-    ("config", "resources", "export", "annotations"),
+    ("config", "resources", "export", "annotations", "columnar"),
     ("geometry",),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
     # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools)
@@ -24,6 +24,8 @@ LAYERS: list[tuple[str, ...]] = [
     # teaching: skill metrics, the report and the video export (tables and sequences in)
     ("skill", "report", "video"),
     ("api",),
+    # a whole dataset: one api.run per sequence
+    ("dataset",),
     ("viewer",),
     ("cli",),
 ]

@@ -1,11 +1,14 @@
-"""``mistool track``: a mask sequence in, the motion table (CSV) out."""
+"""``mistool track``: a mask sequence (or a dataset of them) in, motion tables out."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+import time
 import warnings
 from pathlib import Path
+from typing import Any
 
 from mistool.config import PRESETS
 from mistool.errors import ConfigError, InputPathError
@@ -53,8 +56,28 @@ per-frame quantities), end_x_mm..axis_z, start_*_mm, qw..qz, quality, trocar_*_m
 in the current folder (its parent when run inside the input folder: mistool never writes
 into the input folder unless -o says so); the file is written atomically.
 
+Output formats by the suffix of -o: .csv (the default), .npz (numpy, every value
+exact), .parquet (needs pyarrow). The per-frame work runs in --workers processes (default:
+the CPU cores), or on a Dask cluster with --dask; the table is the same either way.
+
+A dataset: a folder that holds sequence folders and/or mask videos (and no label images
+of its own). Every sequence is tracked into OUT/<name>_motion.csv (--format), the same
+table `mistool track SEQ` gives; OUT/summary.csv lists each sequence's frames,
+instruments, seconds, status and error. A mistool.toml at the dataset's root gives
+defaults that a sequence's own mistool.toml overrides key by key. A broken sequence is
+reported (one line) and skipped, the others go on, and the exit code is 1 at the end.
+Re-running skips sequences whose output is up to date (resume after a crash or Ctrl+C).
+
+Dask (pip install "mistool[dask]"): --dask tcp://scheduler:8786 sends the per-frame work
+of every sequence, in chunks of frames, to the workers of an existing cluster; they read
+the mask files by the same paths, so the data must be on a filesystem they share. See
+docs/throughput.md.
+
 examples:
   mistool track masks/                      # -> ./masks_motion.csv
+  mistool track masks/ -o motion.npz --workers 2
+  mistool track dataset/ -o out/            # out/<sequence>_motion.csv + out/summary.csv
+  mistool track dataset/ -o out/ --dask tcp://scheduler:8786
   mistool track masks/ -o motion.csv --fps 30
   mistool track Dataset1/Segmentation.avi --labels endovis15
   mistool track seq/ -o - --quiet | head    # CSV on stdout
@@ -65,18 +88,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``track`` subcommand."""
     p = subparsers.add_parser(
         "track",
-        help="mask sequence -> motion table (CSV)",
+        help="mask sequence (or a dataset of them) -> motion table(s)",
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
-        "sequence", metavar="SEQUENCE", help="folder of label images, or a mask video file"
+        "sequence",
+        metavar="SEQUENCE",
+        help="folder of label images, a mask video file, or a dataset folder of them",
     )
     p.add_argument(
         "-o",
         "--output",
-        metavar="OUT.csv",
-        help="output CSV ('-' for stdout; default ./<name>_motion.csv)",
+        metavar="OUT",
+        help="output table .csv/.npz/.parquet ('-' for CSV on stdout; default "
+        "./<name>_motion.csv); for a dataset, the output folder (default ./<name>_motion/)",
     )
     p.add_argument(
         "-q",
@@ -112,33 +138,45 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="worker processes for the per-frame work (default: the CPU cores; the output "
         "is the same whatever N)",
     )
+    p.add_argument(
+        "--dask",
+        metavar="ADDRESS",
+        help="run the per-frame work on an existing Dask cluster, e.g. tcp://host:8786 "
+        "(inputs on a filesystem the workers share)",
+    )
+    p.add_argument(
+        "--format",
+        choices=("csv", "npz", "parquet"),
+        default=None,
+        help="a dataset's table format (default csv); a single sequence's comes from -o",
+    )
     p.set_defaults(func=run_track)
 
 
-def default_output(source: Path) -> Path:
+def default_output(source: Path, suffix: str = ".csv") -> Path:
     """``./<name>_motion.csv`` in the current folder (a video adds its folder's name);
     when the current folder is the input folder, its parent folder instead."""
     src = source.resolve()
     folder = src if src.is_dir() else src.parent
     name = src.name if src.is_dir() else f"{src.parent.name}_{src.stem}"
-    out = Path(f"{name or 'sequence'}_motion.csv")
+    out = Path(f"{name or 'sequence'}_motion{suffix}")
     if Path.cwd().resolve() == folder:  # never write into the input folder unasked
         out = folder.parent / out
     return out
 
 
-def run_track(args: argparse.Namespace) -> int:
-    """Run ``mistool track``; returns the exit code."""
-    from mistool import api, sequence
-    from mistool.export import write_csv, write_table_csv
-
+def _check_options(args: argparse.Namespace) -> None:
     if args.fps is not None and not args.fps > 0:
         raise ConfigError(f"--fps must be > 0, got {args.fps}")
     if args.min_area is not None and args.min_area < 0:
         raise ConfigError(f"--min-area must be >= 0, got {args.min_area}")
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
-    path, config = sequence.resolve(args.sequence)
+    if args.dask is not None and args.workers is not None:
+        raise ConfigError("--workers and --dask exclude each other (Dask has its own workers)")
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, object]:
     overrides: dict[str, object] = {"fps": args.fps, "min_area_px": args.min_area}
     if args.labels:
         overrides.update(
@@ -146,23 +184,61 @@ def run_track(args: argparse.Namespace) -> int:
             colour_masks=False,
             parts={p: (v, v) for p, v in PRESETS[args.labels].items()},
         )
-    config = config.with_overrides(**overrides)
+    return overrides
+
+
+def _pool(args: argparse.Namespace, local: bool) -> Any:
+    """The Dask pool for --dask, a local pool when ``local`` and workers > 1, else None."""
+    from mistool import parallel
+
+    if args.dask is not None:
+        return parallel.DaskPool(args.dask)
+    workers = args.workers or parallel.default_workers()
+    return parallel.LocalPool(workers) if local and workers > 1 else None
+
+
+def run_track(args: argparse.Namespace) -> int:
+    """Run ``mistool track``; returns the exit code."""
+    from mistool import dataset
+
+    _check_options(args)
+    path = Path(args.sequence).expanduser()
+    if dataset.is_dataset(path):
+        return _run_dataset(args, path)
+    return _run_sequence(args)
+
+
+def _run_sequence(args: argparse.Namespace) -> int:
+    from mistool import api, sequence
+    from mistool.columnar import table_format, write_table
+    from mistool.export import write_table_csv
+
+    path, config = sequence.resolve(args.sequence)
+    config = config.with_overrides(**_overrides(args))
     out = None if args.output == "-" else Path(args.output or default_output(path))
     if out is not None and not (out.parent if str(out.parent) else Path(".")).is_dir():
         raise InputPathError(f"{out}: output folder {out.parent} does not exist")
     if out is not None and out.is_dir():
         raise InputPathError(f"{out}: is a folder; expected an output file name (-o OUT.csv)")
+    if out is not None:
+        table_format(out)
     show_progress = not args.quiet and sys.stderr.isatty()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", api.MistoolWarning)
-        result = api.run(
-            path,
-            config,
-            progress=show_progress,
-            workers=args.workers,
-            metric=not args.no_metric,
-            smoothing=args.smoothing,
-        )
+    pool = _pool(args, local=False)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", api.MistoolWarning)
+            result = api.run(
+                path,
+                config,
+                progress=show_progress,
+                workers=args.workers,
+                metric=not args.no_metric,
+                smoothing=args.smoothing,
+                pool=pool,
+            )
+    finally:
+        if pool is not None:
+            pool.close()
     if result.unknown_values:
         print(
             "mistool: warning: "
@@ -173,7 +249,7 @@ def run_track(args: argparse.Namespace) -> int:
         write_table_csv(result.table.full(), sys.stdout)
         sys.stdout.flush()
     else:
-        write_csv(result.table, out)
+        write_table(result.table, out)
     if not args.quiet:
         n_inst, parts = len(result.instruments), result.parts
         rate = result.num_frames / result.seconds if result.seconds > 0 else float("inf")
@@ -185,3 +261,105 @@ def run_track(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     return 0
+
+
+def _run_dataset(args: argparse.Namespace, root: Path) -> int:
+    from mistool import dataset
+
+    if args.output == "-":
+        raise InputPathError(f"{root}: a dataset needs an output folder (-o OUT/), not stdout")
+    fmt = "." + (args.format or "csv")
+    out = Path(args.output) if args.output else default_output(root, suffix="")
+    if out.exists() and not out.is_dir():
+        raise InputPathError(f"{out}: is a file; a dataset needs an output folder (-o OUT/)")
+    if fmt == ".parquet":
+        from mistool.columnar import _pyarrow
+
+        _pyarrow()
+    options = dataset.Options(
+        metric=not args.no_metric,
+        smoothing=args.smoothing,
+        overrides={k: v for k, v in _overrides(args).items() if v is not None},
+        fmt=fmt,
+    )
+    entries = dataset.discover(root, exclude=out)
+    progress = _DatasetProgress(not args.quiet and sys.stderr.isatty(), len(entries))
+
+    def report(line: str) -> None:
+        progress.write(f"mistool: error: {line}" if "\n" not in line else line)
+
+    start = time.perf_counter()
+    finished = False
+    try:
+        with _pool(args, local=True) or contextlib.nullcontext() as pool:
+            outcomes = dataset.track_dataset(
+                root,
+                out,
+                options,
+                pool=pool,
+                on_error=report,
+                on_sequence=progress.sequence,
+                on_frames=progress.frames,
+            )
+        finished = True
+    finally:
+        progress.close(finished)
+    bad = dataset.failed(outcomes)
+    if not args.quiet:
+        done = sum(o.status == dataset.STATUS_OK for o in outcomes)
+        skipped = sum(o.status == dataset.STATUS_SKIPPED for o in outcomes)
+        frames = sum(o.frames for o in outcomes if o.status == dataset.STATUS_OK)
+        print(
+            f"mistool: {len(outcomes)} sequence(s): {done} tracked ({frames} frames), "
+            f"{skipped} up to date, {len(bad)} failed, {time.perf_counter() - start:.1f} s "
+            f"-> {out / dataset.SUMMARY_NAME}",
+            file=sys.stderr,
+        )
+    return 1 if bad else 0
+
+
+class _DatasetProgress:
+    """Two tqdm bars on stderr: sequences done, and frames tracked (all sequences)."""
+
+    def __init__(self, enabled: bool, sequences: int) -> None:
+        self.enabled = enabled
+        self._total = sequences
+        self._seq: Any = None
+        self._frames: Any = None
+
+    def sequence(self, entry: Any, n_frames: int | None) -> None:
+        """A sequence starts (the one before it is done)."""
+        if not self.enabled:
+            return
+        if self._seq is None:
+            from tqdm import tqdm
+
+            self._seq = tqdm(
+                total=self._total, unit="seq", desc="sequences", position=0, dynamic_ncols=True
+            )
+            self._frames = tqdm(unit="frame", desc="frames", position=1, dynamic_ncols=True)
+        else:
+            self._seq.update(1)
+        self._seq.set_postfix_str(entry.name, refresh=True)
+
+    def frames(self, n: int) -> None:
+        """``n`` more frames tracked."""
+        if self._frames is not None:
+            self._frames.update(n)
+
+    def write(self, line: str) -> None:
+        """A line on stderr that does not break the bars."""
+        if self._seq is not None:
+            from tqdm import tqdm
+
+            tqdm.write(line, file=sys.stderr)
+        else:
+            print(line, file=sys.stderr)
+
+    def close(self, finished: bool) -> None:
+        """Remove the bars (``finished``: count the last sequence as done)."""
+        if self._seq is not None and finished:
+            self._seq.update(1)
+        for bar in (self._frames, self._seq):
+            if bar is not None:
+                bar.close()
