@@ -69,8 +69,9 @@ def write_table(table: TrackTable, path: str | Path) -> Path:
     if fmt == ".npz":
         arrays = {c: (_text(v) if v.dtype == object else v) for c, v in full.items()}
         arrays[_ORDER_KEY] = np.asarray(list(full.columns), dtype=str)
+        savez: Any = np.savez  # (numpy's stub reads **arrays as its allow_pickle flag)
         with atomic_write(path, "wb") as f:
-            np.savez(f, **arrays)
+            savez(f, **arrays)
         return Path(path)
     pa, pq = _pyarrow()
     data = {c: (v.tolist() if v.dtype == object else v) for c, v in full.items()}
