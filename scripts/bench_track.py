@@ -108,6 +108,51 @@ def child_memory(folder: str, workers: int | None) -> None:
     )
 
 
+def _print_results(
+    args: argparse.Namespace,
+    times: dict[str, list[float]],
+    cpu: dict[str, list[float]],
+    load0: tuple[float, float, float],
+    inflate: str,
+) -> None:
+    """Medians, spreads and ratios against the imread baselines."""
+    med = {k: statistics.median(v) for k, v in times.items()}
+    med_cpu = {k: statistics.median(v) for k, v in cpu.items()}
+    print(
+        f"mistool track benchmark: {args.frames} frames {W}x{H} 8-bit PNG, one "
+        f"instrument, {args.runs} runs (median), {os.cpu_count()} CPUs, "
+        f"workers={args.workers or 'auto'}, OpenCV {cv2.__version__}, PNG inflate: "
+        f"{inflate}, PNG level "
+        f"{'default' if args.png_level is None else args.png_level}"
+    )
+    for name, t in med.items():
+        spread = f"{min(times[name]):.3f}-{max(times[name]):.3f}"
+        print(
+            f"  {name:18s} {t:7.3f} s  ({args.frames / t:7.1f} frames/s, "
+            f"runs {spread}; CPU {1e3 * med_cpu[name] / args.frames:.2f} ms/frame)"
+        )
+    for base in ("imread", "imread-unchanged"):
+        for ours in ("api", "cli"):
+            print(
+                f"  ratio {base} / {ours}: {med[base] / med[ours]:.2f} wall-clock "
+                f"(CPU time ratio {med_cpu[base] / med_cpu[ours]:.2f})"
+            )
+    print(f"  load average before/after: {load0} / {os.getloadavg()}")
+
+
+def _print_memory(seq: Path, workers: int | None) -> None:
+    """Peak memory of tracking ``seq`` in a fresh process."""
+    cmd = [sys.executable, __file__, "--child-memory", str(seq)]
+    if workers:
+        cmd += ["--workers", str(workers)]
+    res = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
+    print(
+        f"  memory {res['frames']:5d} frames ({res['rows']} rows): peak RSS "
+        f"{res['peak_rss_mb']:.1f} MB, tracemalloc peak "
+        f"{res['tracemalloc_peak_mb']:.1f} MB"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=300)
@@ -192,44 +237,12 @@ def main(argv: list[str] | None = None) -> int:
                 wall, used = timed(fn)
                 times[name].append(wall)
                 cpu[name].append(used)
-        med = {k: statistics.median(v) for k, v in times.items()}
-        med_cpu = {k: statistics.median(v) for k, v in cpu.items()}
-        print(
-            f"mistool track benchmark: {args.frames} frames {W}x{H} 8-bit PNG, one "
-            f"instrument, {args.runs} runs (median), {os.cpu_count()} CPUs, "
-            f"workers={args.workers or 'auto'}, OpenCV {cv2.__version__}, PNG inflate: "
-            f"{sequence._ZLIB.__name__}, PNG level "
-            f"{'default' if args.png_level is None else args.png_level}"
-        )
-        for name, t in med.items():
-            spread = f"{min(times[name]):.3f}-{max(times[name]):.3f}"
-            print(
-                f"  {name:18s} {t:7.3f} s  ({args.frames / t:7.1f} frames/s, "
-                f"runs {spread}; CPU {1e3 * med_cpu[name] / args.frames:.2f} ms/frame)"
-            )
-        for base in ("imread", "imread-unchanged"):
-            for ours in ("api", "cli"):
-                print(
-                    f"  ratio {base} / {ours}: {med[base] / med[ours]:.2f} wall-clock "
-                    f"(CPU time ratio {med_cpu[base] / med_cpu[ours]:.2f})"
-                )
-        print(f"  load average before/after: {load0} / {os.getloadavg()}")
-
+        _print_results(args, times, cpu, load0, sequence._ZLIB.__name__)
         if args.memory:
             big = Path(tmp) / "seq4"
             make_frames(big, 4 * args.frames, args.png_level)
             for seq in (folder, big):
-                cmd = [sys.executable, __file__, "--child-memory", str(seq)]
-                if args.workers:
-                    cmd += ["--workers", str(args.workers)]
-                res = json.loads(
-                    subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
-                )
-                print(
-                    f"  memory {res['frames']:5d} frames ({res['rows']} rows): peak RSS "
-                    f"{res['peak_rss_mb']:.1f} MB, tracemalloc peak "
-                    f"{res['tracemalloc_peak_mb']:.1f} MB"
-                )
+                _print_memory(seq, args.workers)
     return 0
 
 

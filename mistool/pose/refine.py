@@ -188,6 +188,68 @@ def _reliable_trocar(cols: dict[str, np.ndarray], idx: np.ndarray, t: np.ndarray
     return trocar
 
 
+def _trocar_step(
+    cols: dict[str, np.ndarray],
+    config: object,
+    smoothing: str,
+    name: str,
+    rows: np.ndarray,
+    part: np.ndarray,
+    frames: np.ndarray,
+    fps: float,
+) -> None:
+    """One instrument (``name``, its ``rows`` as a bool mask): its trocar, the
+    trocar-constrained solves (not online) and the distal orientation of axes without a
+    distal cue; in place."""
+    shaft_idx = np.flatnonzero(rows & (part == "shaft"))
+    shaft_idx = shaft_idx[np.argsort(frames[shaft_idx], kind="stable")]
+    trocar = _reliable_trocar(cols, shaft_idx, frames / fps)
+    if trocar is None:
+        return
+    for j, n in enumerate(_TROCAR):
+        cols[n][rows] = trocar.point[j]
+    camera = getattr(config, "camera", None)
+    diameter = None
+    if hasattr(config, "shaft_diameter_for"):
+        diameter = config.shaft_diameter_for(name)
+    if camera is not None and diameter and smoothing != "online":
+        _trocar_fusion(cols, shaft_idx, trocar, np.asarray(camera.K, float), diameter / 2)
+        _realign_clasper(cols, shaft_idx, np.flatnonzero(rows & (part != "shaft")), frames)
+    # orient axes away from the trocar (distal) where the frame had no distal cue
+    nod = shaft_idx[cols["aux_distal"][shaft_idx] == 0]
+    if len(nod):
+        mid = _get3(cols, _START, nod)
+        ax = _get3(cols, _AXIS, nod)
+        flip = np.einsum("ij,ij->i", mid - trocar.point, ax) < 0
+        _set3(cols, _AXIS, nod[flip], -ax[flip])
+
+
+def _smooth(
+    cols: dict[str, np.ndarray],
+    smoothing: str,
+    frames: np.ndarray,
+    inst: np.ndarray,
+    part: np.ndarray,
+    fps: float,
+) -> None:
+    """Temporal filtering of end, start and axis per (instrument, part); in place."""
+    for _key, idx in TrackTable({"frame": frames, "instrument": inst, "part": part}).groups(
+        "instrument", "part"
+    ):
+        idx = idx[np.argsort(frames[idx], kind="stable")]
+        t = frames[idx] / fps
+        for names, acc, floor in (
+            (_END, ACCEL_MM_S2, 0.05),
+            (_START, ACCEL_MM_S2, 0.05),
+            (_AXIS, _ACCEL_AXIS, 1e-4),
+        ):
+            y = _get3(cols, names, idx)
+            f = filter_series(t, y, smoothing, acc, floor)
+            if names is _AXIS:
+                f /= np.linalg.norm(f, axis=1, keepdims=True)
+            _set3(cols, names, idx, f)
+
+
 def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline") -> TrackTable:
     """Sequence-level metric refinement: trocar, trocar constraint, temporal filtering.
 
@@ -214,49 +276,14 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
     for name in (*_END, *_START, *_AXIS, *_QUAT, *_TROCAR, "quality", *AUX_KEYS):
         if name not in cols:
             cols[name] = np.full(table.num_rows, np.nan)
-    camera = getattr(config, "camera", None)
     fps = float(getattr(config, "fps", 25.0) or 25.0)
     frames = np.asarray(cols["frame"])
     inst = np.asarray(cols["instrument"]).astype(str)
     part = np.asarray(cols["part"]).astype(str)
     for name in np.unique(inst):
-        rows = inst == name
-        shaft_idx = np.flatnonzero(rows & (part == "shaft"))
-        shaft_idx = shaft_idx[np.argsort(frames[shaft_idx], kind="stable")]
-        trocar = _reliable_trocar(cols, shaft_idx, frames / fps)
-        if trocar is None:
-            continue
-        for j, n in enumerate(_TROCAR):
-            cols[n][rows] = trocar.point[j]
-        diameter = None
-        if hasattr(config, "shaft_diameter_for"):
-            diameter = config.shaft_diameter_for(name)
-        if camera is not None and diameter and smoothing != "online":
-            _trocar_fusion(cols, shaft_idx, trocar, np.asarray(camera.K, float), diameter / 2)
-            _realign_clasper(cols, shaft_idx, np.flatnonzero(rows & (part != "shaft")), frames)
-        # orient axes away from the trocar (distal) where the frame had no distal cue
-        nod = shaft_idx[cols["aux_distal"][shaft_idx] == 0]
-        if len(nod):
-            mid = _get3(cols, _START, nod)
-            ax = _get3(cols, _AXIS, nod)
-            flip = np.einsum("ij,ij->i", mid - trocar.point, ax) < 0
-            _set3(cols, _AXIS, nod[flip], -ax[flip])
+        _trocar_step(cols, config, smoothing, str(name), inst == name, part, frames, fps)
     if smoothing != "none":
-        for _key, idx in TrackTable({"frame": frames, "instrument": inst, "part": part}).groups(
-            "instrument", "part"
-        ):
-            idx = idx[np.argsort(frames[idx], kind="stable")]
-            t = frames[idx] / fps
-            for names, acc, floor in (
-                (_END, ACCEL_MM_S2, 0.05),
-                (_START, ACCEL_MM_S2, 0.05),
-                (_AXIS, _ACCEL_AXIS, 1e-4),
-            ):
-                y = _get3(cols, names, idx)
-                f = filter_series(t, y, smoothing, acc, floor)
-                if names is _AXIS:
-                    f /= np.linalg.norm(f, axis=1, keepdims=True)
-                _set3(cols, names, idx, f)
+        _smooth(cols, smoothing, frames, inst, part, fps)
     ax = _get3(cols, _AXIS, np.arange(table.num_rows))
     ok = np.all(np.isfinite(ax), axis=1)
     for i in np.flatnonzero(ok):

@@ -146,7 +146,6 @@ class Corruptor:
         """
         c = self.c
         out = labels.copy()
-        h, w = self.shape
         if c.hide_clasper > 0:
             for i in range(self._hidden.shape[0]):
                 if self._hidden[i, frame]:
@@ -154,68 +153,88 @@ class Corruptor:
         if c.bias_px and not biased:
             out = _bias(out, int(round(c.bias_px)))
         if c.jitter_px > 0:
-            rng = _rng(self.seed, _JITTER, frame)
-            gh, gw = 6, 8
-            dx: np.ndarray = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
-            dy: np.ndarray = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
-            dx = cv2.resize(dx, (w, h), interpolation=cv2.INTER_CUBIC)
-            dy = cv2.resize(dy, (w, h), interpolation=cv2.INTER_CUBIC)
-            gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-            out = cv2.remap(
-                out,
-                gx + dx,
-                gy + dy,
-                interpolation=cv2.INTER_NEAREST,
-                borderMode=cv2.BORDER_REPLICATE,
-            )
+            out = self._jitter(out, frame)
         if c.holes > 0:
-            rng = _rng(self.seed, _HOLES, frame)
-            ys, xs = np.nonzero(out)
-            n = rng.poisson(c.holes)
-            if len(xs) and n:
-                pick = rng.integers(0, len(xs), n)
-                for x, y in zip(xs[pick], ys[pick], strict=True):
-                    hole_axes = (int(rng.integers(2, 8)), int(rng.integers(1, 4)))
-                    cv2.ellipse(
-                        out, (int(x), int(y)), hole_axes, float(rng.uniform(0, 180)), 0, 360, 0, -1
-                    )
+            self._holes(out, frame)
         if c.occluders > 0:
-            t = frame / self.fps
-            mask = np.zeros((h, w), dtype=np.uint8)
-            anchors: dict[int, np.ndarray | None] = {}
-            for inst, amp, freq, phase, lobes in self._blobs:
-                if inst not in anchors:
-                    mine = instance == inst + 1
-                    ys, xs = np.nonzero(mine & (part >= 2))
-                    if len(xs) == 0:
-                        ys, xs = np.nonzero(mine)
-                    anchors[inst] = np.array([xs.mean(), ys.mean()]) if len(xs) else None
-                anchor = anchors[inst]
-                if anchor is None:  # nothing of that tool to hide
-                    continue
-                p = anchor + amp * np.sin(2 * math.pi * freq * t + phase)
-                for off, axes, ang in lobes:
-                    q = p + off
-                    cv2.ellipse(
-                        mask,
-                        (int(round(q[0])), int(round(q[1]))),
-                        (int(axes[0]), int(axes[1])),
-                        float(ang),
-                        0,
-                        360,
-                        1,
-                        -1,
-                    )
-            out[mask > 0] = 0
+            out[self._occluder_mask(instance, part, frame) > 0] = 0
         if c.speckle > 0:
-            rng = _rng(self.seed, _SPECKLE, frame)
-            n = rng.poisson(c.speckle)
-            for _ in range(n):
-                x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
-                r = int(rng.integers(0, 2))
-                v = int(values[int(rng.integers(0, len(values)))])
-                cv2.circle(out, (x, y), r, v, -1)
+            self._speckle(out, frame, values)
         return out
+
+    def _jitter(self, out: np.ndarray, frame: int) -> np.ndarray:
+        """Smooth random displacement field (up to ``jitter_px``), nearest-neighbour remap."""
+        c = self.c
+        h, w = self.shape
+        rng = _rng(self.seed, _JITTER, frame)
+        gh, gw = 6, 8
+        dx: np.ndarray = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
+        dy: np.ndarray = rng.uniform(-c.jitter_px, c.jitter_px, (gh, gw)).astype(np.float32)
+        dx = cv2.resize(dx, (w, h), interpolation=cv2.INTER_CUBIC)
+        dy = cv2.resize(dy, (w, h), interpolation=cv2.INTER_CUBIC)
+        gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        return cv2.remap(
+            out,
+            gx + dx,
+            gy + dy,
+            interpolation=cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+
+    def _holes(self, out: np.ndarray, frame: int) -> None:
+        """Small background ellipses punched into the masks (Poisson count); in place."""
+        rng = _rng(self.seed, _HOLES, frame)
+        ys, xs = np.nonzero(out)
+        n = rng.poisson(self.c.holes)
+        if len(xs) and n:
+            pick = rng.integers(0, len(xs), n)
+            for x, y in zip(xs[pick], ys[pick], strict=True):
+                hole_axes = (int(rng.integers(2, 8)), int(rng.integers(1, 4)))
+                cv2.ellipse(
+                    out, (int(x), int(y)), hole_axes, float(rng.uniform(0, 180)), 0, 360, 0, -1
+                )
+
+    def _occluder_mask(self, instance: np.ndarray, part: np.ndarray, frame: int) -> np.ndarray:
+        """(H, W) uint8: 1 where an occluder blob (drifting over its tool's clasper) is."""
+        h, w = self.shape
+        t = frame / self.fps
+        mask = np.zeros((h, w), dtype=np.uint8)
+        anchors: dict[int, np.ndarray | None] = {}
+        for inst, amp, freq, phase, lobes in self._blobs:
+            if inst not in anchors:
+                mine = instance == inst + 1
+                ys, xs = np.nonzero(mine & (part >= 2))
+                if len(xs) == 0:
+                    ys, xs = np.nonzero(mine)
+                anchors[inst] = np.array([xs.mean(), ys.mean()]) if len(xs) else None
+            anchor = anchors[inst]
+            if anchor is None:  # nothing of that tool to hide
+                continue
+            p = anchor + amp * np.sin(2 * math.pi * freq * t + phase)
+            for off, axes, ang in lobes:
+                q = p + off
+                cv2.ellipse(
+                    mask,
+                    (int(round(q[0])), int(round(q[1]))),
+                    (int(axes[0]), int(axes[1])),
+                    float(ang),
+                    0,
+                    360,
+                    1,
+                    -1,
+                )
+        return mask
+
+    def _speckle(self, out: np.ndarray, frame: int, values: list[int]) -> None:
+        """Small discs of random part values (Poisson count); in place."""
+        h, w = self.shape
+        rng = _rng(self.seed, _SPECKLE, frame)
+        n = rng.poisson(self.c.speckle)
+        for _ in range(n):
+            x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+            r = int(rng.integers(0, 2))
+            v = int(values[int(rng.integers(0, len(values)))])
+            cv2.circle(out, (x, y), r, v, -1)
 
 
 def _bias(labels: np.ndarray, px: int) -> np.ndarray:
