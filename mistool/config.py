@@ -32,7 +32,10 @@ merged masks) and instruments are told apart by connectivity.
 
 from __future__ import annotations
 
+import errno
 import math
+import os
+import stat
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -48,6 +51,12 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 CONFIG_NAME = "mistool.toml"
+
+#: Default largest frame decoded (px): 50 MP, above 8K UHD (7680 x 4320 = 33.2 MP).
+MAX_PIXELS: int = 50_000_000
+#: Largest ``max_pixels`` that can be configured (2^31 - 1: OpenCV's own ceiling).
+MAX_PIXELS_LIMIT: int = 2**31 - 1
+
 
 #: Label presets: part -> label value (single-channel masks).
 PRESETS: dict[str, dict[str, int]] = {
@@ -125,6 +134,9 @@ class Config:
     """Default shaft diameter (mm) for instruments without their own value."""
     clasper_length_mm: float | None = 10.0
     """Default clasper length (mm) for instruments without their own value."""
+    max_pixels: int = MAX_PIXELS
+    """Largest frame (width x height, px) decoded; checked from the image header before
+    decoding. The default, :data:`MAX_PIXELS`, is 6x a 4K UHD frame and 1.5x 8K UHD."""
     colour_masks: bool = False
     """True when parts are given as ``#rrggbb`` colours: frames are read as packed RGB."""
     path: Path | None = None
@@ -158,6 +170,7 @@ class Config:
 
 
 _TOP_KEYS = {
+    "max_pixels",
     "fps",
     "source",
     "labels",
@@ -175,12 +188,40 @@ def _where(path: Path | None) -> str:
     return str(path) if path is not None else CONFIG_NAME
 
 
+#: Inclusive range of a frame rate (frames per second): time-lapse to high-speed cameras.
+FPS_RANGE: tuple[float, float] = (0.01, 10_000.0)
+#: Inclusive range of an instrument size (mm: shaft diameter, clasper length).
+SIZE_MM_RANGE: tuple[float, float] = (0.01, 1_000.0)
+#: Inclusive range of any other positive number (e.g. focal lengths in px).
+POSITIVE_RANGE: tuple[float, float] = (1e-3, 1e6)
+#: Largest magnitude of any other number (e.g. a principal point in px).
+MAX_MAGNITUDE: float = 1e6
+#: Largest ``mistool.toml`` read (bytes): a real one is under a few kB.
+MAX_CONFIG_BYTES: int = 1 << 20
+#: Per-key ranges; other positive numbers use :data:`POSITIVE_RANGE`.
+_RANGES: dict[str, tuple[float, float]] = {
+    "fps": FPS_RANGE,
+    "shaft_diameter_mm": SIZE_MM_RANGE,
+    "clasper_length_mm": SIZE_MM_RANGE,
+}
+
+
+def check_number(name: str, value: float, lo: float, hi: float) -> float:
+    """``value`` as a float when it is a finite number in ``[lo, hi]``, else a one-line
+    :class:`ConfigError` naming ``name`` (e.g. ``--fps``), the value and the range."""
+    if not math.isfinite(value) or not lo <= value <= hi:
+        raise ConfigError(f"{name} must be a number in {lo:g}..{hi:g}, got {value!r}")
+    return float(value)
+
+
 def _number(value: Any, key: str, where: str, *, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
     if positive and value <= 0:
         raise ConfigError(f"{where}: {key} must be > 0, got {value!r}")
-    return float(value)
+    base = key.rsplit(".", 1)[-1]
+    lo, hi = _RANGES.get(base, POSITIVE_RANGE if positive else (-MAX_MAGNITUDE, MAX_MAGNITUDE))
+    return check_number(f"{where}: {key}", value, lo, hi)
 
 
 def _value_range(value: Any, key: str, where: str) -> tuple[ValueRange, bool]:
@@ -245,6 +286,13 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ConfigError(f"{where}: min_area_px must be an integer >= 0, got {v!r}")
         kwargs["min_area_px"] = v
+    if "max_pixels" in data:
+        v = data["max_pixels"]
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_PIXELS_LIMIT:
+            raise ConfigError(
+                f"{where}: max_pixels must be an integer in 1..{MAX_PIXELS_LIMIT}, got {v!r}"
+            )
+        kwargs["max_pixels"] = v
     for key in ("shaft_diameter_mm", "clasper_length_mm"):
         if key in data:
             kwargs[key] = _number(data[key], key, where, positive=True)
@@ -256,7 +304,7 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
             src = path.parent / src
         kwargs["source"] = src
     labels = data.get("labels", "endovis15")
-    if labels not in PRESETS:
+    if not isinstance(labels, str) or labels not in PRESETS:
         raise ConfigError(
             f"{where}: labels = {labels!r} is not a preset; choose one of {', '.join(PRESETS)}"
         )
@@ -328,22 +376,92 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         instruments.append(InstrumentSpec(name=name, parts=inst_parts, **dims))
     kwargs["instruments"] = tuple(instruments)
     kwargs["colour_masks"] = colour
+    _check_overlaps(parts, instruments, where, labels)
     return Config(**kwargs)
+
+
+def _overlap(named: list[tuple[str, ValueRange]], where: str) -> None:
+    """Raise when two of the named inclusive ranges share a label value."""
+    ordered = sorted(named, key=lambda item: item[1])
+    for (name_a, (lo_a, hi_a)), (name_b, (lo_b, hi_b)) in zip(ordered, ordered[1:], strict=False):
+        if lo_b <= hi_a:
+            raise ConfigError(
+                f"{where}: {name_a} = {_spec(lo_a, hi_a)} and {name_b} = {_spec(lo_b, hi_b)} "
+                "overlap; a label value must mean one part of one instrument"
+            )
+
+
+def _spec(lo: int, hi: int) -> str:
+    return str(lo) if lo == hi else f"[{lo}, {hi}]"
+
+
+def _check_overlaps(
+    parts: dict[str, ValueRange], instruments: list[InstrumentSpec], where: str, labels: str
+) -> None:
+    """Part ranges must not overlap: among the shared parts, and among every instrument's
+    parts (within and across instruments)."""
+    _overlap([(f"parts.{p} (preset {labels} or [parts])", r) for p, r in parts.items()], where)
+    named = [
+        (f"instrument {inst.name!r} {p}", r) for inst in instruments for p, r in inst.parts.items()
+    ]
+    _overlap(named, where)
 
 
 def load_config(path: str | Path) -> Config:
     """Read ``mistool.toml`` from a file, or from a sequence folder (defaults when the
-    folder has none). Raises :class:`ConfigError` with the file name on any problem."""
+    folder has none). Raises :class:`ConfigError` with the file name on any problem.
+
+    The read is bounded: only a regular file (a FIFO or device is refused without
+    blocking), at most :data:`MAX_CONFIG_BYTES`, UTF-8 TOML; a dangling or looping
+    ``mistool.toml`` symlink is an error, not "no file"."""
     p = Path(path)
     if p.is_dir():
         p = p / CONFIG_NAME
-        if not p.exists():
+        if not os.path.lexists(p):
             return Config()
+    data = _parse(p, _read_bounded(p))
+    return config_from_dict(data, p)
+
+
+def _read_bounded(p: Path) -> str:
+    """The text of a regular file of at most :data:`MAX_CONFIG_BYTES` bytes."""
     try:
-        with p.open("rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: invalid TOML: {exc}") from None
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ConfigError(f"{p}: symlink loop") from None
+        if exc.errno == errno.ENOENT and os.path.islink(p):
+            raise ConfigError(f"{p}: dangling symlink to {os.readlink(p)}") from None
+        raise ConfigError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ConfigError(f"{p}: not a regular file; mistool.toml must be a text file")
+        if st.st_size > MAX_CONFIG_BYTES:
+            raise ConfigError(
+                f"{p}: {st.st_size} bytes; a mistool.toml is at most {MAX_CONFIG_BYTES} bytes"
+            )
+        with os.fdopen(fd, "rb", closefd=False) as f:
+            raw = f.read(MAX_CONFIG_BYTES + 1)
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    return config_from_dict(data, p)
+    finally:
+        os.close(fd)
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{p}: larger than {MAX_CONFIG_BYTES} bytes")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{p}: not UTF-8 text (byte {raw[exc.start]:#04x} at offset {exc.start}); "
+            "TOML files are UTF-8"
+        ) from None
+
+
+def _parse(p: Path, text: str) -> dict[str, Any]:
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: invalid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: invalid TOML: arrays or tables nested too deeply") from None

@@ -29,3 +29,9 @@ class ConfigError(MistoolError):
 
 class TableError(MistoolError):
     """A motion table (CSV) is malformed or lacks required columns."""
+
+
+class InputWarning(UserWarning):
+    """Something odd about the input that does not stop the command (a mask video that
+    ends early, a ``source`` video that disagrees with the masks); the command line
+    prints it as one ``mistool: warning: ...`` line."""

@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import io
 import math
 import os
+import stat
+import sys
 import tempfile
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -22,40 +26,210 @@ import numpy as np
 from mistool.errors import InputPathError, TableError
 from mistool.model import COLUMN_DTYPES, TrackTable, require_columns
 
+#: The output name that means standard output.
+STDOUT = "-"
+#: ``errno`` values of a write that failed for lack of room or a broken device: reported
+#: as one line, the temporary file removed and the old output kept.
+_WRITE_ERRNOS = frozenset(
+    {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS, errno.ENXIO}
+)
+_umask_lock = threading.Lock()
+
+
+def _kind(mode: int) -> str:
+    """A file type in words (for messages about outputs that are not regular files)."""
+    for test, name in (
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _identity(path: Path) -> tuple[int, int] | None:
+    """``(device, inode)`` of an existing file (symlinks followed), else None."""
+    try:
+        st = path.stat()
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
+
+
+def check_output(path: str | Path, inputs: Iterable[str | Path | None] = ()) -> Path:
+    """Check, before any work, that ``path`` can receive a command's output.
+
+    The output must be a regular file (or not exist yet) in an existing folder, and must
+    not resolve to one of the command's ``inputs`` (frames, ``mistool.toml``, ``source``,
+    calibration files, input tables; a folder in ``inputs`` stands for every file in it
+    whose name is listed by the caller as an input, so pass files, not folders). Symlinks
+    are followed: the returned path is the real file to replace, so that writing keeps
+    the link itself. Hard links to an input are caught by comparing inodes.
+
+    Args:
+        path: the output path given by the user (not ``"-"``: the caller writes stdout).
+        inputs: the command's input files (None entries are skipped).
+
+    Returns:
+        The resolved output path (symlinks followed).
+
+    Raises:
+        InputPathError: the output would replace an input or a non-regular file, its
+            folder does not exist, or its symlinks loop.
+    """
+    given = Path(path)
+    if str(path) == "":
+        raise InputPathError("output: empty file name")
+    try:
+        target = given.resolve()
+    except RuntimeError:  # symlink loop (Python < 3.13)
+        raise InputPathError(f"{given}: symlink loop; expected an output file name") from None
+    except OSError as exc:
+        raise InputPathError(f"{given}: cannot resolve: {exc.strerror or exc}") from None
+    try:
+        st = target.stat()
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise InputPathError(f"{given}: symlink loop; expected an output file name") from None
+        raise InputPathError(f"{given}: cannot use as output: {exc.strerror or exc}") from None
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        hint = " (use -o - for standard output)" if not stat.S_ISDIR(st.st_mode) else ""
+        raise InputPathError(
+            f"{given}: is {_kind(st.st_mode)}; mistool writes outputs only to regular files{hint}"
+        )
+    folder = target.parent
+    if not folder.is_dir():
+        raise InputPathError(f"{given}: output folder {given.parent} does not exist")
+    mine = (st.st_dev, st.st_ino) if st is not None else None
+    for item in inputs:
+        if item is None:
+            continue
+        source = Path(item)
+        same = (mine is not None and mine == _identity(source)) or target == _resolved(source)
+        if same:
+            raise InputPathError(
+                f"{given}: is an input of this command ({source}); choose another output file name"
+            )
+    return target
+
+
+def _resolved(path: Path) -> Path | None:
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):
+        return None
+
+
+def _new_file_mode() -> int:
+    """0o666 minus the process umask: the mode ``open()`` would give a new file."""
+    with _umask_lock:  # reading the umask means setting it: keep that step atomic
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return 0o666 & ~mask
+
 
 @contextlib.contextmanager
 def atomic_write(path: str | Path, mode: str = "w", **kwargs: Any) -> Iterator[IO[Any]]:
     """Open a temporary file beside ``path``; on success rename it over ``path``.
 
     On any exception the temporary file is removed and ``path`` is left untouched, so a
-    failed command never leaves partial output.
+    failed command never leaves partial output. ``path`` must pass :func:`check_output`
+    (a regular file or a new name; symlinks are followed, so a link stays a link). An
+    existing output keeps its permission bits (and, for root, its owner); a new one gets
+    the mode ``open()`` would give it under the process umask. A full disk or a failing
+    device is one :class:`~mistool.errors.InputPathError`.
     """
-    target = Path(path)
-    directory = target.parent if str(target.parent) else Path(".")
-    if not directory.is_dir():
-        raise InputPathError(f"{target}: output folder {directory} does not exist")
-    if target.is_dir():
-        raise InputPathError(f"{target}: is a folder; expected an output file name")
+    given = Path(path)
+    target = check_output(given)
+    directory = target.parent
+    try:
+        old = target.stat()
+    except OSError:
+        old = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
     except OSError as exc:
         raise InputPathError(
-            f"{target}: cannot write in {directory}: {exc.strerror or exc}"
+            f"{given}: cannot write in {given.parent}: {exc.strerror or exc}"
         ) from None
     try:
-        with os.fdopen(fd, mode, **kwargs) as f:
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
         try:
+            with os.fdopen(fd, mode, **kwargs) as f:
+                yield f
+                f.flush()
+                os.fsync(f.fileno())
+            _copy_mode(tmp, old)
             os.replace(tmp, target)
         except OSError as exc:
-            raise InputPathError(f"{target}: cannot write: {exc.strerror or exc}") from None
+            if exc.errno in _WRITE_ERRNOS or exc.filename in (None, tmp):
+                raise InputPathError(f"{given}: cannot write: {exc.strerror or exc}") from None
+            raise
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _copy_mode(tmp: str, old: os.stat_result | None) -> None:
+    """Give the temporary file the old output's mode (and owner) or a new file's mode."""
+    if old is None:
+        os.chmod(tmp, _new_file_mode())
+        return
+    os.chmod(tmp, stat.S_IMODE(old.st_mode))
+    if hasattr(os, "chown") and os.geteuid() == 0:
+        with contextlib.suppress(OSError):
+            os.chown(tmp, old.st_uid, old.st_gid)
+
+
+def stdout_stream() -> IO[str]:
+    """Standard output for ``-o -``; raises when it is closed (checked before the work)."""
+    stream = sys.stdout
+    closed = InputPathError("-o -: standard output is closed; give an output file name")
+    if stream is None or getattr(stream, "closed", False):
+        raise closed
+    try:
+        fd = stream.fileno()
+    except (io.UnsupportedOperation, AttributeError):  # an in-memory stream (tests)
+        return stream
+    try:
+        os.fstat(fd)
+    except OSError:
+        raise closed from None
+    return stream
+
+
+def write_stdout(write: Callable[[IO[str]], None]) -> None:
+    """Call ``write(stream)`` on standard output and flush it (EPIPE propagates: the
+    command line reports a closed pipe as one line)."""
+    stream = stdout_stream()
+    write(stream)
+    stream.flush()
+
+
+#: Largest frame number a motion table may hold (the viewer keeps dense per-frame arrays:
+#: a million frames is 11 hours at 25 fps, a few hundred MB of arrays).
+MAX_TABLE_FRAME = 1_000_000
+
+
+def check_frame_numbers(table: TrackTable, where: str, limit: int = MAX_TABLE_FRAME) -> None:
+    """Raise :class:`TableError` when a ``frame`` value is negative or beyond ``limit``
+    (a viewer would allocate per-frame arrays up to the largest one)."""
+    if "frame" not in table.columns or table.num_rows == 0:
+        return
+    frames = np.asarray(table["frame"])
+    lo, hi = int(frames.min()), int(frames.max())
+    if lo < 0:
+        raise TableError(f"{where}: frame {lo} is negative; frames count from 0")
+    if hi > limit:
+        raise TableError(
+            f"{where}: frame {hi} is beyond the limit of {limit} frames "
+            f"({limit / 25 / 3600:.0f} h at 25 fps); is the frame column right?"
+        )
 
 
 def format_value(value: Any) -> str:
@@ -143,14 +317,19 @@ def read_csv(
             columns[name] = cells
             continue
         if dtype is np.int64:
-            if np.isnan(values).any() or not np.all(values == np.round(values)):
-                bad = int(np.flatnonzero(np.isnan(values) | (values != np.round(values)))[0])
+            wrong = np.isnan(values) | (values != np.round(values)) | ~(np.abs(values) <= _MAX_INT)
+            if wrong.any():
+                bad = int(np.flatnonzero(wrong)[0])
                 raise TableError(
                     f"{p}: line {bad + 2}, column {name!r}: expected an integer, got {cells[bad]!r}"
                 )
             values = values.astype(np.int64)
         columns[name] = values
     return TrackTable(columns)
+
+
+#: Largest integer magnitude read into an integer column (exact in float64).
+_MAX_INT = 2.0**53
 
 
 def _is_number(text: str) -> bool:

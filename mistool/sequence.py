@@ -38,15 +38,26 @@ are converted to one channel with OpenCV's BGR-to-grey conversion. The smear is 
 reported as unknown label values: there a value must cover ``min_area_px`` pixels of a
 frame to count, and values up to the tolerance are background.
 
-OpenCV's own warnings about corrupt files are silenced (log level ERROR) while mistool
-reads a sequence: mistool reports them itself as one-line :class:`MistoolError`.
+OpenCV's own log lines about corrupt files are silenced (log level SILENT) while mistool
+reads a sequence: mistool reports them itself as one-line :class:`MistoolError` (the
+codecs' own stderr lines, e.g. libpng's, are filtered by the command line).
+
+Resource limits: a frame's size is read from its header (PNG, JPEG, BMP, PNM; a video's
+stream) and checked against ``Config.max_pixels`` (default
+:data:`mistool.config.MAX_PIXELS`, 50 MP) *before* decoding, so a 74-byte PNG claiming
+100000 x 100000 pixels is refused at once. A mask video that ends before the frame count
+in its header, and a ``source`` that disagrees with the masks in frame count or size, are
+reported as :class:`~mistool.errors.InputWarning`.
 """
 
 from __future__ import annotations
 
+import errno
+import math
 import os
 import re
 import struct
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -55,8 +66,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mistool.config import CONFIG_NAME, Config, ValueRange, load_config
-from mistool.errors import InputPathError, MaskFormatError
+from mistool.config import CONFIG_NAME, MAX_PIXELS, Config, ValueRange, load_config
+from mistool.errors import InputPathError, InputWarning, MaskFormatError
 
 IMAGE_EXTENSIONS: frozenset[str] = frozenset(
     {".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".jpg", ".jpeg", ".webp"}
@@ -80,7 +91,7 @@ def natural_key(name: str) -> tuple[Any, ...]:
 def _quiet_opencv() -> None:
     """Silence OpenCV's/FFmpeg's own stderr warnings; mistool reports problems itself."""
     try:
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     except AttributeError:  # pragma: no cover - very old OpenCV
         pass
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
@@ -365,29 +376,104 @@ class FastPathGate:
         self.declined += not decoded
 
 
+def header_size(data: bytes) -> tuple[int, int] | None:
+    """``(width, height)`` from an image file's header (PNG, JPEG, BMP, PNM), without
+    decoding; None when the format is another or the header is not recognised."""
+    if data.startswith(_PNG_SIGNATURE) and len(data) >= 24 and data[12:16] == b"IHDR":
+        w, h = struct.unpack(">II", data[16:24])
+        return int(w), int(h)
+    if data.startswith(b"BM") and len(data) >= 26:
+        w, h = struct.unpack("<ii", data[18:26])
+        return abs(int(w)), abs(int(h))
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_size(data)
+    m = re.match(rb"P[1-6]\s+(?:#[^\n]*\s+)*(\d+)\s+(?:#[^\n]*\s+)*(\d+)", data[:512])
+    if m:
+        return int(m.group(1)), int(m.group(2))
+    return None
+
+
+#: JPEG start-of-frame markers (baseline, progressive, lossless...): they carry the size.
+_JPEG_SOF = frozenset(
+    {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+)
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    pos = 2
+    while pos + 9 <= len(data):
+        if data[pos] != 0xFF:
+            return None
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        length = struct.unpack(">H", data[pos + 2 : pos + 4])[0]
+        if marker in _JPEG_SOF:
+            h, w = struct.unpack(">HH", data[pos + 5 : pos + 9])
+            return int(w), int(h)
+        pos += 2 + length
+    return None
+
+
+def check_pixels(size: tuple[int, int] | None, where: str, max_pixels: int) -> None:
+    """Raise :class:`MaskFormatError` when a frame of ``size`` = ``(w, h)`` is empty or
+    has more than ``max_pixels`` pixels (``max_pixels`` in mistool.toml raises the limit)."""
+    if size is None:
+        return
+    w, h = size
+    if w <= 0 or h <= 0:
+        raise MaskFormatError(f"{where}: the image header says {w}x{h} pixels (an empty image)")
+    if w * h > max_pixels:
+        raise MaskFormatError(
+            f"{where}: the image header says {w}x{h} = {w * h} pixels, more than the limit "
+            f"of {max_pixels} (max_pixels in mistool.toml raises it)"
+        )
+
+
 def read_label_image(
-    path: Path, *, colour: bool = False, gate: FastPathGate | None = None
+    path: Path,
+    *,
+    colour: bool = False,
+    gate: FastPathGate | None = None,
+    max_pixels: int = MAX_PIXELS,
 ) -> np.ndarray:
     """Decode one label image file into an ``(H, W)`` label image (see module docs).
 
+    Args:
+        path: the image file.
+        colour: pack colours (``Config.colour_masks``).
+        gate: the sequence's fast-path gate, if any.
+        max_pixels: largest ``width x height`` decoded, checked from the header first.
+
     Raises:
-        MaskFormatError: the file does not decode, or its pixels are not labels.
+        MaskFormatError: the file does not decode, is too large, or its pixels are not
+            labels.
     """
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise InputPathError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    check_pixels(header_size(data), str(path), max_pixels)
     if gate is None or gate.open:
         img = decode_grey_png_fast(data)
         if gate is not None:
             gate.record(img is not None)
         if img is not None:
             return to_labels(img, str(path), colour=colour)
-    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    try:
+        img = (
+            cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+            if data
+            else None
+        )
+    except cv2.error:  # OpenCV's own limits (e.g. pixels of another format's header)
+        img = None
     if img is None:
         raise MaskFormatError(
             f"{path}: cannot decode as an image (corrupt, truncated or not an image file)"
         )
+    check_pixels((img.shape[1], img.shape[0]), str(path), max_pixels)
     palette = _png_palette(data) if img.ndim == 3 else None
     return to_labels(img, str(path), colour=colour, palette=palette)
 
@@ -483,9 +569,25 @@ def list_frames(folder: Path) -> list[Path]:
         for e in entries
         if not e.name.startswith(".")
         and Path(e.name).suffix.lower() in IMAGE_EXTENSIONS
-        and e.is_file()
+        and _is_frame_file(e)
     ]
     return sorted(files, key=lambda p: natural_key(p.name))
+
+
+def _is_frame_file(entry: os.DirEntry[str]) -> bool:
+    """Whether a folder entry with an image extension is a frame file; a symlink that
+    loops or dangles is an error (it names a frame that cannot be read)."""
+    try:
+        if entry.is_file():
+            return True
+    except OSError as exc:
+        reason = "symlink loop" if exc.errno == errno.ELOOP else (exc.strerror or str(exc))
+        raise InputPathError(f"{entry.path}: cannot read this frame: {reason}") from None
+    if entry.is_symlink():
+        raise InputPathError(
+            f"{entry.path}: cannot read this frame: dangling symlink to {os.readlink(entry.path)}"
+        )
+    return False
 
 
 def resolve(path: str | Path) -> tuple[Path, Config]:
@@ -561,10 +663,11 @@ def _open_folder(folder: Path, config: Config) -> MaskSequence:
         )
     colour = config.colour_masks
     gate = FastPathGate()
+    limit = config.max_pixels
 
     def frames() -> Iterator[Frame]:
         for i, f in enumerate(files):
-            yield Frame(i, f.name, _loader(f, colour, gate))
+            yield Frame(i, f.name, _loader(f, colour, gate, limit))
 
     lossy = all(f.suffix.lower() in _LOSSY_EXTENSIONS for f in files)
     return MaskSequence(
@@ -578,8 +681,10 @@ def _open_folder(folder: Path, config: Config) -> MaskSequence:
     )
 
 
-def _loader(path: Path, colour: bool, gate: FastPathGate) -> Callable[[], np.ndarray]:
-    return lambda: read_label_image(path, colour=colour, gate=gate)
+def _loader(
+    path: Path, colour: bool, gate: FastPathGate, max_pixels: int
+) -> Callable[[], np.ndarray]:
+    return lambda: read_label_image(path, colour=colour, gate=gate, max_pixels=max_pixels)
 
 
 def widen_for_video(config: Config, tolerance: int = VIDEO_TOLERANCE) -> Config:
@@ -622,7 +727,14 @@ def _all_ranges(config: Config) -> list[ValueRange]:
 def _open_video(path: Path, config: Config) -> MaskSequence:
     cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
     ok = cap.isOpened()
-    count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
+    count = _video_count(cap) if ok else 0
+    if ok:
+        size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        try:
+            check_pixels(size, str(path), config.max_pixels)
+        finally:
+            cap.release()
+        cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
     ok = ok and cap.read()[0]
     cap.release()
     if not ok:
@@ -651,6 +763,13 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
                 index += 1
             if index == 0:
                 raise MaskFormatError(f"{path}: the video has no readable frame")
+            if count > index:
+                warnings.warn(
+                    f"{path}: the video ended after {index} of the {count} frames its "
+                    "header announces (truncated or corrupt file); the rest is not tracked",
+                    InputWarning,
+                    stacklevel=2,
+                )
         finally:
             vc.release()
 
@@ -663,6 +782,12 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
         path,
         lossy=True,
     )
+
+
+def _video_count(cap: Any) -> int:
+    """A video's frame count from its header (0 when unknown or absurd)."""
+    value = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+    return int(value) if math.isfinite(value) and 0 < value < 2**31 else 0
 
 
 def _constant(labels: np.ndarray) -> Callable[[], np.ndarray]:
@@ -695,3 +820,103 @@ def _open_arrays(source: Iterable[np.ndarray], config: Config) -> MaskSequence:
 
 def _array_loader(arr: Any, where: str, colour: bool) -> Callable[[], np.ndarray]:
     return lambda: to_labels(np.asarray(arr), where, colour=colour, order="rgb")
+
+
+# --- what a command reads, and whether the source agrees with the masks ---------------
+
+
+def input_files(path: Path, config: Config) -> list[Path]:
+    """Every file a command reads for the sequence at ``path``: its frames (or the mask
+    video), ``mistool.toml``, the ``source`` video or its frames, and any other file the
+    config names (e.g. a calibration file). Outputs are checked against these
+    (:func:`mistool.export.check_output`)."""
+    files = list_frames(path) if path.is_dir() else [path]
+    named = [config.path, config.source]
+    named += [getattr(config.camera, f, None) for f in _field_names(config.camera)]
+    named += [getattr(config, f, None) for f in _field_names(config)]
+    for item in named:
+        if not isinstance(item, Path) or item in files:
+            continue
+        files.append(item)
+        if item.is_dir() and item == config.source:
+            files += [p for p in item.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
+    return files
+
+
+def _field_names(obj: object) -> list[str]:
+    import dataclasses
+
+    return [f.name for f in dataclasses.fields(obj)] if dataclasses.is_dataclass(obj) else []
+
+
+def source_info(source: Path) -> tuple[int | None, tuple[int, int] | None]:
+    """``(frame count, (width, height))`` of a ``source`` video or RGB frame folder, read
+    from the video's header or the folder's first frame (None where unknown).
+
+    Raises:
+        MaskFormatError: the video cannot be opened, or the folder's first frame does
+            not decode (e.g. a folder of undecodable JPEGs).
+    """
+    _quiet_opencv()
+    if source.is_dir():
+        files = sorted(
+            (p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
+            key=lambda p: natural_key(p.name),
+        )
+        if not files:
+            return 0, None
+        try:
+            data = files[0].read_bytes()
+            img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        except (OSError, cv2.error):
+            img = None
+        if img is None:
+            raise MaskFormatError(
+                f"{files[0]}: the source frame does not decode (corrupt or not an image); "
+                "fix 'source' in mistool.toml or remove it"
+            )
+        return len(files), (int(img.shape[1]), int(img.shape[0]))
+    cap = cv2.VideoCapture(str(source), cv2.CAP_FFMPEG)
+    try:
+        if not cap.isOpened() or not cap.read()[0]:
+            raise MaskFormatError(
+                f"{source}: the source video cannot be read (corrupt, unsupported codec or "
+                "not a video); fix 'source' in mistool.toml or remove it"
+            )
+        size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        return _video_count(cap) or None, size
+    finally:
+        cap.release()
+
+
+def check_source(
+    config: Config, num_frames: int | None, shape: tuple[int, int] | None
+) -> list[str]:
+    """Compare the config's ``source`` with the masks: warn (:class:`InputWarning`) when
+    it has fewer frames than the masks or another size; returns the warning texts.
+
+    Args:
+        config: the sequence's config (nothing to check without ``source``).
+        num_frames: number of mask frames, if known.
+        shape: ``(H, W)`` of the masks, if known.
+
+    Raises:
+        MaskFormatError: the source cannot be read at all.
+    """
+    if config.source is None or not config.source.exists():
+        return []
+    count, size = source_info(config.source)
+    said = []
+    if count is not None and num_frames is not None and count < num_frames:
+        said.append(
+            f"{config.source}: the source has {count} frame(s), the masks {num_frames}; "
+            "later frames are shown without the source under the overlay"
+        )
+    if size is not None and shape is not None and size != (shape[1], shape[0]):
+        said.append(
+            f"{config.source}: the source is {size[0]}x{size[1]} px, the masks "
+            f"{shape[1]}x{shape[0]} px; the overlay is stretched to fit"
+        )
+    for text in said:
+        warnings.warn(text, InputWarning, stacklevel=2)
+    return said

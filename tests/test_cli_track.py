@@ -273,7 +273,7 @@ BAD_INPUTS: list[tuple[str, Callable[[Path], list[str]], str]] = [
     (
         "bad --fps",
         lambda r: [str(_bad_folder(r, {"0.png": _OK})), "--fps", "0"],
-        "--fps must be > 0",
+        "--fps must be a number in",
     ),
     (
         "bad --min-area",

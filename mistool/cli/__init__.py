@@ -3,16 +3,41 @@
 Each subcommand lives in its own module of this package with ``register(subparsers)``
 adding its parser and setting ``func`` to a function ``(args) -> int``. ``main(argv)``
 returns the exit code, so tests run the CLI in-process.
+
+The error contract: every failure ends as one line ``mistool: error: <where>: <what>`` on
+stderr and exit code 1 (argparse's own usage errors: exit 2). Non-printable characters of
+the message (a newline or an escape sequence in a file name, undecodable bytes) are
+escaped, so a message is always one line and cannot forge another. Input problems are
+:class:`~mistool.errors.MistoolError`; the environment's (disk full, a closed pipe, out of
+memory) are turned into one line here; anything else is a bug, reported as one
+``internal error`` line. ``--debug`` anywhere on the command line (or ``MISTOOL_DEBUG=1``)
+prints the traceback too, for bug reports. :class:`~mistool.errors.InputWarning` warnings
+are printed as one ``mistool: warning: ...`` line each.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import errno
+import os
+import re
 import sys
-from collections.abc import Sequence
+import threading
+import traceback
+import warnings
+from collections.abc import Iterator, Sequence
+from typing import Any
 
 from mistool import __version__
-from mistool.errors import MistoolError
+from mistool.errors import InputWarning, MistoolError
+
+#: Environment variable that, set to anything but "" or "0", shows tracebacks.
+DEBUG_ENV = "MISTOOL_DEBUG"
+#: The flag that does the same; accepted anywhere before a ``--`` separator.
+DEBUG_FLAG = "--debug"
+#: Exit code of every failure reported by mistool itself (argparse's usage errors: 2).
+EXIT_ERROR = 1
 
 # Subcommand modules, in the order --help lists them.
 _COMMANDS = (
@@ -62,19 +87,154 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the process exit code."""
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    debug, args_list = _debug_requested(args_list)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    parser.add_argument(
+        DEBUG_FLAG,
+        action="store_true",
+        help=f"show the traceback of an error, for bug reports (also {DEBUG_ENV}=1)",
+    )
+    args = parser.parse_args(args_list)
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
+    with one_line_warnings(), contextlib.nullcontext() if debug else quiet_native_stderr():
+        try:
+            return int(args.func(args) or 0)
+        except KeyboardInterrupt:
+            print("mistool: interrupted", file=sys.stderr)
+            return 130
+        except BaseException as exc:  # noqa: BLE001 - the one place errors become one line
+            if isinstance(exc, SystemExit):
+                raise
+            return report(exc, debug)
+
+
+def _debug_requested(args: list[str]) -> tuple[bool, list[str]]:
+    """Whether tracebacks are wanted; the arguments without the debug flag."""
+    end = args.index("--") if "--" in args else len(args)
+    flag = DEBUG_FLAG in args[:end]
+    rest = [a for i, a in enumerate(args) if not (i < end and a == DEBUG_FLAG)]
+    return flag or os.environ.get(DEBUG_ENV, "") not in ("", "0"), rest
+
+
+def printable(text: str) -> str:
+    """``text`` with every non-printable character escaped, so that it prints as one
+    line and cannot move the cursor or forge a line: a newline becomes ``\\n``, ESC
+    ``\\x1b``, a file name's undecodable byte (a surrogate escape) ``\\xff``."""
+    out = []
+    for ch in text:
+        code = ord(ch)
+        if ch.isprintable():
+            out.append(ch)
+        elif 0xDC80 <= code <= 0xDCFF:  # os.fsdecode's escape of an undecodable byte
+            out.append(f"\\x{code - 0xDC00:02x}")
+        else:
+            out.append(repr(ch)[1:-1])
+    return "".join(out)
+
+
+def report(exc: BaseException, debug: bool = False) -> int:
+    """Print ``exc`` as one ``mistool: error:`` line (after its traceback when
+    ``debug``); returns the exit code."""
+    if debug:
+        traceback.print_exception(exc)
+    if isinstance(exc, BrokenPipeError) or (isinstance(exc, OSError) and exc.errno == errno.EPIPE):
+        _silence_stdout()
+        message = "stdout: the reader closed the pipe before all output was written"
+    elif isinstance(exc, MistoolError):
+        message = str(exc)
+    elif isinstance(exc, OSError):
+        where = exc.filename if exc.filename is not None else "system"
+        message = f"{os.fsdecode(where)}: {exc.strerror or exc}"
+    elif isinstance(exc, MemoryError):
+        message = "out of memory; the input is too large for this machine"
+    else:
+        message = (
+            f"internal error: {type(exc).__name__}: {exc} (a bug in mistool; "
+            f"run again with {DEBUG_FLAG} and report the traceback)"
+        )
+    _print_stderr(f"mistool: error: {printable(message)}")
+    return EXIT_ERROR
+
+
+def _silence_stdout() -> None:
+    """After EPIPE, point stdout at /dev/null so that the interpreter's final flush does
+    not print a second error."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
+def _print_stderr(line: str) -> None:
+    with contextlib.suppress(OSError, ValueError, AttributeError):  # stderr closed too
+        print(line, file=sys.stderr, flush=True)
+
+
+#: Lines that image and video codecs print on their own (libpng, libjpeg, libtiff,
+#: OpenCV's logger, FFmpeg): mistool reports the problem itself as one line.
+_NATIVE_NOISE = re.compile(
+    rb"^(libpng (error|warning)|Corrupt JPEG data|Premature end of JPEG|Invalid JPEG|"
+    rb"JPEG datastream|TIFF(ReadDirectory|FetchNormalTag|ReadRawStrip)|"
+    rb"\[ ?(WARN|ERROR|INFO|DEBUG):[^\]]*\] |\[[a-z0-9_]+ @ 0x[0-9a-f]+\] )"
+)
+
+
+@contextlib.contextmanager
+def quiet_native_stderr() -> Iterator[None]:
+    """Filter the codecs' own stderr lines (:data:`_NATIVE_NOISE`) at the file
+    descriptor level, where C libraries write them; every other line passes unchanged
+    and in order. A no-op when stderr is not a real file descriptor."""
     try:
-        return int(args.func(args) or 0)
-    except MistoolError as exc:
-        print(f"mistool: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("mistool: interrupted", file=sys.stderr)
-        return 130
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):
+        yield
+        return
+    read_end, write_end = os.pipe()
+    os.dup2(write_end, 2)
+    os.close(write_end)
+    pump = threading.Thread(target=_pump, args=(read_end, saved), daemon=True)
+    pump.start()
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            sys.stderr.flush()
+        os.dup2(saved, 2)  # the pipe's last write end closes: the pump sees EOF
+        pump.join(timeout=5.0)
+        os.close(saved)
+
+
+def _pump(read_end: int, out: int) -> None:
+    with os.fdopen(read_end, "rb") as lines:
+        for line in lines:
+            if not _NATIVE_NOISE.match(line):
+                with contextlib.suppress(OSError):
+                    os.write(out, line)
+
+
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """Print :class:`InputWarning` warnings as one ``mistool: warning:`` line each."""
+    previous = warnings.showwarning
+
+    def show(message: Any, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+        if issubclass(category, InputWarning):
+            _print_stderr(f"mistool: warning: {printable(str(message))}")
+        else:
+            previous(message, category, *args, **kwargs)
+
+    warnings.showwarning = show
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", InputWarning)
+            warnings.showwarning = show
+            yield
+    finally:
+        warnings.showwarning = previous
 
 
 def console_main() -> None:

@@ -82,7 +82,7 @@ def _method_names(paths: list[Path]) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Run ``mistool eval``."""
     from mistool.evaluation import evaluate, format_report
-    from mistool.export import atomic_write, read_csv, write_table_csv
+    from mistool.export import atomic_write, check_output, read_csv, write_table_csv
 
     files = [Path(f) for f in args.files]
     if args.truth is None:
@@ -102,6 +102,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"eval: method names must differ, got {names}")
     if args.min_area < 0:
         raise ConfigError(f"eval: --min-area must be >= 0, got {args.min_area}")
+    for out in (args.json, args.per_frame):  # before the work; never over an input
+        if out:
+            check_output(out, [truth_path, *pred_paths])
     truth = read_csv(truth_path)
     preds = {n: read_csv(p) for n, p in zip(names, pred_paths, strict=True)}
     report = evaluate(preds, truth, min_area_px=args.min_area)

@@ -71,8 +71,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export the replay."""
+    from mistool.export import check_output
+    from mistool.resources import sample_masks_dir
+    from mistool.sequence import input_files, resolve
     from mistool.viewer import export_html, load_sequence  # viser only for this command
 
+    path, config = resolve(args.sequence if args.sequence is not None else sample_masks_dir())
+    check_output(args.output, [*input_files(path, config), args.poses])  # before the work
     progress = not args.quiet and sys.stderr.isatty()
     sequence = load_sequence(
         args.sequence, poses=args.poses, progress=progress, cache=not args.no_cache

@@ -6,6 +6,7 @@ import argparse
 import signal
 import sys
 import threading
+from typing import Any
 
 DESCRIPTION = """\
 Replay a recorded procedure in 3D in the browser: every instrument's shaft and clasper as
@@ -62,6 +63,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="interface to listen on (default 127.0.0.1; 0.0.0.0 for all)",
     )
     p.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="ORIGIN",
+        help="also accept this page origin or host name (e.g. http://mybox.lan:8080, for a "
+        "reverse proxy or a deliberate remote name; repeatable). By default only the "
+        "viewer's own page may connect: other sites' pages and unknown Host names get 403",
+    )
+    p.add_argument(
         "--poses",
         metavar="POSES.csv",
         help="show this motion table instead of tracking the sequence",
@@ -92,6 +102,7 @@ def run(
     """Serve until Ctrl+C (or until ``stop`` is set, for in-process tests)."""
     from mistool.errors import ConfigError
     from mistool.viewer import ReplayViewer, load_sequence  # viser only for this command
+    from mistool.viewer.guard import AccessPolicy
 
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port}: must be in 0..65535")
@@ -99,8 +110,13 @@ def run(
     sequence = load_sequence(
         args.sequence, poses=args.poses, progress=progress, cache=not args.no_cache
     )
+    access = AccessPolicy.for_host(args.host, args.allow_origin)
     viewer = ReplayViewer(
-        sequence, host=args.host, port=args.port, environment_map=args.environment_map
+        sequence,
+        host=args.host,
+        port=args.port,
+        environment_map=args.environment_map,
+        access=access,
     )
     waiter = stop or threading.Event()
     previous = None
@@ -114,6 +130,7 @@ def run(
             f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode",
             flush=True,
         )
+        _say_odd(args, viewer.port, access)
         print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
         if ready is not None:
             ready.set()
@@ -136,3 +153,21 @@ def run(
         )
         return 1
     return 0
+
+
+def _say_odd(args: argparse.Namespace, port: int, access: Any) -> None:
+    """Warn on stderr about a busy port and a server reachable beyond this machine."""
+    if args.port not in (0, port):
+        print(
+            f"mistool: warning: port {args.port} is busy; serving on port {port} instead",
+            file=sys.stderr,
+            flush=True,
+        )
+    if access.token is not None:
+        print(
+            f"mistool: warning: --host {args.host} serves beyond this machine (other "
+            "machines on the network can connect); only someone with the token in the URL "
+            "below can see the replay",
+            file=sys.stderr,
+            flush=True,
+        )

@@ -10,7 +10,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from mistool.config import PRESETS
+from mistool.config import FPS_RANGE, PRESETS, check_number
 from mistool.errors import ConfigError, InputPathError
 
 DESCRIPTION = """\
@@ -166,8 +166,8 @@ def default_output(source: Path, suffix: str = ".csv") -> Path:
 
 
 def _check_options(args: argparse.Namespace) -> None:
-    if args.fps is not None and not args.fps > 0:
-        raise ConfigError(f"--fps must be > 0, got {args.fps}")
+    if args.fps is not None:
+        check_number("--fps", args.fps, *FPS_RANGE)
     if args.min_area is not None and args.min_area < 0:
         raise ConfigError(f"--min-area must be >= 0, got {args.min_area}")
     if args.workers is not None and args.workers < 1:
@@ -211,16 +211,15 @@ def run_track(args: argparse.Namespace) -> int:
 def _run_sequence(args: argparse.Namespace) -> int:
     from mistool import api, sequence
     from mistool.columnar import table_format, write_table
-    from mistool.export import write_table_csv
+    from mistool.export import STDOUT, check_output, stdout_stream, write_stdout, write_table_csv
 
     path, config = sequence.resolve(args.sequence)
     config = config.with_overrides(**_overrides(args))
-    out = None if args.output == "-" else Path(args.output or default_output(path))
-    if out is not None and not (out.parent if str(out.parent) else Path(".")).is_dir():
-        raise InputPathError(f"{out}: output folder {out.parent} does not exist")
-    if out is not None and out.is_dir():
-        raise InputPathError(f"{out}: is a folder; expected an output file name (-o OUT.csv)")
-    if out is not None:
+    out = None if args.output == STDOUT else Path(args.output or default_output(path))
+    if out is None:
+        stdout_stream()  # closed stdout: say so before tracking
+    else:
+        check_output(out, sequence.input_files(path, config))
         table_format(out)
     show_progress = not args.quiet and sys.stderr.isatty()
     pool = _pool(args, local=False)
@@ -246,8 +245,8 @@ def _run_sequence(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     if out is None:
-        write_table_csv(result.table.full(), sys.stdout)
-        sys.stdout.flush()
+        full = result.table.full()
+        write_stdout(lambda stream: write_table_csv(full, stream))
     else:
         write_table(result.table, out)
     if not args.quiet:

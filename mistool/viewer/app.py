@@ -29,6 +29,7 @@ import viser
 
 from mistool.errors import ConfigError, InputPathError, MistoolError
 from mistool.model import TrackTable
+from mistool.viewer.guard import AccessPolicy, guarded, with_token
 from mistool.viewer.overlay import FrameStore, OverlayCache, OverlayRenderer
 from mistool.viewer.plots import PlotPanel
 from mistool.viewer.replay import Replay, build_replay
@@ -95,9 +96,9 @@ def load_sequence(
     Raises:
         MistoolError: bad path, masks, ``mistool.toml`` or table (one-line message).
     """
-    from mistool.export import read_csv, write_csv
+    from mistool.export import check_frame_numbers, read_csv, write_csv
     from mistool.resources import sample_masks_dir
-    from mistool.sequence import list_frames, resolve, widen_for_video
+    from mistool.sequence import check_source, list_frames, resolve, widen_for_video
 
     seq_path, config = resolve(sample_masks_dir() if path is None else path)
     if seq_path.is_file():  # a mask video: its codec smears label values (as tracking does)
@@ -132,6 +133,8 @@ def load_sequence(
                 with contextlib.suppress(OSError, MistoolError):  # caching is optional
                     cached.parent.mkdir(parents=True, exist_ok=True)
                     write_csv(table, cached)
+    check_frame_numbers(table, str(poses) if poses is not None else "motion table")
+    check_source(config, num_frames, shape)  # warns when source and masks disagree
     image_wh = (shape[1], shape[0]) if shape is not None else None
     replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
     return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
@@ -150,14 +153,20 @@ def check_host(host: str) -> None:
         raise ConfigError(f"--host {host}: cannot listen on this address: {reason}") from None
 
 
-def quiet_server(host: str, port: int) -> viser.ViserServer:
+def quiet_server(host: str, port: int, access: AccessPolicy | None = None) -> viser.ViserServer:
     """A viser server that prints nothing (viser 1.1.1 prints a banner even when not
-    verbose; library code never prints, the command line prints the URL itself)."""
+    verbose; library code never prints, the command line prints the URL itself), and
+    that answers its own page only (``access``, default :meth:`AccessPolicy.for_host`;
+    see :mod:`mistool.viewer.guard`)."""
     check_host(host)
     if not 0 <= int(port) <= 65535:
         raise ConfigError(f"--port {port}: must be in 0..65535")
+    policy = access if access is not None else AccessPolicy.for_host(host)
     with contextlib.redirect_stdout(io.StringIO()):
-        return viser.ViserServer(host=host, port=port, verbose=False, label="mistool")
+        return guarded(
+            lambda: viser.ViserServer(host=host, port=port, verbose=False, label="mistool"),
+            policy,
+        )
 
 
 def endoscope_layout(
@@ -244,6 +253,7 @@ class ReplayViewer:
         environment_map: bool = False,
         trail_frames: int = 25,
         opacity: float = 0.6,
+        access: AccessPolicy | None = None,
     ) -> None:
         """
         Args:
@@ -255,6 +265,8 @@ class ReplayViewer:
                 otherwise.
             trail_frames: initial trail length (frames; 0 = off).
             opacity: initial mask opacity of the overlay, [0, 1].
+            access: who may connect (default: this page only, a token beyond loopback;
+                :mod:`mistool.viewer.guard`).
         """
         self.sequence = sequence
         self.replay = sequence.replay
@@ -272,7 +284,7 @@ class ReplayViewer:
         self._backdrop_aspect: dict[int, float] = {}
         self._closing = False
         self._lock = threading.Lock()
-        self.server = quiet_server(host, port)
+        self.server = quiet_server(host, port, access)
         try:
             self._build(environment_map, trail_frames, opacity)
         except BaseException:
@@ -357,7 +369,7 @@ class ReplayViewer:
         """The address to open in a browser."""
         host = self.server.get_host()
         shown = "localhost" if host in ("0.0.0.0", "::", "") else host
-        return f"http://{shown}:{self.port}"
+        return with_token(self.server, f"http://{shown}:{self.port}")
 
     def draw_now(self, frame: int) -> float:
         """Draw ``frame`` synchronously (benchmarks); returns the seconds it took."""
