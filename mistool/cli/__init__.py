@@ -108,7 +108,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except BaseException as exc:  # noqa: BLE001 - the one place errors become one line
             if isinstance(exc, SystemExit):
                 raise
-            return report(exc, debug)
+            return report_error(exc, debug)
 
 
 def _debug_requested(args: list[str]) -> tuple[bool, list[str]]:
@@ -135,7 +135,7 @@ def printable(text: str) -> str:
     return "".join(out)
 
 
-def report(exc: BaseException, debug: bool = False) -> int:
+def report_error(exc: BaseException, debug: bool = False) -> int:
     """Print ``exc`` as one ``mistool: error:`` line (after its traceback when
     ``debug``); returns the exit code."""
     if debug:
