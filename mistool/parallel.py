@@ -25,12 +25,15 @@ the caller and sent as arrays.
 from __future__ import annotations
 
 import collections
-import multiprocessing
 import os
 import signal
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
+from multiprocessing import context as mp_context
+from multiprocessing import popen_forkserver as mp_popen_forkserver
+from multiprocessing import spawn as mp_spawn
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -231,6 +234,57 @@ def _init_worker() -> None:
     cv2.setNumThreads(1)
 
 
+def _without_main(prepare: Callable[[str], dict[str, Any]]) -> Callable[[str], dict[str, Any]]:
+    def data(name: str) -> dict[str, Any]:
+        d = prepare(name)
+        d.pop("init_main_from_path", None)
+        d.pop("init_main_from_name", None)
+        return d
+
+    return data
+
+
+_LAUNCH_LOCK = threading.Lock()
+_Popen: Any = mp_popen_forkserver.Popen
+
+
+class _NoMainPopen(_Popen):
+    """A forkserver process start that leaves the caller's ``__main__`` out (see
+    :func:`worker_context`)."""
+
+    def _launch(self, process_obj: Any) -> None:
+        with _LAUNCH_LOCK:  # the module attribute is swapped while this process starts
+            original = mp_spawn.get_preparation_data
+            patched: Any = _without_main(original)
+            mp_spawn.get_preparation_data = patched
+            try:
+                super()._launch(process_obj)
+            finally:
+                mp_spawn.get_preparation_data = original
+
+
+class _NoMainProcess(mp_context.ForkServerProcess):
+    @staticmethod
+    def _Popen(process_obj: Any) -> Any:  # noqa: N802 - multiprocessing's name
+        return _NoMainPopen(process_obj)
+
+
+def worker_context() -> Any:
+    """A ``forkserver`` multiprocessing context whose processes do not re-run the
+    caller's ``__main__``.
+
+    multiprocessing's spawn and forkserver processes import the parent's main script
+    again, so a user's script calling ``mistool.track`` at top level (without an
+    ``if __name__ == "__main__":`` guard) would run again in every worker. Our workers
+    need only :func:`observe_batch`, so the main module is left out of the data each
+    worker is prepared with. The fork server imports the per-frame code once; each
+    worker forks from it (no thread of the caller is forked)."""
+    ctx: Any = mp_context.ForkServerContext()
+    ctx.Process = _NoMainProcess
+    ctx.set_forkserver_preload(["mistool.parallel"])
+    return ctx
+
+
 class LocalPool:
     """A pool of ``workers`` local processes (use as a context manager, or call close)."""
 
@@ -239,9 +293,7 @@ class LocalPool:
             raise ValueError(f"LocalPool: workers = {workers}, must be >= 1")
         self.workers = workers
         self.batch_frames = batch_frames
-        ctx = multiprocessing.get_context("forkserver")
-        # The fork server imports the per-frame code once; each worker forks from it.
-        ctx.set_forkserver_preload(["mistool.parallel"])
+        ctx = worker_context()
         self._executor: ProcessPoolExecutor | None = ProcessPoolExecutor(
             max_workers=workers, mp_context=ctx, initializer=_init_worker
         )

@@ -155,3 +155,22 @@ def test_frames_in_flight_are_bounded_per_worker(tmp_path: Path) -> None:
     chunks = list(iter_track([img] * 50, Config(), pool=pool))
     assert sum(c.num_rows for c in chunks) == 50
     assert pool.peak <= parallel.IN_FLIGHT_PER_WORKER * pool.workers
+
+
+def test_a_script_without_a_main_guard_is_not_run_again_by_the_workers(
+    crossing: Path, tmp_path: Path
+) -> None:
+    import subprocess
+    import sys
+
+    script = tmp_path / "user_script.py"
+    script.write_text(
+        "import mistool\n"
+        f"table = mistool.track({str(crossing)!r}, workers=2)\n"
+        "print('rows', table.num_rows)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.count("rows") == 1 and done.stderr == ""
