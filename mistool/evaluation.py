@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from mistool.assignment import linear_assignment
 from mistool.errors import TableError
 from mistool.model import PARTS, TrackTable, require_columns
 
@@ -41,59 +42,17 @@ _BOX = ("cx_px", "cy_px", "angle_deg")
 _END = ("end_x_mm", "end_y_mm", "end_z_mm")
 _AXIS = ("axis_x", "axis_y", "axis_z")
 
-
-def linear_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
-    """Minimum-cost one-to-one assignment (Hungarian algorithm, O(n^2 m)).
-
-    Args:
-        cost: (n, m) finite costs.
-
-    Returns:
-        ``min(n, m)`` pairs ``(row, col)``.
-    """
-    c = np.asarray(cost, dtype=np.float64)
-    transposed = c.shape[0] > c.shape[1]
-    if transposed:
-        c = c.T
-    n, m = c.shape
-    if n == 0:
-        return []
-    u = np.zeros(n + 1)
-    v = np.zeros(m + 1)
-    p = np.zeros(m + 1, dtype=np.int64)  # p[j]: row matched to column j (1-based, 0 none)
-    way = np.zeros(m + 1, dtype=np.int64)
-    for i in range(1, n + 1):
-        p[0] = i
-        j0 = 0
-        minv = np.full(m + 1, np.inf)
-        used = np.zeros(m + 1, dtype=bool)
-        while True:
-            used[j0] = True
-            i0 = p[j0]
-            cur = c[i0 - 1] - u[i0] - v[1:]
-            free = ~used[1:]
-            better = free & (cur < minv[1:])
-            minv[1:][better] = cur[better]
-            way[1:][better] = j0
-            cand = np.where(free, minv[1:], np.inf)
-            j1 = int(np.argmin(cand)) + 1
-            delta = cand[j1 - 1]
-            u[p[used]] += delta
-            v[used] -= delta
-            minv[1:][free] -= delta
-            j0 = j1
-            if p[j0] == 0:
-                break
-        while True:
-            j1 = way[j0]
-            p[j0] = p[j1]
-            j0 = j1
-            if j0 == 0:
-                break
-    pairs = [(int(p[j]) - 1, j - 1) for j in range(1, m + 1) if p[j] != 0]
-    if transposed:
-        pairs = [(b, a) for a, b in pairs]
-    return sorted(pairs)
+__all__ = [
+    "EvalReport",
+    "IdentityCoverage",
+    "MethodReport",
+    "evaluate",
+    "evaluate_one",
+    "format_report",
+    "identity_coverage",
+    "linear_assignment",
+    "match_instruments",
+]
 
 
 def match_instruments(

@@ -65,6 +65,43 @@ class RotatedBox:
         )
 
 
+@dataclass(frozen=True)
+class PartObservation:
+    """One part of one instrument in one frame (Algorithm 1 on its pixels)."""
+
+    part: str
+    """Part name, one of :data:`PARTS`."""
+    box: RotatedBox
+    """The part's rotated box (Algorithm 1), full-image px."""
+    corners: np.ndarray
+    """(4, 2) float64 box corners in ``cv2.boxPoints`` order, full-image px."""
+    area_px: int
+    """Number of the part's mask pixels (after speck removal)."""
+    mask: np.ndarray
+    """(h, w) bool crop of the part's pixels (after speck removal)."""
+    offset: tuple[int, int]
+    """(x0, y0): full-image px of the crop's top-left pixel."""
+
+
+@dataclass(frozen=True)
+class InstanceObservation:
+    """One instrument in one frame: its visible parts."""
+
+    label: str | None
+    """The config instrument's name when instruments have their own label values;
+    None in merged masks (the identity tracker names it)."""
+    parts: dict[str, PartObservation]
+    """Visible parts, proximal to distal."""
+    centroid_px: tuple[float, float]
+    """(x, y) mean of all the instrument's part pixels, px."""
+    area_px: int
+    """Number of the instrument's part pixels."""
+    bbox_xywh: tuple[int, int, int, int]
+    """Axis-aligned bounds of those pixels: (x0, y0, width, height), px."""
+    image_shape: tuple[int, int] | None = None
+    """(H, W) of the label image (None if unknown): where the image border is."""
+
+
 # The motion table's columns, in their one fixed order, with their dtypes.
 # "contract" columns are required by DESIGN.md; the rest are mistool's extras.
 _F = np.float64

@@ -920,3 +920,31 @@ def check_source(
     for text in said:
         warnings.warn(text, InputWarning, stacklevel=2)
     return said
+
+
+def unknown_values(labels: np.ndarray, config: Config) -> np.ndarray:
+    """Label values present that are neither 0 nor any configured part value.
+
+    Args:
+        labels: (H, W) integer label image.
+        config: the part value ranges (the instruments' own when it has
+            ``[[instrument]]`` tables, else the shared ones).
+
+    Returns:
+        Sorted 1-D array of the unknown values (int64); empty when all are known.
+    """
+    arr = np.asarray(labels)
+    if arr.dtype == np.uint8 or arr.dtype == np.uint16:
+        hist = np.bincount(arr.ravel(), minlength=1)
+        values = np.flatnonzero(hist)
+    else:
+        values = np.unique(arr)
+    values = values.astype(np.int64)
+    known = values == 0
+    if config.instruments:
+        ranges = [r for spec in config.instruments for r in spec.parts.values()]
+    else:
+        ranges = list(config.parts.values())
+    for lo, hi in ranges:
+        known |= (values >= lo) & (values <= hi)
+    return values[~known]

@@ -17,7 +17,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("model",),
     # export (CSV and atomic writes) needs only errors and model; synth writes truth.csv
     ("config", "resources", "export", "annotations", "columnar"),
-    ("geometry",),
+    # assignment: the one min-cost matching solver (tracking and evaluation share it)
+    ("geometry", "assignment"),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
     # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools)
     ("rows", "parallel"),

@@ -1,0 +1,64 @@
+"""Minimum-cost one-to-one assignment, shared by identity tracking and evaluation.
+
+One solver (SciPy's ``linear_sum_assignment``, the Jonker-Volgenant algorithm) behind two
+entry points: :func:`linear_assignment` (every row or column matched) and
+:func:`gated_assignment` (a pair costlier than a gate is never made; leaving a row or a
+column unmatched costs the gate).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+__all__ = ["gated_assignment", "linear_assignment"]
+
+
+def linear_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
+    """Minimum-cost one-to-one assignment.
+
+    Args:
+        cost: (n, m) finite costs.
+
+    Returns:
+        ``min(n, m)`` pairs ``(row, col)``, sorted by row.
+    """
+    c = np.asarray(cost, dtype=np.float64)
+    if c.size == 0:
+        return []
+    rows, cols = linear_sum_assignment(c)
+    return sorted(zip(rows.tolist(), cols.tolist(), strict=True))
+
+
+def gated_assignment(cost: np.ndarray, max_cost: float) -> list[tuple[int, int]]:
+    """Pairs ``(row, col)`` minimising the total cost, where a pair costing more than
+    ``max_cost`` (or non-finite) is never made and each unmatched row or column costs
+    ``max_cost``.
+
+    Solved as one square problem: the (n, m) costs beside an (n, n) block of "row
+    unmatched" costs and above an (m, m) block of "column unmatched" costs.
+
+    Args:
+        cost: (n, m) costs; ``inf`` where a pair is impossible.
+        max_cost: the gate, > 0.
+
+    Returns:
+        The pairs made, sorted by row.
+    """
+    c = np.asarray(cost, dtype=np.float64)
+    n, m = c.shape
+    if n == 0 or m == 0:
+        return []
+    big = 2.0 * max_cost * (n + m) + 1.0  # never chosen over leaving both unmatched
+    gated = np.where(np.isfinite(c) & (c <= max_cost), c, big)
+    full = np.full((n + m, m + n), big)
+    full[:n, :m] = gated
+    full[:n, m:][np.diag_indices(n)] = max_cost
+    full[n:, :m][np.diag_indices(m)] = max_cost
+    full[n:, m:] = 0.0
+    rows, cols = linear_sum_assignment(full)
+    return sorted(
+        (int(r), int(k))
+        for r, k in zip(rows, cols, strict=True)
+        if r < n and k < m and gated[r, k] < big
+    )

@@ -1,0 +1,530 @@
+"""Identity across frames: :class:`IdentityTracker` names instruments consistently.
+
+With ``config.instruments`` (own label values) the name is the instance's label. In
+merged masks each frame runs one pipeline, as trackers such as ByteTrack or norfair do::
+
+    predict every live track (its motion model)  ->  cost matrix (:func:`track_cost`)
+    -> one gated assignment  ->  crossing handler (tracks hidden in a matched blob; the
+    blob split between them)  ->  entry handler (a blob with more shafts entering the
+    view than tracks in it, split on those shafts)  ->  update tracks, new names
+
+A track is in one :class:`TrackState`. Names are ``"1"``, ``"2"``, ... in order of first
+appearance.
+
+- Crossing: when two instruments touch they form one instance. The instance keeps the
+  name of the best match; the other track, whose predicted position lies inside that
+  instance, is kept alive (``HIDDEN``), and both *coast* on their predicted motion (their
+  state is not polluted by the merged blob's centroid) until they separate, when position
+  and shaft direction tell them apart again. :meth:`IdentityTracker.resolve` also splits
+  the blob between them (:func:`~mistool.tracking.split.split_instance`).
+- Touching since they appeared (``resolve`` only): a blob whose shaft pixels enter the
+  view at more places on the image border than instruments known in it is split on
+  those shafts; each known instrument takes the piece entering nearest to where its own
+  shaft last entered, the others get new names.
+- Leaving and coming back: a track unseen for more than :data:`LOST_AFTER_FRAMES` frames
+  is ``LOST``; for up to ``max_gap_s`` seconds a new instance near where it was last seen
+  (within :attr:`CostWeights.lost_scale_frac` of the image diagonal, growing with time,
+  and similar in shaft direction) gets its old name back; after that gap it is forgotten.
+
+Identity needs only the instances (boxes, areas, centroids and the part pixel crops,
+which a split uses), never the label image: the per-frame work can run elsewhere.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from mistool.assignment import gated_assignment
+from mistool.config import Config
+from mistool.model import InstanceObservation, RotatedBox
+from mistool.tracking.instances import angle_diff_deg, unit_vector
+from mistool.tracking.motion import ConstantVelocity
+from mistool.tracking.split import border_entries, border_runs, split_on_entries, split_scored
+
+__all__ = ["CostWeights", "IdentityTracker", "Track", "TrackState", "track_cost"]
+
+#: A track unseen for more than this many frames is lost: it is looked for near where
+#: it was last seen (its prediction goes no further than this many frames).
+LOST_AFTER_FRAMES = 5
+#: A matched instance holds another (unmatched) track too when its area grew by this
+#: factor over its track's, or its track is already coasting in a blob, and the other
+#: track's prediction lies in its bounds ...
+BLOB_GROWTH = 1.3
+#: ... widened by this fraction of their size on each side.
+BLOB_MARGIN_FRAC = 0.15
+#: ... and the other track was seen within this many frames (or a quarter of the
+#: tracker's memory, if longer).
+HIDDEN_MAX_GAP_FRAMES = 3
+#: Splitting a crossing blob: the first motion hypothesis moves each track's last boxes
+#: seen apart by at most this many frames of its velocity (slowing to a stop when the
+#: tools met); the second all the way (keeping on).
+SPLIT_STOP_FRAMES = 5
+
+
+class TrackState(enum.Enum):
+    """Where a track stands after the last frame."""
+
+    TRACKED = "tracked"
+    """Seen apart from others in its last frame."""
+    COASTING = "coasting"
+    """In a blob shared with another instrument, the blob carrying its name: it moves on
+    its predicted motion (the blob's centroid is not its own)."""
+    HIDDEN = "hidden"
+    """In a blob carrying another instrument's name (coasting too)."""
+    LOST = "lost"
+    """Unseen for more than :data:`LOST_AFTER_FRAMES` frames (not in a blob)."""
+
+    @property
+    def coasting(self) -> bool:
+        """Inside a shared blob (``COASTING`` or ``HIDDEN``)."""
+        return self in (TrackState.COASTING, TrackState.HIDDEN)
+
+
+@dataclass(frozen=True)
+class CostWeights:
+    """The terms of :func:`track_cost` and the assignment's gate."""
+
+    max_cost: float = 3.0
+    """Gate: a match costs at most this much (the distance term is in units of the
+    instrument's size, sqrt(area))."""
+    angle: float = 1.5
+    """Weight of the shaft direction difference, per 90 deg (times the elongation)."""
+    area: float = 0.3
+    """Weight of |log(area ratio)|."""
+    gap: float = 0.02
+    """Extra cost per frame unseen, so recently seen instruments are preferred."""
+    hidden_penalty: float = 0.5
+    """Extra cost for a track hidden in another's blob to take that blob's name."""
+    lost_search_growth: float = 0.25
+    """A lost track is searched for within a distance that grows by this many of its
+    sizes per second unseen ..."""
+    lost_scale_frac: float = 0.1
+    """... starting from at most this fraction of the image diagonal (an instrument comes
+    back near where it left, through its trocar; a large one is no wider gate)."""
+    entry_scale_frac: float = 0.1
+    """Splitting a blob on its shafts' entries: a track takes the piece entering the view
+    nearest to where its own shaft last entered, at a cost of one per this fraction of
+    the image diagonal."""
+
+
+@dataclass
+class Track:
+    """An instrument the tracker has seen (mutable state)."""
+
+    name: str
+    """The instrument's name."""
+    motion: ConstantVelocity
+    """Where the instrument itself is believed to be (its pixels' centroid), px."""
+    last_frame: int
+    """Last frame it was updated (seen, or coasting in a blob)."""
+    area: float
+    """Its pixel count when last seen apart."""
+    angle: float | None
+    """Shaft (or largest part) direction, deg in [0, 180)."""
+    elongation: float
+    """(length - width) / length of that box, 0..1."""
+    state: TrackState = TrackState.TRACKED
+    """See :class:`TrackState`."""
+    size: float = 0.0
+    """Largest sqrt(area) seen, px: the instrument's scale."""
+    boxes: dict[str, RotatedBox] | None = None
+    """Last part boxes seen apart from others (with a shaft) ..."""
+    boxes_frame: int = 0
+    """... and their frame."""
+    seen: int = 1
+    """Frames it was updated in."""
+    entry: np.ndarray | None = None
+    """(2,) px where its shaft last entered the view alone."""
+
+    def predict_steps(self, frame: int) -> int:
+        """Frames of motion to predict at ``frame``: the gap, at most
+        :data:`LOST_AFTER_FRAMES` when lost (looked for near where it was last)."""
+        gap = frame - self.last_frame
+        return LOST_AFTER_FRAMES if self.state is TrackState.LOST else gap
+
+    def predict(self, frame: int) -> np.ndarray:
+        """(2,) px: the expected centroid at ``frame``."""
+        return self.motion.predict(self.predict_steps(frame))
+
+
+def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
+    """(direction deg or None, elongation) of the shaft, or the largest part."""
+    part = inst.parts.get("shaft") or max(inst.parts.values(), key=lambda p: p.area_px)
+    box = part.box
+    if box.length <= 0:
+        return None, 0.0
+    return box.angle_deg, (box.length - box.width) / box.length
+
+
+def track_cost(
+    t: Track, inst: InstanceObservation, frame: int, weights: CostWeights, fps: float
+) -> float:
+    """Cost of giving instance ``inst`` the name of track ``t`` at ``frame`` (pure).
+
+    Distance from the track's prediction in units of its size (a lost track's size
+    bounded by :attr:`CostWeights.lost_scale_frac` of the image diagonal and growing
+    with time unseen), plus direction and area terms, a per-frame-unseen term, and a
+    penalty for a track hidden in another's blob.
+    """
+    gap = frame - t.last_frame
+    lost = t.state is TrackState.LOST
+    c = np.asarray(inst.centroid_px)
+    # scale: the instrument's full size, also when it was last seen only partly
+    scale = max(t.size, math.sqrt(inst.area_px), 10.0)
+    if lost:  # unseen: the search area grows with time
+        if inst.image_shape is not None:  # from where it left, whatever its size
+            scale = min(scale, weights.lost_scale_frac * math.hypot(*inst.image_shape))
+        scale *= 1.0 + weights.lost_search_growth * (gap - LOST_AFTER_FRAMES) / fps
+    cost = float(np.hypot(*(c - t.predict(frame)))) / scale
+    angle, elong = _appearance(inst)
+    # an instrument coming back shows its head first: its direction is no shaft's
+    if angle is not None and t.angle is not None and not (lost and "shaft" not in inst.parts):
+        w = min(elong, t.elongation)
+        cost += weights.angle * w * angle_diff_deg(angle, t.angle) / 90.0
+    if t.state is TrackState.TRACKED:  # not a blob's area, nor an exit's partial one
+        cost += weights.area * abs(math.log(max(inst.area_px, 1) / max(t.area, 1.0)))
+    cost += weights.gap * (gap - 1)
+    if t.state is TrackState.HIDDEN:  # a shared blob keeps its name: no flapping
+        cost += weights.hidden_penalty
+    return cost
+
+
+def _inside(p: np.ndarray, bbox: tuple[int, int, int, int], margin: float) -> bool:
+    x, y, w, h = bbox
+    mx, my = margin * w, margin * h
+    return bool(x - mx <= p[0] <= x + w + mx and y - my <= p[1] <= y + h + my)
+
+
+@dataclass
+class _Frame:
+    """One frame's work in progress (see :meth:`IdentityTracker._step`)."""
+
+    index: int
+    instances: list[InstanceObservation]
+    live: list[Track]
+    owner: dict[int, int] = field(default_factory=dict)
+    """instance -> live track matched to it."""
+    blob_of: dict[int, list[int]] = field(default_factory=dict)
+    """instance -> live tracks hidden in it (crossing)."""
+    pieces: dict[int, list[InstanceObservation]] = field(default_factory=dict)
+    """instance -> the pieces it was split into."""
+    piece_tracks: dict[int, list[Track]] = field(default_factory=dict)
+    """instance split on border entries -> the track of each piece."""
+
+
+class IdentityTracker:
+    """Names instruments consistently across frames (see the module docstring).
+
+    ``assign`` / ``resolve`` must be called in frame order (the tracker keeps state); it
+    is not thread-safe.
+
+    Args:
+        config: fps, ``min_area_px``, and whether instruments have their own labels.
+        max_gap_s: how long (s) an unseen instrument is remembered.
+        weights: the cost terms and gate.
+    """
+
+    def __init__(
+        self, config: Config, *, max_gap_s: float = 2.0, weights: CostWeights | None = None
+    ) -> None:
+        self._config = config
+        self._weights = weights or CostWeights()
+        self._max_gap = max(1, int(round(max_gap_s * config.fps)))
+        self._tracks: list[Track] = []
+        self._next = 1
+        self._last_frame: int | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every name handed out so far, in order of first appearance."""
+        return tuple(t.name for t in self._tracks)
+
+    @property
+    def tracks(self) -> tuple[Track, ...]:
+        """Every track so far (read-only use), in order of first appearance."""
+        return tuple(self._tracks)
+
+    def assign(self, frame_index: int, instances: list[InstanceObservation]) -> list[str]:
+        """Names for one frame's instances.
+
+        Args:
+            frame_index: the frame's 0-based index; increasing between calls.
+            instances: :func:`~mistool.tracking.observe_frame`'s result for that frame.
+
+        Returns:
+            One instrument name per instance, same order, all different. An instance that
+            holds two crossing instruments gets one name (see :meth:`resolve`).
+        """
+        return self._step(frame_index, instances, split=False)[1]
+
+    def resolve(
+        self, frame_index: int, instances: list[InstanceObservation]
+    ) -> tuple[list[InstanceObservation], list[str]]:
+        """Like :meth:`assign`, but an instance holding several known instruments (two
+        crossing or grasping each other in merged masks) is split between them.
+
+        The split (:func:`~mistool.tracking.split_instance`) assigns the blob's pixels to
+        the instruments' expected part boxes (their last boxes seen apart, moved by their
+        velocity), the shaft axes refined on the blob's own pixels; it is used only when
+        it is well supported, else the blob keeps one name as in :meth:`assign`.
+
+        Args:
+            frame_index: the frame's 0-based index; increasing between calls.
+            instances: :func:`~mistool.tracking.observe_frame`'s result for that frame.
+
+        Returns:
+            ``(instances, names)``: the instances (split ones replaced by their pieces,
+            which have ``label`` None and new part boxes) and one name per instance. When
+            nothing was split, ``instances`` is the very list passed in (so a caller can
+            test ``is`` and redo per-instance work only for split frames).
+        """
+        return self._step(frame_index, instances, split=True)
+
+    # the pipeline ---------------------------------------------------------------------
+    def _step(
+        self, frame_index: int, instances: list[InstanceObservation], *, split: bool
+    ) -> tuple[list[InstanceObservation], list[str]]:
+        if self._config.instruments and all(i.label is not None for i in instances):
+            return instances, [str(i.label) for i in instances]
+        if self._last_frame is not None and frame_index <= self._last_frame:
+            raise ValueError(
+                f"IdentityTracker: frame {frame_index} after frame "
+                f"{self._last_frame}; frames must come in increasing order"
+            )
+        self._last_frame = frame_index
+        fr = _Frame(frame_index, instances, self._predict_live(frame_index))
+        self._match(fr)
+        self._find_hidden(fr)
+        if split:
+            self._split_crossings(fr)
+            self._split_entries(fr)
+        return self._update_all(fr)
+
+    def _predict_live(self, frame: int) -> list[Track]:
+        """The tracks still remembered at ``frame``, their states brought up to date."""
+        live = [t for t in self._tracks if frame - t.last_frame <= self._max_gap]
+        for t in live:
+            if t.state is TrackState.TRACKED and frame - t.last_frame > LOST_AFTER_FRAMES:
+                t.state = TrackState.LOST
+        return live
+
+    def _cost(self, t: Track, inst: InstanceObservation, frame: int) -> float:
+        return track_cost(t, inst, frame, self._weights, self._config.fps)
+
+    def _match(self, fr: _Frame) -> None:
+        """One gated assignment of live tracks to instances."""
+        cost = np.full((len(fr.live), len(fr.instances)), np.inf)
+        for a, t in enumerate(fr.live):
+            for b, inst in enumerate(fr.instances):
+                cost[a, b] = self._cost(t, inst, fr.index)
+        fr.owner = {b: a for a, b in gated_assignment(cost, self._weights.max_cost)}
+
+    def _find_hidden(self, fr: _Frame) -> None:
+        """Unmatched recent tracks whose prediction lies in a matched, grown blob."""
+        recent = max(HIDDEN_MAX_GAP_FRAMES, self._max_gap // 4)
+        matched = set(fr.owner.values())
+        for a, t in enumerate(fr.live):
+            if a in matched or fr.index - t.last_frame > recent:
+                continue
+            pred = t.predict(fr.index)
+            for b, a2 in sorted(fr.owner.items(), key=lambda kv: kv[1]):
+                host = fr.live[a2]
+                grown = fr.instances[b].area_px > BLOB_GROWTH * host.area or host.state.coasting
+                if grown and _inside(pred, fr.instances[b].bbox_xywh, BLOB_MARGIN_FRAC):
+                    fr.blob_of.setdefault(b, []).append(a)
+                    break
+
+    def _expected_boxes(
+        self, t: Track, frame: int, steps: int | None
+    ) -> dict[str, RotatedBox] | None:
+        """The track's last part boxes seen apart from others, moved to ``frame`` by at
+        most ``steps`` frames of its velocity (None: all the way); the shaft is lengthened
+        by what the rest of the constant-velocity motion would add along it."""
+        if t.boxes is None:
+            return None
+        gap = frame - t.boxes_frame
+        move = gap if steps is None else min(gap, steps)
+        velocity = t.motion.velocity
+        dx, dy = velocity * move
+        out = {p: replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy)) for p, b in t.boxes.items()}
+        s = out["shaft"]
+        extra = 2.0 * abs(float(velocity @ unit_vector(s.angle_deg))) * (gap - move)
+        out["shaft"] = replace(s, length=s.length + extra)
+        return out
+
+    def _split_crossings(self, fr: _Frame) -> None:
+        """Crossing handler: each blob holding hidden tracks split between its tracks
+        (the better of two motion hypotheses; the second only when it can help)."""
+        min_area = max(self._config.min_area_px, 1)
+        for b, hidden in fr.blob_of.items():
+            group = [fr.live[fr.owner[b]]] + [fr.live[a] for a in hidden]
+            best: tuple[float, list[InstanceObservation]] | None = None
+            for steps in (SPLIT_STOP_FRAMES, None):
+                expected = [self._expected_boxes(t, fr.index, steps) for t in group]
+                if any(e is None for e in expected):
+                    break
+                got = split_scored(fr.instances[b], [e for e in expected if e], min_area)
+                if got is not None and (best is None or got[0] < best[0]):
+                    best = got
+            if best is not None:
+                fr.pieces[b] = best[1]
+
+    def _split_entries(self, fr: _Frame) -> None:
+        """Entry handler: a blob with more shafts entering from the border than tracks
+        known in it (instruments touching since they came into view), split on those
+        shafts; the known tracks take the pieces, the others are new."""
+        used = set(fr.owner.values()) | {
+            a for b, hidden in fr.blob_of.items() if b in fr.pieces for a in hidden
+        }
+        # tracks believed hidden in a blob that was not split may be found elsewhere
+        spare = [a for a in range(len(fr.live)) if a not in used]
+        for b, inst in enumerate(fr.instances):
+            if b in fr.pieces:
+                continue
+            group = ([fr.owner[b]] + fr.blob_of.get(b, [])) if b in fr.owner else []
+            entries = border_entries(inst)
+            if len(entries) < max(2, len(group)):
+                continue
+            if len(entries) == len(group) and b not in fr.blob_of:
+                continue  # as many shafts as instruments known: nothing new
+            got = split_on_entries(inst, entries, max(self._config.min_area_px, 1))
+            if got is None:
+                continue
+            cands = group + [a for a in spare if a not in group]
+            pairs = self._match_entries(fr, inst, entries, got, cands, len(group))
+            taken = {cands[r] for r, _ in pairs}
+            spare = [a for a in spare if a not in taken and a not in group]
+            for b2 in [b2 for b2 in fr.blob_of if b2 != b]:
+                fr.blob_of[b2] = [a for a in fr.blob_of[b2] if a not in taken]
+                if not fr.blob_of[b2]:
+                    del fr.blob_of[b2]
+            by_piece = {c: fr.live[cands[r]] for r, c in pairs}
+            tracks = []
+            for c, piece in enumerate(got):
+                t = by_piece.get(c)
+                if t is None:
+                    t = self._new_track(piece, fr.index)
+                else:
+                    self._update(t, piece, fr.index, merged=False)
+                tracks.append(t)
+            for a in group:  # known instruments the split did not find: coast
+                if a not in taken:
+                    self._hide(fr.live[a], fr.index)
+            fr.pieces[b] = got
+            fr.piece_tracks[b] = tracks
+
+    def _match_entries(
+        self,
+        fr: _Frame,
+        inst: InstanceObservation,
+        entries: list[tuple[np.ndarray, np.ndarray, float]],
+        pieces: list[InstanceObservation],
+        cands: list[int],
+        n_group: int,
+    ) -> list[tuple[int, int]]:
+        """Candidate tracks (the blob's own first) to pieces split on border entries."""
+        cost = np.full((len(cands), len(pieces)), np.inf)
+        diag = math.hypot(*inst.image_shape) if inst.image_shape else 1000.0
+        for r, a in enumerate(cands):
+            t = fr.live[a]
+            for c, piece in enumerate(pieces):
+                if r >= n_group:
+                    cost[r, c] = self._cost(t, piece, fr.index)
+                elif t.entry is not None:  # where its shaft entered the view
+                    dist = float(np.hypot(*(t.entry - entries[c][0])))
+                    cost[r, c] = dist / (self._weights.entry_scale_frac * diag)
+                else:  # the blob's own instruments: their state is the blob's
+                    cost[r, c] = 0.5 * self._cost(t, piece, fr.index)
+        return gated_assignment(cost, self._weights.max_cost)
+
+    def _update_all(self, fr: _Frame) -> tuple[list[InstanceObservation], list[str]]:
+        """Update the tracks, name new instances, coast the hidden tracks."""
+        out: list[InstanceObservation] = []
+        names: list[str] = []
+        for b, inst in enumerate(fr.instances):
+            if b in fr.piece_tracks:
+                out.extend(fr.pieces[b])
+                names.extend(t.name for t in fr.piece_tracks[b])
+            elif b in fr.pieces:
+                group = [fr.live[fr.owner[b]]] + [fr.live[a] for a in fr.blob_of[b]]
+                for t, piece in zip(group, fr.pieces[b], strict=True):
+                    self._update(t, piece, fr.index, merged=False, apart=False)
+                    out.append(piece)
+                    names.append(t.name)
+            elif b in fr.owner:
+                t = fr.live[fr.owner[b]]
+                self._update(t, inst, fr.index, merged=b in fr.blob_of)
+                out.append(inst)
+                names.append(t.name)
+            else:
+                out.append(inst)
+                names.append(self._new_track(inst, fr.index).name)
+        for b, hidden in fr.blob_of.items():
+            if b not in fr.pieces:
+                for a in hidden:  # keep them coasting on their predicted motion
+                    self._hide(fr.live[a], fr.index)
+        if not fr.pieces:
+            return fr.instances, names  # the caller's own list: nothing was split
+        return out, names
+
+    # track updates --------------------------------------------------------------------
+    @staticmethod
+    def _hide(t: Track, frame: int) -> None:
+        """A track hidden in a blob carrying another's name coasts on its motion."""
+        t.motion.coast(t.predict_steps(frame))
+        t.last_frame = frame
+        t.state = TrackState.HIDDEN
+
+    def _update(
+        self, t: Track, inst: InstanceObservation, frame: int, *, merged: bool, apart: bool = True
+    ) -> None:
+        """Update a track with the instance given its name (``merged``: a blob holding
+        others too, whose centroid is not this instrument's: it coasts)."""
+        gap = frame - t.last_frame
+        if merged:
+            t.motion.coast(t.predict_steps(frame))
+            t.state = TrackState.COASTING
+        else:
+            c = np.asarray(inst.centroid_px, dtype=np.float64)
+            t.motion.update(c, gap, continuous=t.state is TrackState.TRACKED, first=t.seen == 1)
+            if gap > LOST_AFTER_FRAMES:
+                t.motion.reset_velocity()
+            t.area = float(inst.area_px)
+            t.size = max(t.size, math.sqrt(t.area))
+            t.angle, t.elongation = _appearance(inst)
+            if apart and "shaft" in inst.parts:  # a split piece is no reference shape
+                t.boxes = {p: o.box for p, o in inst.parts.items()}
+                t.boxes_frame = frame
+            self._set_entry(t, inst)
+            t.state = TrackState.TRACKED
+        t.last_frame = frame
+        t.seen += 1
+
+    @staticmethod
+    def _set_entry(t: Track, inst: InstanceObservation) -> None:
+        runs = border_runs(inst)
+        if len(runs) == 1:  # one shaft entering: this instrument's (not a blob's)
+            t.entry = runs[0][0][1]
+
+    def _new_track(self, inst: InstanceObservation, frame: int) -> Track:
+        angle, elong = _appearance(inst)
+        t = Track(
+            name=str(self._next),
+            motion=ConstantVelocity(np.asarray(inst.centroid_px, dtype=np.float64)),
+            last_frame=frame,
+            area=float(inst.area_px),
+            angle=angle,
+            elongation=elong,
+            size=math.sqrt(inst.area_px),
+        )
+        if "shaft" in inst.parts:
+            t.boxes = {p: o.box for p, o in inst.parts.items()}
+            t.boxes_frame = frame
+        self._set_entry(t, inst)
+        self._next += 1
+        self._tracks.append(t)
+        return t

@@ -1,0 +1,584 @@
+"""Instruments in one frame: instances and their parts (``observe_frame``).
+
+Two ways to tell instruments apart, chosen by the config:
+
+- **Own label values** (``[[instrument]]`` tables): each instrument's parts come from its
+  own value ranges; the instrument's name is its label. This is the paper's setting.
+- **Merged masks** (no ``[[instrument]]`` tables, EndoVis'17 style: every instrument
+  shares the part values): instances are the connected components of the *whole*
+  instrument (shaft + wrist + clasper pixels together), bridged over gaps of up to
+  :data:`MERGE_GAP_PX` pixels so a clasper one pixel away from its shaft stays one
+  instrument. Components smaller than ``config.min_area_px`` are specks and are dropped.
+  The other components are grouped into instruments by the rules of
+  :data:`REACH_RULES` (one table: which kind of piece joins which kind of group, and how
+  far it may reach), then pieces an occluder cut off join by shaft geometry
+  (:func:`join_by_axis`: a shaft-only piece continuing another's shaft axis, a head on
+  the distal extension of a shaft's axis).
+
+Every part's box is Algorithm 1 (:mod:`mistool.geometry`) over all of that part's pixels
+in the instance, after dropping specks smaller than ``config.min_area_px``. Everything
+here is pure and per frame (it runs in worker processes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from mistool.config import Config
+from mistool.errors import MaskFormatError
+from mistool.geometry import as_cv_labels, fit_part, range_mask
+from mistool.model import PARTS, InstanceObservation, PartObservation
+
+__all__ = [
+    "REACH_RULES",
+    "ReachRule",
+    "angle_diff_deg",
+    "make_instance",
+    "observe_frame",
+    "part_observation",
+    "unit_vector",
+]
+
+#: Merged masks: pixels of one instrument separated by at most this many background
+#: pixels are joined into one instance.
+MERGE_GAP_PX = 1
+
+
+@dataclass(frozen=True)
+class ReachRule:
+    """When a group of components (a *piece*) joins another group (a *target*).
+
+    A *shaft* group holds at least ``min_area_px`` shaft pixels; a *head* group does not
+    (jaws, a wrist). The piece joins when the gap between the two groups' pixels is at
+    most ``max(base_px, frac * sqrt(area))`` px (``area``: the target's or the piece's
+    group area, per ``scale_of``), capped at ``cap_px``.
+    """
+
+    name: str
+    """What the rule is for (documentation)."""
+    piece: str
+    """``"shaft"``, ``"head"``, or ``"inner head"`` (a head not touching the image
+    border: its shaft cannot be beyond the border, so an occluder hides it)."""
+    target: str
+    """``"shaft"`` or ``"head"``."""
+    base_px: float
+    """Smallest reach (px)."""
+    frac: float = 0.0
+    """Reach per sqrt(area) px."""
+    scale_of: str = "target"
+    """Whose area scales the reach: ``"target"`` or ``"piece"``."""
+    cap_px: float = math.inf
+    """Largest reach (px)."""
+    max_area_ratio: float = math.inf
+    """The piece's area must be less than this fraction of the target's."""
+
+    def reach(self, piece_area: float, target_area: float) -> float:
+        """The rule's reach (px) for groups of these areas (px)."""
+        area = target_area if self.scale_of == "target" else piece_area
+        return min(self.cap_px, max(self.base_px, self.frac * math.sqrt(area)))
+
+
+#: Grouping fragments into instruments (merged masks), applied in this order; within a
+#: rule the nearest piece-target pair joins first, and a group grows as pieces join it.
+REACH_RULES: tuple[ReachRule, ...] = (
+    # a small shaft piece next to a much larger one (a shaft cut by a hole or jitter)
+    ReachRule("shaft fragment", "shaft", "shaft", base_px=30.0, max_area_ratio=0.25),
+    # open jaws, a clasper cut in pieces: not new instruments
+    ReachRule("head of a shaft", "head", "shaft", base_px=30.0, frac=0.8),
+    # a head inside the view whose shaft an occluder hides (a speck reaches little)
+    ReachRule("head cut off", "inner head", "shaft", 0.0, 2.5, "piece", cap_px=100.0),
+    # the two jaws of an open clasper entering the view head first: larger heads first
+    ReachRule("heads of one tool", "head", "head", base_px=60.0, frac=0.8, max_area_ratio=1.0),
+)
+
+#: Merged masks: a shaft-only piece whose axis continues another instance's shaft (angles
+#: within this many degrees, centre within half a shaft width of that axis) is the same
+#: instrument, cut in two by an occluder.
+CUT_SHAFT_ANGLE_DEG = 6.0
+#: Merged masks: a piece without a shaft whose centre lies on the distal extension of a
+#: shaft's axis (within one shaft width of the axis, at most this many shaft widths past
+#: its distal end) is that instrument's head, cut off by an occluder.
+HEAD_AXIS_REACH = 3.0
+#: ... unless the host already shows that head part at least this fraction of the
+#: piece's size (its own head); a crumb of a head smaller than that joins.
+HEAD_CRUMB_FRAC = 0.25
+
+
+def unit_vector(angle_deg: float) -> np.ndarray:
+    """(2,) unit vector of a direction in degrees (from +x towards +y)."""
+    t = math.radians(angle_deg)
+    return np.array([math.cos(t), math.sin(t)])
+
+
+def angle_diff_deg(a: float, b: float) -> float:
+    """Difference of two undirected directions (deg), in [0, 90]."""
+    d = abs(a - b) % 180.0
+    return min(d, 180.0 - d)
+
+
+def _check_labels(labels: np.ndarray) -> np.ndarray:
+    arr = np.asarray(labels)
+    if arr.ndim != 2:
+        raise MaskFormatError(
+            f"expected a single-channel (H, W) label image, got shape {arr.shape}"
+        )
+    try:
+        return as_cv_labels(arr)
+    except ValueError as exc:
+        raise MaskFormatError(f"label image: {exc}") from None
+
+
+def part_observation(
+    part: str, mask: np.ndarray, x0: int, y0: int, min_area_px: int
+) -> PartObservation | None:
+    """Algorithm 1 for one part's uint8 mask (a crop at (x0, y0) of the full image)."""
+    fit = fit_part(mask, min_area_px, (x0, y0))
+    if fit is None:
+        return None
+    return PartObservation(
+        part=part,
+        box=fit.box,
+        corners=fit.corners,
+        area_px=fit.area_px,
+        mask=fit.mask.astype(bool),
+        offset=fit.offset,
+    )
+
+
+def _foreground(img: np.ndarray) -> tuple[int, int, int, int]:
+    """(x, y, w, h) bounds of the non-zero pixels."""
+    nz = img if img.dtype == np.uint8 else (img != 0).view(np.uint8)
+    x, y, w, h = cv2.boundingRect(nz)
+    return int(x), int(y), int(w), int(h)
+
+
+def make_instance(
+    label: str | None, parts: dict[str, PartObservation], shape: tuple[int, int] | None = None
+) -> InstanceObservation:
+    """An instance from its part observations (centroid, area and bounds of all pixels)."""
+    area = sum(p.area_px for p in parts.values())
+    sx = sy = 0.0
+    x0 = y0 = math.inf
+    x1 = y1 = -math.inf
+    for p in parts.values():
+        m = p.mask.view(np.uint8)
+        cols = cv2.reduce(m, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()  # pixels per column
+        rows = cv2.reduce(m, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+        sx += float(cols @ np.arange(len(cols))) + p.offset[0] * p.area_px
+        sy += float(rows @ np.arange(len(rows))) + p.offset[1] * p.area_px
+        h, w = p.mask.shape
+        x0, y0 = min(x0, p.offset[0]), min(y0, p.offset[1])
+        x1, y1 = max(x1, p.offset[0] + w), max(y1, p.offset[1] + h)
+    return InstanceObservation(
+        label=label,
+        parts=parts,
+        centroid_px=(sx / area, sy / area),
+        area_px=area,
+        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)),
+        image_shape=shape,
+    )
+
+
+def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservation]:
+    """Every instrument in one label image, with Algorithm 1's box for each visible part.
+
+    Pure and thread-safe.
+
+    Args:
+        labels: (H, W) integer label image (uint8/uint16, or uint32 packed RGB when
+            ``config.colour_masks``).
+        config: part value ranges, instruments, ``min_area_px``.
+
+    Returns:
+        With ``config.instruments``: one observation per instrument that has a visible
+        part, in config order, ``label`` set. Without: one per instrument found (see the
+        module docstring), largest first, ``label`` None.
+
+    Raises:
+        MaskFormatError: if ``labels`` is not a 2-D integer image.
+    """
+    img = _check_labels(labels)
+    shape = (int(img.shape[0]), int(img.shape[1]))
+    fx, fy, fw, fh = _foreground(img)
+    if fw == 0 or fh == 0:
+        return []
+    crop = img[fy : fy + fh, fx : fx + fw]  # every part pixel is non-zero: work on its bounds
+    if config.instruments:
+        return _own_labels(crop, (fx, fy), shape, config)
+    return _merged(crop, (fx, fy), shape, config)
+
+
+def _own_labels(
+    crop: np.ndarray, origin: tuple[int, int], shape: tuple[int, int], config: Config
+) -> list[InstanceObservation]:
+    """One instance per config instrument with a visible part (own label values)."""
+    out = []
+    for spec in config.instruments:
+        parts: dict[str, PartObservation] = {}
+        for part in PARTS:
+            if part in spec.parts and spec.parts[part][1] > 0:
+                mask = range_mask(crop, spec.parts[part])
+                obs = part_observation(part, mask, *origin, config.min_area_px)
+                if obs is not None:
+                    parts[part] = obs
+        if parts:
+            out.append(make_instance(spec.name, parts, shape))
+    return out
+
+
+def _components(union: np.ndarray) -> tuple[np.ndarray, int]:
+    """The union mask bridged over :data:`MERGE_GAP_PX` when it has several components,
+    and the number of (bridged) components."""
+    contours, hierarchy = cv2.findContours(union, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    n_inst = int((hierarchy[0][:, 3] < 0).sum()) if contours else 0
+    if n_inst <= 1 or MERGE_GAP_PX <= 0:  # one connected foreground needs no bridging
+        return union, n_inst
+    # the crop holds every foreground pixel, so no padding is needed for the gaps
+    k = 2 * MERGE_GAP_PX + 1
+    bridged = cv2.dilate(union, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    contours, hierarchy = cv2.findContours(bridged, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    return bridged, int((hierarchy[0][:, 3] < 0).sum())
+
+
+def _merged(
+    crop: np.ndarray, origin: tuple[int, int], shape: tuple[int, int], config: Config
+) -> list[InstanceObservation]:
+    """Instances of merged masks (see the module docstring), largest first."""
+    min_area = config.min_area_px
+    part_names = [p for p in PARTS if p in config.parts and config.parts[p][1] > 0]
+    if not part_names:
+        return []
+    masks = {p: range_mask(crop, config.parts[p]) for p in part_names}
+    union = masks[part_names[0]]
+    for p in part_names[1:]:
+        union = cv2.bitwise_or(union, masks[p])
+    bridged, n_inst = _components(union)
+    if n_inst == 0:
+        return []
+    if n_inst == 1:  # one (bridged) component: everything belongs to it
+        parts = _parts_in(masks, origin, min_area)
+        if parts and sum(o.area_px for o in parts.values()) >= max(min_area, 1):
+            return [make_instance(None, parts, shape)]
+        return []
+    n, cc, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
+    counts = np.bincount(cc[union > 0], minlength=n)
+    shaft_counts = (
+        np.bincount(cc[masks["shaft"] > 0], minlength=n)
+        if "shaft" in masks
+        else np.zeros(n, np.int64)
+    )
+    fx, fy = origin
+    border = (
+        (stats[:, 0] + fx <= 0)
+        | (stats[:, 1] + fy <= 0)
+        | (stats[:, 0] + stats[:, 2] + fx >= shape[1])
+        | (stats[:, 1] + stats[:, 3] + fy >= shape[0])
+    )
+    groups = group_components(counts, shaft_counts, stats, max(min_area, 1), cc, border)
+    found = []
+    for group in groups:
+        x0 = min(int(stats[i, 0]) for i in group)
+        y0 = min(int(stats[i, 1]) for i in group)
+        x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
+        y1 = max(int(stats[i, 1] + stats[i, 3]) for i in group)
+        sub = cc[y0:y1, x0:x1]
+        inside = sub == group[0] if len(group) == 1 else np.isin(sub, group)
+        window = {p: np.where(inside, m[y0:y1, x0:x1], np.uint8(0)) for p, m in masks.items()}
+        parts = _parts_in(window, (fx + x0, fy + y0), min_area)
+        if parts:
+            found.append(make_instance(None, parts, shape))
+    found = join_by_axis(found, min_area, shape)
+    found.sort(key=lambda inst: -inst.area_px)
+    return found
+
+
+def _parts_in(
+    masks: dict[str, np.ndarray], origin: tuple[int, int], min_area: int
+) -> dict[str, PartObservation]:
+    """Part observations of part masks (crops at ``origin``), proximal to distal."""
+    parts = {}
+    for p, m in masks.items():
+        obs = part_observation(p, m, origin[0], origin[1], min_area)
+        if obs is not None:
+            parts[p] = obs
+    return parts
+
+
+class _Groups:
+    """Components (labels of ``cc``) being grouped into instruments: union-find by root,
+    each root's members, bounds (x0, y0, x1, y1 exclusive) and pixel area."""
+
+    def __init__(self, labels: list[int], stats: np.ndarray, counts: np.ndarray) -> None:
+        self.members: dict[int, list[int]] = {i: [i] for i in labels}
+        self.box = {
+            i: [
+                int(stats[i, 0]),
+                int(stats[i, 1]),
+                int(stats[i, 0] + stats[i, 2]),
+                int(stats[i, 1] + stats[i, 3]),
+            ]
+            for i in labels
+        }
+        self.area = {i: float(counts[i]) for i in labels}
+
+    def join(self, i: int, j: int) -> None:
+        """Root ``i`` and its members join root ``j``."""
+        self.members[j] += self.members.pop(i)
+        bi, bj = self.box[i], self.box[j]
+        self.box[j] = [min(bi[0], bj[0]), min(bi[1], bj[1]), max(bi[2], bj[2]), max(bi[3], bj[3])]
+        self.area[j] += self.area.pop(i)
+
+
+class _Gap:
+    """Pixel gap between two groups (bounds first; pixels only when the bounds are within
+    the limit), memoised while neither group grows."""
+
+    def __init__(self, groups: _Groups, cc: np.ndarray) -> None:
+        self._g = groups
+        self._cc = cc
+        self._memo: dict[tuple[int, int, int, int, int], float] = {}
+
+    def __call__(self, i: int, j: int, limit: float) -> float:
+        bi, bj = self._g.box[i], self._g.box[j]
+        dx = max(bi[0] - bj[2] + 1, bj[0] - bi[2] + 1, 0)
+        dy = max(bi[1] - bj[3] + 1, bj[1] - bi[3] + 1, 0)
+        g = math.hypot(dx, dy)
+        if g > limit:
+            return g
+        mi, mj = self._g.members[i], self._g.members[j]
+        key = (i, j, len(mi), len(mj), int(math.ceil(limit)))
+        if key not in self._memo:  # the groups have not grown since: same pixels, same gap
+            self._memo[key] = _pixel_gap(self._cc, mi, mj, bi, bj, key[4])
+        return self._memo[key]
+
+
+def group_components(
+    counts: np.ndarray,
+    shaft_counts: np.ndarray,
+    stats: np.ndarray,
+    min_area: int,
+    cc: np.ndarray,
+    border: np.ndarray,
+) -> list[list[int]]:
+    """Components (labels 1..n-1 of ``cc``) grouped into instruments by :data:`REACH_RULES`.
+
+    A component smaller than ``min_area`` pixels is a speck and is dropped. Rules apply
+    in order; within a rule, the nearest eligible (piece, target) pair within reach joins
+    first, the target's bounds and area growing, until no pair is within reach.
+
+    Args:
+        counts: (n,) part pixels per component.
+        shaft_counts: (n,) shaft pixels per component.
+        stats: (n, 5) ``cv2.connectedComponentsWithStats`` stats (x, y, w, h, area).
+        min_area: specks and shafts below this many pixels.
+        cc: (H, W) component label image.
+        border: (n,) True where a component touches the image border.
+
+    Returns:
+        Groups of component labels, largest groups' components first.
+    """
+    labels = [i for i in range(1, len(counts)) if counts[i] >= min_area]
+    labels.sort(key=lambda i: -counts[i])
+    has_shaft = {i: bool(shaft_counts[i] >= min_area) for i in labels}
+    groups = _Groups(labels, stats, counts)
+    gap = _Gap(groups, cc)
+    for rule in REACH_RULES:
+        while True:
+            best = _nearest_pair(rule, groups, gap, has_shaft, border)
+            if best is None:
+                break
+            groups.join(*best)
+    return list(groups.members.values())
+
+
+def _kind(root: int, has_shaft: dict[int, bool], border: np.ndarray) -> set[str]:
+    if has_shaft[root]:
+        return {"shaft"}
+    return {"head"} if border[root] else {"head", "inner head"}
+
+
+def _nearest_pair(
+    rule: ReachRule,
+    groups: _Groups,
+    gap: _Gap,
+    has_shaft: dict[int, bool],
+    border: np.ndarray,
+) -> tuple[int, int] | None:
+    """The nearest (piece, target) roots the rule joins, or None."""
+    roots = list(groups.members)
+    best: tuple[float, int, int] | None = None
+    for i in roots:
+        if rule.piece not in _kind(i, has_shaft, border):
+            continue
+        for j in roots:
+            if j == i or rule.target not in _kind(j, has_shaft, border):
+                continue
+            if not groups.area[i] < rule.max_area_ratio * groups.area[j]:
+                continue
+            lim = rule.reach(groups.area[i], groups.area[j])
+            g = gap(i, j, lim)
+            if g <= lim and (best is None or g < best[0]):
+                best = (g, i, j)
+    return None if best is None else (best[1], best[2])
+
+
+def _pixel_gap(
+    cc: np.ndarray, a: list[int], b: list[int], box_a: list[int], box_b: list[int], reach: int
+) -> float:
+    """Smallest distance (px) from a pixel labelled in ``a`` to one labelled in ``b`` in the
+    component label image ``cc``, looked for within ``reach`` px of ``a``'s bounds
+    ``box_a`` (``box_b``: ``b``'s bounds; both x0, y0, x1, y1 exclusive); ``inf`` beyond."""
+    # all of a, and the part of b's bounds within reach of a's
+    x0 = min(box_a[0], max(box_a[0] - reach, box_b[0]))
+    y0 = min(box_a[1], max(box_a[1] - reach, box_b[1]))
+    x1 = max(box_a[2], min(box_a[2] + reach, box_b[2]))
+    y1 = max(box_a[3], min(box_a[3] + reach, box_b[3]))
+    win = cc[y0:y1, x0:x1]
+    in_b = win == b[0] if len(b) == 1 else np.isin(win, b)
+    if not in_b.any():
+        return math.inf
+    not_a = (win != a[0] if len(a) == 1 else ~np.isin(win, a)).astype(np.uint8)
+    dist = cv2.distanceTransform(not_a, cv2.DIST_L2, cv2.DIST_MASK_3)  # ~2% off: a gate
+    return float(dist[in_b].min())
+
+
+# joining pieces an occluder cut off, by shaft geometry -------------------------------------
+
+
+def _distal_sign(inst: InstanceObservation, shape: tuple[int, int]) -> float:
+    """+1 if the instance's distal end is along +u of its shaft box, else -1: towards its
+    other parts, or (shaft alone) away from the image border the shaft comes from."""
+    a = inst.parts["shaft"].box
+    u = unit_vector(a.angle_deg)
+    others = [o.box for p, o in inst.parts.items() if p != "shaft"]
+    if others:
+        o = np.mean([[b.cx, b.cy] for b in others], axis=0)
+        return 1.0 if (o[0] - a.cx) * u[0] + (o[1] - a.cy) * u[1] >= 0 else -1.0
+    h, w = shape
+
+    def inside(x: float, y: float) -> float:  # distance to the nearest border
+        return min(x, w - 1 - x, y, h - 1 - y)
+
+    plus = inside(a.cx + a.length / 2 * u[0], a.cy + a.length / 2 * u[1])
+    minus = inside(a.cx - a.length / 2 * u[0], a.cy - a.length / 2 * u[1])
+    return 1.0 if plus >= minus else -1.0
+
+
+def _shaft_host(piece: InstanceObservation, found: list[InstanceObservation], k: int) -> int | None:
+    """The instance whose shaft axis a shaft-only piece continues (a shaft cut in two)."""
+    b = piece.parts["shaft"].box
+    for j, other in enumerate(found):
+        if j == k or "shaft" not in other.parts:
+            continue
+        a = other.parts["shaft"].box
+        # a short stub's box has no reliable direction: the longer piece's axis is the
+        # reference, and directions must agree only when the other is long too (twice
+        # the shaft's width)
+        ref, q = (a, b) if a.length >= b.length else (b, a)
+        if (
+            q.length >= 2.0 * ref.width
+            and angle_diff_deg(a.angle_deg, b.angle_deg) > CUT_SHAFT_ANGLE_DEG
+        ):
+            continue
+        u = unit_vector(ref.angle_deg)
+        off = abs((q.cx - ref.cx) * u[1] - (q.cy - ref.cy) * u[0])  # to ref's axis
+        if off <= 0.5 * max(ref.width, min(q.width, q.length)):
+            return j
+    return None
+
+
+def _head_host(
+    piece: InstanceObservation, found: list[InstanceObservation], k: int, shape: tuple[int, int]
+) -> int | None:
+    """The instance on whose shaft's distal extension a head piece lies (nearest axis)."""
+    best: tuple[float, int] | None = None
+    hx, hy = piece.centroid_px
+    for j, other in enumerate(found):
+        if j == k or "shaft" not in other.parts:
+            continue
+        # the host must not already show a head part of this piece's size (its own
+        # head): a crumb of a head joins, and so does a head larger than the stub of it
+        # the host shows beside the occluder
+        if any(
+            p in other.parts
+            and HEAD_CRUMB_FRAC * other.parts[p].area_px
+            <= piece.parts[p].area_px
+            <= other.parts[p].area_px
+            for p in piece.parts
+        ):
+            continue
+        a = other.parts["shaft"].box
+        u = unit_vector(a.angle_deg) * _distal_sign(other, shape)
+        along = (hx - a.cx) * u[0] + (hy - a.cy) * u[1] - a.length / 2
+        off = abs((hx - a.cx) * u[1] - (hy - a.cy) * u[0])
+        if off <= a.width and -a.length / 2 <= along <= HEAD_AXIS_REACH * a.width:
+            if best is None or off < best[0]:
+                best = (off, j)
+    return None if best is None else best[1]
+
+
+def _host_for(
+    piece: InstanceObservation, found: list[InstanceObservation], k: int, shape: tuple[int, int]
+) -> int | None:
+    """The instance a piece belongs to by shaft geometry, or None."""
+    if set(piece.parts) == {"shaft"}:
+        return _shaft_host(piece, found, k)
+    if "shaft" in piece.parts:
+        return None
+    return _head_host(piece, found, k, shape)
+
+
+def join_by_axis(
+    found: list[InstanceObservation], min_area: int, shape: tuple[int, int]
+) -> list[InstanceObservation]:
+    """Join pieces an occluder cut off to their instrument by shaft geometry.
+
+    A shaft-only piece continuing another instance's shaft axis
+    (:data:`CUT_SHAFT_ANGLE_DEG`), and a head on the distal extension of a shaft's axis
+    (:data:`HEAD_AXIS_REACH`), join it; smallest pieces first, until nothing joins.
+    """
+    if len(found) < 2:
+        return found
+    found = sorted(found, key=lambda inst: inst.area_px)  # smallest pieces first
+    k = 0
+    while k < len(found):
+        host = _host_for(found[k], found, k, shape)
+        if host is None:
+            k += 1
+            continue
+        joined = merge_instances(found[host], found[k], min_area)
+        found = [inst for i, inst in enumerate(found) if i not in (k, host)] + [joined]
+        found.sort(key=lambda inst: inst.area_px)
+        k = 0
+    return found
+
+
+def merge_instances(
+    a: InstanceObservation, b: InstanceObservation, min_area: int
+) -> InstanceObservation:
+    """One instance from two: each part refitted on both instances' pixels."""
+    parts: dict[str, PartObservation] = {}
+    for name in PARTS:
+        obs = [inst.parts[name] for inst in (a, b) if name in inst.parts]
+        if not obs:
+            continue
+        if len(obs) == 1:
+            parts[name] = obs[0]
+            continue
+        x0 = min(o.offset[0] for o in obs)
+        y0 = min(o.offset[1] for o in obs)
+        x1 = max(o.offset[0] + o.mask.shape[1] for o in obs)
+        y1 = max(o.offset[1] + o.mask.shape[0] for o in obs)
+        m = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        for o in obs:
+            h, w = o.mask.shape
+            ox, oy = o.offset[0] - x0, o.offset[1] - y0
+            m[oy : oy + h, ox : ox + w][o.mask] = 255
+        joined = part_observation(name, m, x0, y0, min_area)
+        if joined is not None:
+            parts[name] = joined
+    return make_instance(None, parts, a.image_shape)

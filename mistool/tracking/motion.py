@@ -1,0 +1,62 @@
+"""Motion models of the identity tracker: where a track is expected next.
+
+A motion model keeps a track's image position (px) and velocity (px per frame), predicts
+the position a few frames ahead, and takes a new measurement. The tracker uses it through
+``predict`` / ``update`` / ``coast`` only, so another model can replace it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["ConstantVelocity"]
+
+#: Weight of the newest frame-to-frame velocity in the velocity estimate (exponential
+#: smoothing; the rest is the previous estimate).
+VELOCITY_GAIN = 0.5
+
+
+@dataclass
+class ConstantVelocity:
+    """Constant-velocity motion of an image point, velocity smoothed exponentially.
+
+    The velocity is the displacement between consecutive measurements per frame,
+    smoothed with gain :data:`VELOCITY_GAIN` (the first one taken as is).
+    """
+
+    position: np.ndarray
+    """(2,) px: where the point is believed to be at the last update."""
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    """(2,) px per frame."""
+
+    def predict(self, steps: float) -> np.ndarray:
+        """(2,) px: the position ``steps`` frames after the last update."""
+        return self.position + self.velocity * steps
+
+    def update(self, measured: np.ndarray, gap: int, *, continuous: bool, first: bool) -> None:
+        """Take a measurement ``gap`` frames after the last update.
+
+        Args:
+            measured: (2,) px.
+            gap: frames since the last update, >= 1.
+            continuous: the previous position was measured recently (not a coasted or
+                a lost track's): the displacement gives a velocity. Otherwise the
+                velocity is kept (:meth:`reset_velocity` restarts it).
+            first: the track's first update: the displacement's velocity is taken as is.
+        """
+        if continuous:
+            v = (measured - self.position) / gap
+            self.velocity = (
+                v if first else VELOCITY_GAIN * v + (1.0 - VELOCITY_GAIN) * self.velocity
+            )
+        self.position = np.asarray(measured, dtype=np.float64)
+
+    def reset_velocity(self) -> None:
+        """Forget the velocity (a track found again after being lost)."""
+        self.velocity = np.zeros(2)
+
+    def coast(self, steps: float) -> None:
+        """Move the position along the velocity by ``steps`` frames (no measurement)."""
+        self.position = self.predict(steps)

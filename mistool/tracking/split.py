@@ -1,0 +1,402 @@
+"""Splitting one blob that holds several instruments (pure functions).
+
+Two instruments touching in merged masks form one instance. :func:`split_instance`
+splits it between the instruments' shaft axes (from their expected part boxes), and
+:func:`split_on_entries` between the shafts entering the view at the image border
+(:func:`border_entries`), when nothing is known of the instruments yet. Both refine each
+shaft axis on the blob's own pixels and refuse a split that is not shaft-like.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from mistool.model import InstanceObservation, PartObservation, RotatedBox
+from mistool.tracking.instances import make_instance, part_observation, unit_vector
+
+__all__ = [
+    "Axis",
+    "border_entries",
+    "border_runs",
+    "split_instance",
+    "split_on_entries",
+    "split_scored",
+]
+
+#: A split is kept only if each piece's pixels spread across its line by at most this
+#: fraction of the shaft's width (RMS; a full rectangle of width w gives 0.29 w).
+SPLIT_MAX_SPREAD = 0.45
+#: ... and its lines differ in direction by at least this much (deg).
+SPLIT_MIN_ANGLE_DEG = 8.0
+#: Rounds of "nearest axis, then refit each axis to its pixels".
+SPLIT_REFIT_ROUNDS = 6
+#: The refits use at most about this many shaft pixels (evenly subsampled).
+SPLIT_FIT_POINTS = 4000
+#: An axis's distal end may move past its expected end by this fraction of the
+#: expected shaft length.
+SPLIT_END_MARGIN = 0.1
+#: Shafts from the border (``contiguous``): a shaft ends at the first gap of this many
+#: half-widths between its pixels along its axis (beyond is another's).
+SPLIT_CONTIGUOUS_GAP = 4.0
+
+#: A shaft entering the view is seen on the image border over at least this many px.
+ENTRY_MIN_PX = 6
+#: Border runs of shaft pixels this close (px) are one shaft's entry (a hole, jitter).
+ENTRY_MAX_GAP_PX = 8
+
+
+@dataclass
+class Axis:
+    """A shaft's axis: a segment from ``end`` back along ``-direction`` for ``back`` px
+    (``inf``: a half-line from the image border)."""
+
+    end: np.ndarray
+    """(2,) distal end, px."""
+    direction: np.ndarray
+    """(2,) unit direction, distal."""
+    back: float
+    """Length behind the end, px (``inf``: a half-line)."""
+
+
+def _segment_distance(
+    p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
+) -> np.ndarray:
+    """(N, K) distances from points (N, 2) to K segments, in units of each segment's
+    ``radius`` (half the part's width). Segment k runs from ``ends[k]`` backwards along
+    ``-dirs[k]`` for ``back[k]`` px (``inf``: a half-line, a shaft coming from the
+    image border)."""
+    rel = p[:, None, :] - ends[None]
+    along = np.einsum("nkd,kd->nk", rel, dirs)  # <= 0 behind the end
+    perp = rel[..., 1] * dirs[None, :, 0] - rel[..., 0] * dirs[None, :, 1]
+    excess = np.maximum(along, 0.0) + np.maximum(-along - back[None], 0.0)
+    return np.hypot(perp, excess) / radius[None]
+
+
+def distal_axis(boxes: dict[str, RotatedBox]) -> Axis:
+    """The shaft's axis from part boxes: the distal side is the one towards the other
+    parts (a half-line from the border); without them, unknown: a segment."""
+    sb = boxes["shaft"]
+    u = unit_vector(sb.angle_deg)
+    c = np.array([sb.cx, sb.cy])
+    others = [b for p, b in boxes.items() if p != "shaft"]
+    if others:
+        o = np.mean([[b.cx, b.cy] for b in others], axis=0)
+        if (o - c) @ u < 0:
+            u = -u
+        back = math.inf
+    else:
+        back = sb.length
+    return Axis(c + 0.5 * sb.length * u, u, back)
+
+
+def _pixels(part: PartObservation) -> np.ndarray:
+    """(N, 2) float64 full-image (x, y) of a part's pixels."""
+    ys, xs = np.nonzero(part.mask)
+    return np.stack([xs + part.offset[0], ys + part.offset[1]], 1).astype(np.float64)
+
+
+def _border_index_to_xy(i: int, ww: int, hh: int) -> tuple[float, float]:
+    """Pixel (x, y) of index ``i`` along the image border walked as a loop: top, right,
+    bottom, left."""
+    i %= 2 * (ww - 1) + 2 * (hh - 1)
+    if i < ww - 1:
+        return float(i), 0.0
+    i -= ww - 1
+    if i < hh - 1:
+        return float(ww - 1), float(i)
+    i -= hh - 1
+    if i < ww - 1:
+        return float(ww - 1 - i), float(hh - 1)
+    i -= ww - 1
+    return 0.0, float(hh - 1 - i)
+
+
+def _on_border(shaft: PartObservation, hh: int, ww: int) -> np.ndarray:
+    """(n,) bool over the border loop: where the shaft's pixels touch the image border."""
+    m = shaft.mask
+    x0, y0 = shaft.offset
+    h, w = m.shape
+    n = 2 * (ww - 1) + 2 * (hh - 1)
+    on = np.zeros(n, bool)
+    xs, ys = np.arange(x0, x0 + w), np.arange(y0, y0 + h)
+    if y0 == 0:
+        on[xs[m[0]]] = True
+    if x0 + w == ww:
+        on[(ww - 1 + ys[m[:, -1]]) % n] = True
+    if y0 + h == hh:
+        on[(ww - 1) + (hh - 1) + (ww - 1 - xs[m[-1]])] = True
+    if x0 == 0:
+        on[(2 * (ww - 1) + (hh - 1) + (hh - 1 - ys[m[:, 0]])) % n] = True
+    return on
+
+
+def border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
+    """Where the instance's shaft pixels lie on the image border: one run of border
+    pixels per shaft entering the view (runs around a corner are one), as ``(ends,
+    length)``: (3, 2) px of the run's first, middle and last pixel, and its length (px;
+    at least :data:`ENTRY_MIN_PX`)."""
+    shaft = inst.parts.get("shaft")
+    if shaft is None or inst.image_shape is None:
+        return []
+    hh, ww = inst.image_shape
+    x0, y0 = shaft.offset
+    h, w = shaft.mask.shape
+    if x0 > 0 and y0 > 0 and x0 + w < ww and y0 + h < hh:
+        return []
+    on = _on_border(shaft, hh, ww)
+    if on.sum() < ENTRY_MIN_PX or on.all():
+        return []
+    start = int(np.argmin(on))  # a border pixel off the shaft: runs do not wrap from here
+    roll = np.roll(on, -start).astype(np.int8)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], roll, [0]])))
+    # a gap of a few pixels in one shaft's contact (a specular hole, boundary jitter) is
+    # not a second shaft: runs that close are one entry
+    runs: list[list[int]] = []
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        if runs and int(a) - runs[-1][1] <= ENTRY_MAX_GAP_PX:
+            runs[-1][1] = int(b)
+        else:
+            runs.append([int(a), int(b)])
+    out = []
+    for a, b in runs:
+        length = b - a
+        if length >= ENTRY_MIN_PX:
+            first = a + start
+            ends = np.array(
+                [
+                    _border_index_to_xy(k, ww, hh)
+                    for k in (first, first + length // 2, first + length - 1)
+                ]
+            )
+            out.append((ends, length))
+    return out
+
+
+def border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """The shafts entering the view at the image border (:func:`border_runs`), as
+    ``(point, inward direction, width)``, px: the direction is the principal axis of the
+    shaft pixels near the run, the width the run's length across it. Empty unless there
+    are two entries or more (one instrument per entry, unless two touch at the border)."""
+    runs = border_runs(inst)
+    if len(runs) < 2:
+        return []
+    pts = _pixels(inst.parts["shaft"])
+    pts = pts[:: max(1, len(pts) // 20000)]
+    out = []
+    for ends, length in runs:
+        mid = ends[1]
+        r = max(3.0 * length, 30.0)
+        near = pts[np.einsum("nd,nd->n", pts - mid, pts - mid) <= r * r]
+        if len(near) < 3:
+            continue
+        c = near.mean(0)
+        _, v = np.linalg.eigh(np.cov((near - c).T))
+        d = v[:, 1]
+        if d @ (c - mid) < 0:
+            d = -d
+        tangent = ends[2] - ends[0]
+        tn = float(np.hypot(*tangent))
+        sin = abs(float(tangent[0] * d[1] - tangent[1] * d[0])) / tn if tn > 0 else 1.0
+        out.append((mid, d, max(length * sin, 3.0)))
+    return out if len(out) >= 2 else []
+
+
+def split_on_entries(
+    inst: InstanceObservation, entries: list[tuple[np.ndarray, np.ndarray, float]], min_area_px: int
+) -> list[InstanceObservation] | None:
+    """Split an instance between the shafts entering at ``entries`` (:func:`border_entries`):
+    half-lines from the border, nothing known of the instruments' heads."""
+    x, y, w, h = inst.bbox_xywh
+    reach = float(np.hypot(w, h))
+    expected = []
+    axes = []
+    for p, d, width in entries:
+        c = p + 0.5 * reach * d
+        angle = math.degrees(math.atan2(d[1], d[0])) % 180.0
+        expected.append({"shaft": RotatedBox(float(c[0]), float(c[1]), reach, width, angle)})
+        axes.append(Axis(p + reach * d, d, math.inf))
+    got = split_scored(inst, expected, min_area_px, axes, contiguous=True)
+    return None if got is None else got[1]
+
+
+def split_instance(
+    inst: InstanceObservation, expected: list[dict[str, RotatedBox]], min_area_px: int = 1
+) -> list[InstanceObservation] | None:
+    """Split one instance holding several instruments between them.
+
+    Each instrument's shaft is a half-line from the image border to its distal end (from
+    its expected boxes); the blob's shaft pixels go to the nearest one (distances in
+    units of each shaft's half-width), each line is refitted to its pixels (direction,
+    distal end; a few rounds), and the split is kept only if every instrument's pixels
+    hug its axis like a shaft of its width (RMS distance at most
+    :data:`SPLIT_MAX_SPREAD` x width) and no two axes are parallel. Wrist and clasper
+    pixels go to the nearest expected box of that part, moved with its shaft's refitted
+    distal end.
+
+    Args:
+        inst: the merged instance (parts with pixel crops).
+        expected: per instrument, part -> expected box this frame (from its last frames
+            apart from the others, moved by its velocity); each needs a ``"shaft"``.
+        min_area_px: each instrument needs at least this many shaft pixels.
+
+    Returns:
+        One instance per instrument, same order, or None when the split is not
+        trustworthy.
+    """
+    got = split_scored(inst, expected, min_area_px)
+    return None if got is None else got[1]
+
+
+@dataclass
+class _Axes:
+    """K shaft axes being refitted (arrays over the instruments)."""
+
+    ends: np.ndarray  # (K, 2) distal ends, px
+    dirs: np.ndarray  # (K, 2) unit directions, distal
+    back: np.ndarray  # (K,) length behind the end, px (inf: half-line)
+    radius: np.ndarray  # (K,) half-widths, px
+    limit_end: np.ndarray  # (K, 2) expected distal ends (the end may pass it by a margin)
+    margin: np.ndarray  # (K,) that margin, px
+
+    def distance(self, pts: np.ndarray) -> np.ndarray:
+        """(N, K) distances of points to the axes, in half-widths."""
+        return _segment_distance(pts, self.ends, self.dirs, self.back, self.radius)
+
+
+def _initial_axes(expected: list[dict[str, RotatedBox]], axes: list[Axis] | None) -> _Axes:
+    if axes is None:
+        axes = [distal_axis(e) for e in expected]
+    dirs = np.array([a.direction for a in axes], dtype=np.float64)
+    ends0 = np.array([a.end for a in axes], dtype=np.float64)
+    margin = np.array([SPLIT_END_MARGIN * e["shaft"].length for e in expected])
+    return _Axes(
+        ends=ends0 + margin[:, None] * dirs,
+        dirs=dirs,
+        back=np.array([a.back for a in axes], dtype=np.float64),
+        radius=np.array([max(e["shaft"].width / 2.0, 1.0) for e in expected]),
+        limit_end=ends0,
+        margin=margin,
+    )
+
+
+def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous: bool) -> bool:
+    """Rounds of nearest axis, then each axis refitted to its points (direction by PCA,
+    distal end at the points' reach); False when an axis keeps too few points."""
+    for _ in range(SPLIT_REFIT_ROUNDS):
+        lab = ax.distance(pts).argmin(1)
+        for j in range(len(ax.dirs)):
+            q = pts[lab == j]
+            if len(q) < 3 or len(q) * weight < min_area_px:
+                return False
+            c = q.mean(0)
+            _, v = np.linalg.eigh(np.cov((q - c).T))
+            d = v[:, 1]  # largest spread: along the shaft
+            ax.dirs[j] = d if d @ ax.dirs[j] >= 0 else -d
+            # the distal end: the pixels' reach, never beyond the expected end + margin
+            limit = float((ax.limit_end[j] + ax.margin[j] * ax.dirs[j] - c) @ ax.dirs[j])
+            proj = (q - c) @ ax.dirs[j]
+            reach = float(proj.max())
+            if contiguous:  # up to the first gap along the axis: beyond is another's
+                sp = np.sort(proj)
+                gaps = np.flatnonzero(np.diff(sp) > SPLIT_CONTIGUOUS_GAP * ax.radius[j])
+                if len(gaps):
+                    reach = float(sp[gaps[0]])
+            ax.ends[j] = c + min(reach, limit) * ax.dirs[j]
+    return True
+
+
+def _score(ax: _Axes, pts: np.ndarray) -> float | None:
+    """The worst RMS distance of an axis's points to it (half-widths), or None when a
+    piece is not shaft-like or two axes are near parallel."""
+    d = ax.distance(pts)
+    lab = d.argmin(1)
+    score = 0.0
+    k = len(ax.dirs)
+    for j in range(k):  # in units of the half-width: a full rectangle gives 0.58
+        rms = math.sqrt(float((d[lab == j, j] ** 2).mean()))
+        if rms > 2.0 * SPLIT_MAX_SPREAD + 0.5 / ax.radius[j]:
+            return None
+        score = max(score, rms)
+    for i in range(k):
+        for j in range(i + 1, k):
+            cosang = min(1.0, abs(float(ax.dirs[i] @ ax.dirs[j])))
+            if math.degrees(math.acos(cosang)) < SPLIT_MIN_ANGLE_DEG:
+                return None
+    return score
+
+
+def _part_distance(
+    name: str, p: np.ndarray, ax: _Axes, expected: list[dict[str, RotatedBox]]
+) -> np.ndarray:
+    """(N, K) distances of a part's pixels to each instrument: to its shaft axis, or for a
+    head part, to its expected box of that part moved with the shaft's distal end."""
+    if name == "shaft" or not all(name in e for e in expected):
+        return ax.distance(p)
+    shift = ax.ends - ax.limit_end  # the other parts move with their shaft's distal end
+    u = np.array([unit_vector(e[name].angle_deg) for e in expected])
+    h = np.array([0.5 * e[name].length for e in expected])
+    c = np.array([[e[name].cx, e[name].cy] for e in expected]) + shift
+    r = np.array([max(e[name].width / 2.0, 1.0) for e in expected])
+    return _segment_distance(p, c + h[:, None] * u, u, 2 * h, r)
+
+
+def _pieces(
+    inst: InstanceObservation, ax: _Axes, expected: list[dict[str, RotatedBox]], min_area: int
+) -> list[dict[str, PartObservation]]:
+    """Every part's pixels given to the nearest instrument, measured per instrument."""
+    k = len(expected)
+    pieces: list[dict[str, PartObservation]] = [{} for _ in range(k)]
+    for name, part in inst.parts.items():
+        ys, xs = np.nonzero(part.mask)
+        p = np.stack([xs + part.offset[0], ys + part.offset[1]], 1).astype(np.float64)
+        owner = _part_distance(name, p, ax, expected).argmin(1)
+        for j in range(k):
+            sel = owner == j
+            if not sel.any():
+                continue
+            m = np.zeros(part.mask.shape, np.uint8)
+            m[ys[sel], xs[sel]] = 255
+            obs = part_observation(name, m, part.offset[0], part.offset[1], min_area)
+            if obs is not None:
+                pieces[j][name] = obs
+    return pieces
+
+
+def split_scored(
+    inst: InstanceObservation,
+    expected: list[dict[str, RotatedBox]],
+    min_area_px: int,
+    axes: list[Axis] | None = None,
+    contiguous: bool = False,
+) -> tuple[float, list[InstanceObservation]] | None:
+    """:func:`split_instance` and its score (the worst RMS distance of a shaft's pixels
+    to its axis, in half-widths; lower is better).
+
+    Args:
+        inst: the merged instance.
+        expected: per instrument, part -> expected box (each with a ``"shaft"``).
+        min_area_px: each instrument needs at least this many shaft pixels.
+        axes: the shafts' axes when not from ``expected`` (:func:`distal_axis`).
+        contiguous: each shaft ends at the first gap of :data:`SPLIT_CONTIGUOUS_GAP`
+            half-widths in its pixels along its axis (shafts entering from the border,
+            their ends unknown).
+    """
+    shaft = inst.parts.get("shaft")
+    if shaft is None or len(expected) < 2 or any("shaft" not in e for e in expected):
+        return None
+    pts = _pixels(shaft)
+    step = max(1, len(pts) // SPLIT_FIT_POINTS)  # the fits need no more points than this
+    fit_pts = pts[::step]
+    ax = _initial_axes(expected, axes)
+    if not _refit(ax, fit_pts, step, min_area_px, contiguous):
+        return None
+    score = _score(ax, fit_pts)
+    if score is None:
+        return None
+    pieces = _pieces(inst, ax, expected, min_area_px)
+    if any("shaft" not in parts for parts in pieces):
+        return None
+    return score, [make_instance(None, parts, inst.image_shape) for parts in pieces]
