@@ -5,6 +5,7 @@ viser)::
 
     table = mistool.track("masks/")                    # a folder, a mask video or arrays
     tracker = mistool.Tracker(mistool.load_config("mistool.toml"))   # frame by frame
+    viewer = mistool.Viewer("mistool.toml"); viewer.add(labels)       # live 3D replay
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ __all__ = [
     "RotatedBox",
     "TrackTable",
     "Tracker",
+    "Viewer",
     "load_config",
     "skill",
     "track",
@@ -28,6 +30,7 @@ __all__ = [
 _LAZY = {
     "track": "mistool.api",
     "Tracker": "mistool.api",
+    "Viewer": "mistool.viewer",  # imports viser, only when asked for
     "load_config": "mistool.config",
     "Config": "mistool.config",
     "TrackTable": "mistool.model",
@@ -40,6 +43,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from mistool.config import Config, load_config
     from mistool.errors import MistoolError
     from mistool.model import RotatedBox, TrackTable
+    from mistool.viewer import Viewer
 
 
 def __getattr__(name: str) -> Any:

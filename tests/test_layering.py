@@ -27,6 +27,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("api",),
     # a whole dataset: one api.run per sequence
     ("dataset",),
+    # the table cache and background tracking into it (mistool serve, resumable)
+    ("cache", "background"),
     ("viewer",),
     ("cli",),
 ]

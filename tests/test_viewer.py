@@ -453,28 +453,26 @@ def test_serve_reuses_the_tracked_table_until_the_sequence_changes(
 ) -> None:
     import shutil
 
-    from mistool import api
-    from mistool.export import read_csv
+    from mistool import background
 
     seq = tmp_path / "seq"
     shutil.copytree(synth_dir, seq)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    truth = read_csv(seq / "truth.csv")
     calls: list[Path] = []
+    real = background.track_into
 
-    class _Result:  # what api.run returns, with the truth as the tracked table
-        def __init__(self, path: Path) -> None:
-            calls.append(path)
-            self.table, self.num_frames, self.shape = truth, 40, (576, 720)
-            self.config = load_sequence(seq, poses=seq / "truth.csv").replay.config
+    def counting(spec, stop=None):
+        calls.append(spec.sequence)
+        return real(spec, stop)
 
-    monkeypatch.setattr(api, "run", lambda path, config, progress=False: _Result(path))
+    monkeypatch.setattr(background, "track_into", counting)
     first = load_sequence(seq, cache=True)
     again = load_sequence(seq, cache=True)
     assert len(calls) == 1, "the unchanged sequence was tracked twice"
     np.testing.assert_allclose(
-        again.replay.modes["metric"].centre, first.replay.modes["metric"].centre, atol=1e-5
+        again.replay.modes["metric"].centre, first.replay.modes["metric"].centre, atol=1e-9
     )
+    assert (tmp_path / "cache" / "mistool" / "tables").is_dir()
     assert not (seq / ".mistool").exists() and len(list(seq.iterdir())) == len(
         list(synth_dir.iterdir())
     ), "the sequence folder was written to"
@@ -483,8 +481,12 @@ def test_serve_reuses_the_tracked_table_until_the_sequence_changes(
     os.utime(frame, ns=(time.time_ns(), time.time_ns() + 10**9))
     load_sequence(seq, cache=True)
     assert len(calls) == 2, "a changed sequence must be tracked again"
+    toml = seq / "mistool.toml"
+    toml.write_text("min_area_px = 30\n" + toml.read_text())
+    load_sequence(seq, cache=True)
+    assert len(calls) == 3, "a changed config must be tracked again"
     load_sequence(seq, cache=False)
-    assert len(calls) == 3
+    assert len(calls) == 3  # no cache: tracked by api.run, nothing stored
 
 
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])

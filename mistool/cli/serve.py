@@ -16,12 +16,17 @@ the 2D overlay (mask blended over the procedure's own video when mistool.toml gi
 'source', with each part's rotated box), camera presets (Endoscope, Side, Top, Reset),
 plots of x/y/z and roll/pitch/yaw with a cursor, and trails of each tip and joint.
 
-The sequence is tracked first (progress bar on stderr), unless --poses gives a motion
-table (e.g. from 'mistool track'); the table is cached (~/.cache/mistool/tables, keyed by
-the frames' names, sizes and times, mistool.toml and mistool's version), so the next
-'mistool serve' of the unchanged sequence starts at once (--no-cache tracks again).
-Problems with SEQUENCE are reported before the server starts. The URL printed is the one
-really in use: when the port is busy the next free one is taken. Ctrl+C stops the server.
+The server starts at once and the sequence is tracked in a background process while you
+watch: the timeline grows as frames are tracked, the GUI shows the progress (frames, frames/s,
+time left), and when every frame is tracked the sequence-level refinement (trocar, smoothing)
+replaces the picture in place. Unless --poses gives a motion table (e.g. from 'mistool track').
+Tracked tables are cached (~/.cache/mistool/tables, columns as numpy files, keyed by the
+frames' names, sizes and times, the config and mistool's version; at most 2 GB, least
+recently used entries removed first, MISTOOL_CACHE_MAX_BYTES to change): the next 'mistool
+serve' of the unchanged sequence shows it at once, and a run stopped half-way resumes where
+it stopped (--no-cache tracks again from the start). Problems with SEQUENCE are reported
+before the server starts. The URL printed is the one really in use: when the port is busy
+the next free one is taken. Ctrl+C stops the server and the tracking at any moment.
 
 3D modes (switch in the GUI): 'metric' (millimetres, the default when mistool.toml has
 [camera]) and 'paper' (the paper's vpython scene in pixel units: cylinder length = box
@@ -76,12 +81,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="POSES.csv",
         help="show this motion table instead of tracking the sequence",
     )
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="accepted for compatibility (tracking progress is shown in the browser)",
+    )
     p.add_argument(
         "--no-cache",
         action="store_true",
-        help="track again even if this unchanged sequence was tracked before "
-        "(tables are cached in ~/.cache/mistool/tables)",
+        help="track again from the start even if this unchanged sequence was tracked "
+        "(or partly tracked) before (tables are cached in ~/.cache/mistool/tables)",
     )
     p.add_argument(
         "--environment-map",
@@ -106,9 +116,8 @@ def run(
 
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port}: must be in 0..65535")
-    progress = not args.quiet and sys.stderr.isatty()
     sequence = load_sequence(
-        args.sequence, poses=args.poses, progress=progress, cache=not args.no_cache
+        args.sequence, poses=args.poses, background=args.poses is None, fresh=args.no_cache
     )
     access = AccessPolicy.for_host(args.host, args.allow_origin)
     viewer = ReplayViewer(
@@ -125,11 +134,25 @@ def run(
         previous = signal.signal(signal.SIGTERM, lambda *_: waiter.set())
     replay = sequence.replay
     try:  # from here on, Ctrl+C (even during the prints) stops cleanly
-        print(
-            f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
-            f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode",
-            flush=True,
-        )
+        if sequence.feed is not None:
+            status = sequence.feed.entry.progress()
+            state = (
+                "tracked (cached)"
+                if status.complete
+                else f"tracking in the background from frame {status.done} (progress in the "
+                "browser)"
+            )
+            print(
+                f"mistool serve: {sequence.name}: {replay.num_frames} frames, {state}, "
+                f"{replay.default_mode} mode",
+                flush=True,
+            )
+        else:
+            print(
+                f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
+                f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode",
+                flush=True,
+            )
         _say_odd(args, viewer.port, access)
         print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
         if ready is not None:
@@ -143,6 +166,16 @@ def run(
         viewer.close()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+    feed = sequence.feed
+    if feed is not None and feed.status().error:
+        print(f"mistool serve: tracking stopped: {feed.status().error}", file=sys.stderr)
+    if viewer.feed_errors:  # a bug, not bad input
+        last_exc = viewer.feed_errors[-1]
+        print(
+            f"mistool serve: tracking failed: {type(last_exc).__name__}: {last_exc}",
+            file=sys.stderr,
+        )
+        return 1
     errors = viewer.timeline.draw_errors
     if errors:  # a bug, not bad input: say so, with the last error
         last = errors[-1]

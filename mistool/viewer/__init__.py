@@ -40,6 +40,7 @@ software WebGL it delays the first render by about a second (``scripts/bench_vie
 """
 
 from mistool.viewer.app import LoadedSequence, ReplayViewer, load_sequence
+from mistool.viewer.live import Viewer
 from mistool.viewer.recording import export_html
 from mistool.viewer.replay import Replay, build_replay
 
@@ -47,6 +48,7 @@ __all__ = [
     "LoadedSequence",
     "Replay",
     "ReplayViewer",
+    "Viewer",
     "build_replay",
     "export_html",
     "load_sequence",

@@ -13,10 +13,9 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import hashlib
+import dataclasses
 import io
 import math
-import os
 import socket
 import threading
 import time
@@ -27,12 +26,22 @@ import cv2
 import numpy as np
 import viser
 
+from mistool.cache import CacheEntry
+from mistool.config import Config
 from mistool.errors import ConfigError, InputPathError, MistoolError
 from mistool.model import TrackTable
+from mistool.viewer.feed import CacheFeed
 from mistool.viewer.guard import AccessPolicy, guarded, with_token
 from mistool.viewer.overlay import FrameStore, OverlayCache, OverlayRenderer
 from mistool.viewer.plots import PlotPanel
-from mistool.viewer.replay import Replay, build_replay
+from mistool.viewer.replay import (
+    NOT_VISIBLE,
+    Replay,
+    ReplayPatch,
+    build_replay,
+    config_parts,
+    mode_constants,
+)
 from mistool.viewer.scene import PRESETS, SceneView
 from mistool.viewer.timeline import Timeline
 
@@ -42,35 +51,37 @@ class LoadedSequence:
     """What the viewer needs about a sequence: its replay and its frames on disk."""
 
     replay: Replay
-    """The precomputed replay."""
+    """The replay (complete, or growing while ``feed`` brings more frames)."""
     frames: FrameStore
     """Lazy access to its mask (and source video) frames."""
     name: str
     """A short name for titles."""
+    feed: CacheFeed | None = None
+    """Where more frames come from while the replay is shown (None: complete)."""
 
 
 def cache_dir() -> Path:
-    """Where tracked tables are cached: ``$XDG_CACHE_HOME/mistool/tables`` (default
-    ``~/.cache/mistool/tables``)."""
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "mistool" / "tables"
+    """Where tracked tables are cached (see :mod:`mistool.cache`)."""
+    from mistool.cache import cache_root
+
+    return cache_root()
 
 
-def _cache_key(seq_path: Path) -> str:
-    """A digest of everything tracking depends on: mistool's version, the sequence's
-    path, every frame file's name, size and modification time, and mistool.toml."""
-    from mistool import __version__
+#: Tracking options of ``mistool serve`` (part of the cache key).
+SERVE_TRACKING = {"metric": True, "smoothing": "offline"}
+
+
+def _entry_for(seq_path: Path, config: Config) -> CacheEntry:
+    """The cache entry of a sequence tracked with :data:`SERVE_TRACKING`."""
+    from mistool.cache import cache_key, enforce_limit, open_entry
     from mistool.sequence import list_frames
 
-    h = hashlib.sha256(f"{__version__}\n{seq_path.resolve()}\n".encode())
     files = list_frames(seq_path) if seq_path.is_dir() else [seq_path]
-    for f in files:
-        st = f.stat()
-        h.update(f"{f.name}\t{st.st_size}\t{st.st_mtime_ns}\n".encode())
-    toml = (seq_path if seq_path.is_dir() else seq_path.parent) / "mistool.toml"
-    if toml.is_file():
-        h.update(toml.read_bytes())
-    return h.hexdigest()[:32]
+    entry = open_entry(cache_key(seq_path, config, files, **SERVE_TRACKING))
+    with contextlib.suppress(OSError):
+        entry.touch()
+        enforce_limit(keep=entry)
+    return entry
 
 
 def load_sequence(
@@ -80,23 +91,31 @@ def load_sequence(
     progress: bool = False,
     table: TrackTable | None = None,
     cache: bool = False,
+    background: bool = False,
+    fresh: bool = False,
 ) -> LoadedSequence:
     """Open a sequence for the viewer: track it (or load its motion table) and index its
-    frames. Every problem is raised here, before any server starts.
+    frames. Every problem with the input is raised here, before any server starts.
 
     Args:
         path: the sequence folder or mask video; None for the bundled sample.
         poses: a motion table CSV to show instead of tracking the sequence.
-        progress: show a tracking progress bar on stderr.
+        progress: show a tracking progress bar on stderr (tracking here, not in the
+            background).
         table: an in-memory motion table to show instead of tracking.
         cache: reuse the table tracked by an earlier call for the same, unchanged
-            sequence (see :func:`cache_dir`), and store it after tracking. The sequence's
-            folder is never written to.
+            sequence (:mod:`mistool.cache`), and store it after tracking; a partly
+            tracked entry is resumed. The sequence's folder is never written to.
+        background: do not track here: return at once with the frames tracked so far
+            (cached ones, or none) and a :attr:`LoadedSequence.feed` that tracks the rest
+            in a background process while the viewer shows it (``mistool serve``).
+            Implies ``cache``.
+        fresh: forget what the cache holds for this sequence and track it again.
 
     Raises:
         MistoolError: bad path, masks, ``mistool.toml`` or table (one-line message).
     """
-    from mistool.export import check_frame_numbers, read_csv, write_csv
+    from mistool.export import check_frame_numbers, read_csv
     from mistool.resources import sample_masks_dir
     from mistool.sequence import check_source, list_frames, resolve, widen_for_video
 
@@ -112,32 +131,86 @@ def load_sequence(
             shape = (int(first.shape[0]), int(first.shape[1]))
     if table is None and poses is not None:
         table = read_csv(poses)
-    elif table is None:
-        if seq_path.is_dir() and not list_frames(seq_path):
-            raise InputPathError(
-                f"{seq_path}: no label images in this folder; pass a folder "
-                "of masks, a mask video, or --poses with a motion table"
-            )
-        cached = cache_dir() / f"{_cache_key(seq_path)}.csv" if cache else None
-        if cached is not None and cached.is_file():
-            with contextlib.suppress(MistoolError):  # a bad cache entry: track again
-                table = read_csv(cached)
-        if table is None:
-            from mistool import api  # tracking only when no table is given
-
-            result = api.run(seq_path, config, progress=progress)
-            table, num_frames, config = result.table, result.num_frames, result.config
-            if result.shape is not None:
-                shape = result.shape
-            if cached is not None:
-                with contextlib.suppress(OSError, MistoolError):  # caching is optional
-                    cached.parent.mkdir(parents=True, exist_ok=True)
-                    write_csv(table, cached)
-    check_frame_numbers(table, str(poses) if poses is not None else "motion table")
+    if table is not None:
+        check_frame_numbers(table, str(poses) if poses is not None else "motion table")
+        check_source(config, num_frames, shape)  # warns when source and masks disagree
+        image_wh = (shape[1], shape[0]) if shape is not None else None
+        replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
+        return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
+    if seq_path.is_dir() and not list_frames(seq_path):
+        raise InputPathError(
+            f"{seq_path}: no label images in this folder; pass a folder "
+            "of masks, a mask video, or --poses with a motion table"
+        )
     check_source(config, num_frames, shape)  # warns when source and masks disagree
+    if fresh:
+        _entry_for(seq_path, config).remove()
+    if background:
+        return _background(seq_path, config, frames, num_frames, shape)
+    table, num_frames, config, shape = _track_now(
+        seq_path, config, cache=cache, progress=progress, num_frames=num_frames, shape=shape
+    )
     image_wh = (shape[1], shape[0]) if shape is not None else None
     replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
     return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
+
+
+def _track_now(
+    seq_path: Path,
+    config: Config,
+    *,
+    cache: bool,
+    progress: bool,
+    num_frames: int | None,
+    shape: tuple[int, int] | None,
+) -> tuple[TrackTable, int | None, Config, tuple[int, int] | None]:
+    """Track in this process (through the cache when ``cache``)."""
+    from mistool import api
+
+    if cache:
+        from mistool.background import JobSpec, track_into
+
+        entry = _entry_for(seq_path, config)
+        with contextlib.suppress(OSError, MistoolError):  # a damaged entry: track again
+            if entry.progress().complete:
+                return entry.read_final(), num_frames, config, shape
+        with contextlib.suppress(OSError):
+            track_into(JobSpec(seq_path, config, entry, **SERVE_TRACKING))  # type: ignore[arg-type]
+            return entry.read_final(), num_frames, config, shape
+    result = api.run(seq_path, config, progress=progress)
+    if result.shape is not None:
+        shape = result.shape
+    return result.table, result.num_frames, result.config, shape
+
+
+def _background(
+    seq_path: Path,
+    config: Config,
+    frames: FrameStore,
+    num_frames: int | None,
+    shape: tuple[int, int] | None,
+) -> LoadedSequence:
+    """A growing replay fed by a background tracking job through the cache."""
+    from mistool.background import JobSpec
+    from mistool.viewer.feed import CacheFeed
+
+    if shape is not None:
+        image_wh = (shape[1], shape[0])
+    elif config.camera is not None:
+        image_wh = (int(round(2 * config.camera.cx + 1)), int(round(2 * config.camera.cy + 1)))
+    else:
+        image_wh = (720, 576)
+    replay = Replay(
+        config,
+        num_frames=num_frames or 1,
+        image_wh=image_wh,
+        instruments=tuple(s.name for s in config.instruments),
+        parts=config_parts(config),
+    )
+    entry = _entry_for(seq_path, config)
+    spec = JobSpec(seq_path, config, entry, **SERVE_TRACKING)  # type: ignore[arg-type]
+    feed = CacheFeed(entry, spec, num_frames)
+    return LoadedSequence(replay=replay, frames=frames, name=seq_path.name, feed=feed)
 
 
 def check_host(host: str) -> None:
@@ -151,6 +224,11 @@ def check_host(host: str) -> None:
     except (OSError, IndexError) as exc:
         reason = getattr(exc, "strerror", None) or str(exc) or "cannot bind"
         raise ConfigError(f"--host {host}: cannot listen on this address: {reason}") from None
+
+
+def make_server(host: str, port: int, access: AccessPolicy | None = None) -> viser.ViserServer:
+    """The viser server every viewer runs on (the one place a server is created)."""
+    return quiet_server(host, port, access)
 
 
 def quiet_server(host: str, port: int, access: AccessPolicy | None = None) -> viser.ViserServer:
@@ -241,6 +319,12 @@ def endoscope_backdrop(
     return out, fov
 
 
+#: Seconds between two polls of a feed for new frames.
+FEED_POLL_S = 0.2
+#: Seconds between two refreshes of the plots while the replay grows.
+PLOT_REFRESH_S = 2.0
+
+
 class ReplayViewer:
     """A running viewer: server, scene, overlay, timeline, plots."""
 
@@ -283,8 +367,17 @@ class ReplayViewer:
         # Client id -> window aspect its Endoscope view was last laid out for.
         self._backdrop_aspect: dict[int, float] = {}
         self._closing = False
-        self._lock = threading.Lock()
-        self.server = quiet_server(host, port, access)
+        self._lock = threading.RLock()
+        self._overlay_jpeg: bytes | None = None
+        self._fitted = False  # grid and cameras fitted to some data
+        self._user_moved = False  # the user has chosen a frame: no automatic jumps
+        self._parts_text = ""
+        self._plots_refreshed = 0.0
+        self._feed_stop = threading.Event()
+        self._feed_thread: threading.Thread | None = None
+        self.feed_errors: list[BaseException] = []
+        """Errors raised while growing the replay (a bug, not bad input)."""
+        self.server = make_server(host, port, access)
         try:
             self._build(environment_map, trail_frames, opacity)
         except BaseException:
@@ -309,12 +402,17 @@ class ReplayViewer:
         mode = replay.default_mode
         self.scene = SceneView(server, replay, mode, overlay=first, trail_frames=trail_frames)
         gui = server.gui
-        gui.add_markdown(
-            f"**mistool replay** · {sequence.name} · {replay.num_frames} frames "
-            f"at {replay.fps:g} fps · {len(replay.instruments)} instrument(s)"
-        )
+        self.title = gui.add_markdown(self._title())
+        feed = sequence.feed
         with gui.add_folder("Playback"):
-            self.timeline = Timeline(server, replay.num_frames, replay.fps, self._draw)
+            available = replay.tracked if feed is not None else replay.num_frames
+            self.timeline = Timeline(server, max(available, 1), replay.fps, self._draw)
+            self.timeline.growing = feed is not None
+            self.progress = gui.add_markdown(
+                feed.status().text() if feed is not None else "", visible=feed is not None
+            )
+        with gui.add_folder("Parts in this frame"):
+            self.parts_info = gui.add_markdown("")
         with gui.add_folder("View"):
             labels = {"metric": "Metric (mm)", "paper": "Paper (px)"}
             self.mode = gui.add_dropdown(
@@ -332,7 +430,7 @@ class ReplayViewer:
                 "Mask opacity", min=0.0, max=1.0, step=0.05, initial_value=opacity
             )
             self.boxes = gui.add_checkbox("Rotated boxes", initial_value=True)
-            gui.add_markdown(self._legend())
+            self.legend = gui.add_markdown(self._legend())
         with gui.add_folder("2D overlay"):
             self.image = gui.add_image(
                 first if first is not None else np.zeros((4, 4, 3), np.uint8),
@@ -355,8 +453,16 @@ class ReplayViewer:
         server.initial_camera.look_at = tuple(look_at)
         server.initial_camera.up = tuple(up)
         server.initial_camera.fov = fov
+        self.timeline.slider.on_update(self._slider_moved)
         self.timeline.start()
-        self.timeline.request(0)
+        busy = replay.first_busy_frame()
+        self._fitted = busy is not None
+        self.timeline.seek(busy or 0)
+        if feed is not None:
+            self._feed_thread = threading.Thread(
+                target=self._feed_loop, name="mistool-feed", daemon=True
+            )
+            self._feed_thread.start()
 
     # -- public -------------------------------------------------------------------------
     @property
@@ -375,10 +481,112 @@ class ReplayViewer:
         """Draw ``frame`` synchronously (benchmarks); returns the seconds it took."""
         return self._draw(frame)
 
+    def apply(self, patch: ReplayPatch) -> None:
+        """Store new or replaced frames of the replay (thread-safe) and update what
+        depends on them: timeline range, new instruments, the frame on screen."""
+        replay = self.replay
+        with self._lock:
+            grew = len(patch.instruments) > len(replay.instruments)
+            replay.apply(patch)
+            if grew:
+                self.scene.add_instruments()
+                self.legend.content = self._legend()
+                self.title.content = self._title()
+            if self.overlays is not None:
+                self.overlays.invalidate(patch.lo, patch.hi)
+            now = time.monotonic()
+            if grew or now - self._plots_refreshed > PLOT_REFRESH_S:
+                self._plots_refreshed = now
+                self.plots.grow()
+        if self.sequence.feed is not None or self.timeline.growing:
+            self.timeline.set_num_frames(replay.tracked)
+        if not self._fitted:
+            busy = replay.first_busy_frame()
+            if busy is not None:
+                self._fit(busy)
+        if patch.lo <= self.timeline.frame < patch.hi:
+            self.timeline.redraw()
+
+    def set_image_size(self, image_wh: tuple[int, int]) -> None:
+        """Change the image size (live use: known at the first frame): the overlay and
+        the frustum follow."""
+        with self._lock:
+            self.replay.image_wh = (int(image_wh[0]), int(image_wh[1]))
+            if self.overlays is not None:
+                self.overlays.close()
+            self.renderer = OverlayRenderer(self.replay, self.sequence.frames)
+            self.overlays = OverlayCache(self.renderer)
+            fov, aspect = self.replay.fov_aspect()
+            self.scene.frustum.fov, self.scene.frustum.aspect = fov, aspect
+            self.scene._canonical_depth = self.scene.frustum.compute_canonical_frustum_size()[2]
+            for name, g in self.replay.modes.items():  # paper mode's image plane distance
+                distance, _ = mode_constants(name, self.replay.config, self.replay.image_wh)
+                self.replay.modes[name] = dataclasses.replace(g, image_distance=distance)
+            self.scene.set_mode(self.scene.mode)
+
+    def _fit(self, busy: int) -> None:
+        """The first data has come: fit the grid and cameras to it and show it."""
+        self._fitted = True
+        with self._lock:
+            self.scene.set_mode(self.scene.mode)
+            position, look_at, up, fov = self.scene.camera_pose("Reset")
+            initial = self.server.initial_camera
+            initial.position, initial.look_at = tuple(position), tuple(look_at)
+            initial.up, initial.fov = tuple(up), fov
+        for client in self.server.get_clients().values():
+            if client.client_id not in self._endoscope:
+                with contextlib.suppress(Exception):  # the browser may have just left
+                    self.scene.apply_camera(client, "Reset")
+        if not self._user_moved and not self.timeline.follow:
+            self.timeline.seek(busy)
+
+    def _slider_moved(self, event: viser.GuiEvent) -> None:
+        if event.client is not None:
+            self._user_moved = True
+
+    def _feed_loop(self) -> None:
+        """Background thread: grow the replay from the feed until it is finished."""
+        feed = self.sequence.feed
+        assert feed is not None
+        try:
+            feed.start()
+            while not self._feed_stop.is_set():
+                for patch in feed.poll(self.replay):
+                    if self._feed_stop.is_set():
+                        return
+                    self.apply(patch)
+                self.progress.content = feed.status().text()
+                if feed.finished:
+                    break
+                self._feed_stop.wait(FEED_POLL_S)
+        except Exception as exc:  # a bug: keep serving what is there, and say so
+            self.feed_errors.append(exc)
+            self.progress.content = f"**Tracking failed**: {type(exc).__name__}: {exc}"
+        finally:
+            self.timeline.growing = False
+            self.replay.complete = feed.status().phase == "done"
+            if not self._closing:
+                with self._lock:
+                    self.plots.grow()
+
+    def wait_tracked(self, frames: int, timeout: float = 30.0) -> bool:
+        """Block until ``frames`` frames are shown on the timeline (tests, benchmarks)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.replay.tracked >= frames:
+                return True
+            time.sleep(0.01)
+        return False
+
     def close(self) -> None:
-        """Stop playback and the server."""
+        """Stop tracking, playback and the server."""
         with self._lock:  # a draw in progress finishes first; later ones see _closing
             self._closing = True
+        self._feed_stop.set()
+        if self.sequence.feed is not None:
+            self.sequence.feed.stop()
+        if self._feed_thread is not None:
+            self._feed_thread.join(timeout=10.0)
         self.timeline.stop()
         if self.overlays is not None:
             self.overlays.close()
@@ -387,6 +595,34 @@ class ReplayViewer:
         self.sequence.frames.close()
 
     # -- internals ----------------------------------------------------------------------
+    def _title(self) -> str:
+        replay, name = self.replay, self.sequence.name
+        return (
+            f"**mistool replay** · {name} · {replay.num_frames:,} frames "
+            f"at {replay.fps:g} fps · {len(replay.instruments)} instrument(s)"
+        )
+
+    def _parts_markdown(self, frame: int) -> str:
+        """What each instrument part shows at ``frame``, and why one shows nothing."""
+        rows: dict[str, list[str]] = {}
+        for inst, part, status, quality in self.replay.frame_status(frame):
+            if status == "ok":
+                text = f"{part} ✓" + (f" ({quality:.2f})" if np.isfinite(quality) else "")
+            else:
+                text = f"{part}: _{status}_"
+            rows.setdefault(inst, []).append(text)
+        if not rows:
+            return "_Not tracked yet._" if frame >= self.replay.tracked else "_No instrument._"
+        lines = []
+        for i, (inst, texts) in enumerate(rows.items()):
+            r, g, b = (int(c) for c in self.replay.colours[i])
+            swatch = f"<span style='color:rgb({r},{g},{b})'>■</span> **{inst}**"
+            if all(t.endswith(f"_{NOT_VISIBLE}_") for t in texts):
+                lines.append(f"{swatch}: _{NOT_VISIBLE}_")
+            else:
+                lines.append(f"{swatch}: " + " · ".join(texts))
+        return "  \n".join(lines) + "  \n<small>✓ 3D pose shown (quality: mask IoU)</small>"
+
     def _legend(self) -> str:
         rows = []
         for i, name in enumerate(self.replay.instruments):
@@ -413,6 +649,10 @@ class ReplayViewer:
                     self._set_jpeg(*overlay)
                     self.overlay_frame = frame
                 self.plots.set_frame(frame)
+                text = self._parts_markdown(frame)
+                if text != self._parts_text:
+                    self._parts_text = text
+                    self.parts_info.content = text
             if overlay is not None:
                 self._send_backdrops(overlay[0])
         dt = time.perf_counter() - t0
@@ -455,16 +695,19 @@ class ReplayViewer:
 
     def _set_jpeg(self, rgb: np.ndarray, jpeg: bytes) -> None:
         """Send one encoded JPEG to both the GUI image and the frustum's image plane."""
-        self._overlay_rgb = rgb
+        self._overlay_rgb, self._overlay_jpeg = rgb, jpeg
         # Public setters would encode the same image twice; viser 1.1.1 (pinned) keeps
         # the encoded bytes in these props, so the one encoding is shared.
         self.image._image = rgb
         self.image._format = "jpeg"
         self.image._data = jpeg
         if self.scene.show_frustum_image:
-            self.scene.frustum._image = rgb
-            self.scene.frustum._format = "jpeg"
-            self.scene.frustum._image_data = jpeg
+            self._set_frustum_jpeg(rgb, jpeg)
+
+    def _set_frustum_jpeg(self, rgb: np.ndarray, jpeg: bytes) -> None:
+        self.scene.frustum._image = rgb
+        self.scene.frustum._format = "jpeg"
+        self.scene.frustum._image_data = jpeg
 
     def _redraw(self, trails: bool = False) -> None:
         if trails:
@@ -507,6 +750,10 @@ class ReplayViewer:
             self._backdrop_aspect.pop(client.client_id, None)
             if was and not self._endoscope and not self._closing:
                 self.scene.set_frustum_image_visible(True)
+                if self._overlay_rgb is not None and self._overlay_jpeg is not None:
+                    # The frustum missed the frames drawn while it was hidden.
+                    with self.server.atomic():
+                        self._set_frustum_jpeg(self._overlay_rgb, self._overlay_jpeg)
         if was and reset:
             with contextlib.suppress(Exception):  # the browser may be gone
                 client.scene.set_background_image(None)

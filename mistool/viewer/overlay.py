@@ -194,6 +194,12 @@ class OverlayRenderer:
         self.frames = frames
         self.size_wh = display_size(replay.image_wh, max_side)
         self._scale = self.size_wh[0] / replay.image_wh[0]
+        self._build_tables()
+
+    def _build_tables(self) -> None:
+        """Lookup tables for the replay's instruments (built again when it gains some)."""
+        replay = self.replay
+        self._tables_for = len(replay.instruments)
         cfg = replay.config
         parts = replay.parts
         # Part lookup for label values: 0 = background, p + 1 = parts[p].
@@ -263,13 +269,10 @@ class OverlayRenderer:
             opacity: mask opacity over the source frame (or the dark background), [0, 1].
             boxes: draw each part's rotated box.
         """
-        w, h = self.size_wh
         replay = self.replay
-        src = self.frames.source(frame)
-        if src is not None:
-            base = cv2.resize(src, (w, h), interpolation=cv2.INTER_AREA)
-        else:
-            base = self._background.copy()
+        if len(replay.instruments) != self._tables_for:
+            self._build_tables()
+        base = self.backdrop(frame)
         labels = self.frames.labels(frame)
         corners = replay.corners[frame] * self._scale if 0 <= frame < replay.num_frames else None
         if labels is not None:
@@ -288,6 +291,16 @@ class OverlayRenderer:
         if boxes and corners is not None:
             self._draw_boxes(base, corners)
         return base
+
+    def backdrop(self, frame: int) -> np.ndarray:
+        """The image the mask is blended over: the source video frame at display size
+        (RGB uint8, a new array), or a dark background without one. Every image shown
+        under the overlay (GUI panel, frustum, Endoscope view) comes from here."""
+        w, h = self.size_wh
+        src = self.frames.source(frame)
+        if src is not None:
+            return cv2.resize(src, (w, h), interpolation=cv2.INTER_AREA)
+        return self._background.copy()
 
     def _instances_from_boxes(self, part: np.ndarray, corners: np.ndarray | None) -> np.ndarray:
         """Instrument index per pixel for merged masks: the instrument whose box of that
@@ -368,6 +381,12 @@ class OverlayCache:
         item = self._make(key)
         self._put(key, item)
         return item
+
+    def invalidate(self, lo: int, hi: int) -> None:
+        """Forget the overlays of frames ``[lo, hi)`` (their boxes changed)."""
+        with self._lock:
+            for key in [k for k in self._items if lo <= k[0] < hi]:
+                del self._items[key]
 
     def peek(self, frame: int, opacity: float, boxes: bool) -> tuple[np.ndarray, bytes] | None:
         """The cached overlay, or None (never renders)."""

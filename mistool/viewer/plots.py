@@ -18,6 +18,8 @@ from mistool.viewer.replay import Replay
 #: Most points per plotted series (about one per pixel of the panel; the whole series is
 #: sent with each cursor move).
 MAX_PLOT_POINTS = 300
+#: Placeholder in the instrument menu before any instrument has been seen.
+NO_INSTRUMENT = "(none yet)"
 _AXIS_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")
 _LABELS = {
     "metric/position": (("x (mm)", "y (mm)", "z (mm)"), "Position, camera frame (mm)"),
@@ -42,16 +44,16 @@ class PlotPanel:
     def __init__(self, gui: viser.GuiApi, replay: Replay, mode: str) -> None:
         self.replay = replay
         self.mode = mode
-        n = replay.num_frames
-        self._stride = max(1, int(np.ceil(n / MAX_PLOT_POINTS)))
-        self._idx = np.arange(0, n, self._stride)
-        self._t = self._idx / replay.fps
+        self._frames_sampled = -1
+        self._resample()
         self.instrument = gui.add_dropdown(
-            "Instrument", replay.instruments, initial_value=replay.instruments[0]
+            "Instrument", self._instrument_options(), initial_value=self._instrument_options()[0]
         )
         self.part = gui.add_dropdown("Part", replay.parts, initial_value=replay.parts[-1])
         self._frame = 0
-        self._cache: dict[tuple[str, ...], tuple[np.ndarray, dict[str, tuple]]] = {}
+        self._cache: dict[tuple[object, ...], tuple[np.ndarray, dict[str, tuple]]] = {}
+        self.revision = replay.revision
+        """The replay revision the charts' ranges were last set from."""
         self.charts: dict[str, viser.GuiUplotHandle] = {}
         for kind in ("position", "rotation"):
             data, ranges = self._data(kind, 0)
@@ -66,6 +68,31 @@ class PlotPanel:
             )
         self.instrument.on_update(lambda _: self.refresh())
         self.part.on_update(lambda _: self.refresh())
+
+    def _resample(self) -> None:
+        """Frames plotted: every k-th of the timeline, at most MAX_PLOT_POINTS."""
+        n = self.replay.num_frames
+        if n == self._frames_sampled:
+            return
+        self._frames_sampled = n
+        self._stride = max(1, int(np.ceil(n / MAX_PLOT_POINTS)))
+        self._idx = np.arange(0, n, self._stride)
+        self._t = self._idx / self.replay.fps
+
+    def _instrument_options(self) -> tuple[str, ...]:
+        return self.replay.instruments or (NO_INSTRUMENT,)
+
+    def grow(self) -> None:
+        """Follow a replay that has grown: new instruments, longer timeline, new values
+        (the charts' ranges are set again)."""
+        options = self._instrument_options()
+        if tuple(self.instrument.options) != options:
+            current = self.instrument.value
+            self.instrument.options = options
+            if current not in options:
+                self.instrument.value = options[0]
+        self._resample()
+        self.refresh()
 
     def _series(self, kind: str) -> tuple[uplot.Series, ...]:
         labels = _LABELS[f"{self.mode}/{kind}"][0]
@@ -95,19 +122,25 @@ class PlotPanel:
 
     def _selected(self, kind: str) -> np.ndarray:
         """(F, 3) values of the selected instrument part."""
-        i = self.replay.instruments.index(self.instrument.value)
-        p = self.replay.parts.index(self.part.value)
-        return self.replay.series[f"{self.mode}/{kind}"][:, i, p]
+        replay = self.replay
+        series = replay.series[f"{self.mode}/{kind}"]
+        if self.instrument.value not in replay.instruments:
+            return np.full((series.shape[0], 3), np.nan)
+        i = replay.instruments.index(self.instrument.value)
+        p = replay.parts.index(self.part.value)
+        return series[:, i, p]
 
     def _values(self, kind: str) -> tuple[np.ndarray, dict[str, tuple]]:
         """Downsampled (M, 3) values of the selection and their y ranges (cached)."""
-        key = (self.mode, kind, self.instrument.value, self.part.value)
+        key = (self.mode, kind, self.instrument.value, self.part.value, self.replay.revision)
         hit = self._cache.get(key)
         if hit is None:
             values = np.ascontiguousarray(self._selected(kind)[self._idx])
             split = self.mode == "paper" and kind == "position"
             y = _range(values[:, :2] if split else values)
             hit = values, {"y": y, "z": _range(values[:, 2]) if split else y}
+            if len(self._cache) > 16:
+                self._cache.clear()
             self._cache[key] = hit
         return hit
 
@@ -117,7 +150,8 @@ class PlotPanel:
         t_now = frame / self.replay.fps
         j = int(np.searchsorted(self._t, t_now))
         x = np.concatenate([self._t[:j], [t_now, t_now], self._t[j:]])
-        now = self._selected(kind)[min(max(frame, 0), self.replay.num_frames - 1)]
+        selected = self._selected(kind)
+        now = selected[min(max(frame, 0), len(selected) - 1)]
         cols = []
         for c in range(3):
             v = values[:, c]
@@ -141,6 +175,7 @@ class PlotPanel:
 
     def refresh(self) -> None:
         """Rebuild both charts (instrument, part or mode changed)."""
+        self.revision = self.replay.revision
         for kind, chart in self.charts.items():
             data, ranges = self._data(kind, self._frame)
             chart.series = self._series(kind)

@@ -146,34 +146,275 @@ class ModeGeometry:
     """What one world unit is, for the GUI (e.g. ``"1 cm"``)."""
 
 
-@dataclass(frozen=True)
-class Replay:
-    """A sequence's replay: the table plus dense per-frame arrays for the viewer."""
+#: Reason shown for a part with no row in a frame (the mask has none of it).
+NOT_VISIBLE = "not visible"
+#: Reason shown for a part with a row whose metric pose is empty, when the table has no
+#: ``pose_status`` column to say why.
+NO_POSE = "no pose"
+#: Frames per window when a whole table is written into a replay.
+WRITE_WINDOW = 4096
 
-    table: TrackTable
-    """The track table it was built from."""
-    config: Config
-    """The sequence's configuration."""
-    num_frames: int
-    """Number of frames of the sequence (at least one past the last table frame)."""
-    fps: float
-    """Frames per second."""
-    image_wh: tuple[int, int]
-    """Image size (width, height) in px."""
+
+def mode_constants(mode: str, config: Config, image_wh: tuple[int, int]) -> tuple[float, str]:
+    """(image distance in world units, what one world unit is) of a display mode."""
+    if mode == "metric":
+        return 20.0 * METRIC_UNITS_PER_MM, "1 cm"
+    w, h = image_wh
+    f_px = config.camera.fy if config.camera is not None else float(max(w, h))
+    return PAPER_IMAGE_BEHIND * f_px * PAPER_UNITS_PER_PX, "100 px"
+
+
+def _empty_geometry(shape: tuple[int, int, int], distance: float, units: str) -> ModeGeometry:
+    f, i, p = shape
+    wxyz = np.zeros((f, i, p, 4))
+    wxyz[..., 0] = 1.0
+    return ModeGeometry(
+        centre=np.zeros((f, i, p, 3)),
+        wxyz=wxyz,
+        length=np.zeros((f, i, p)),
+        radius=np.zeros((f, i, p)),
+        visible=np.zeros((f, i, p), dtype=bool),
+        joint=np.full((f, i, 3), np.nan),
+        tip=np.full((f, i, 3), np.nan),
+        image_distance=distance,
+        units=units,
+    )
+
+
+@dataclass
+class ReplayPatch:
+    """Replay arrays of frames ``[lo, hi)`` computed from a table, not applied yet
+    (:meth:`Replay.compute` / :meth:`Replay.apply`)."""
+
+    lo: int
+    """First frame."""
+    hi: int
+    """One past the last frame."""
     instruments: tuple[str, ...]
-    """Instrument names, in colour order."""
-    parts: tuple[str, ...]
-    """Parts present, proximal to distal."""
-    colours: np.ndarray
-    """(I, 3) uint8: one RGB colour per instrument."""
-    corners: np.ndarray
-    """(F, I, P, 4, 2) float32: each part's box corners in px (NaN where absent)."""
-    modes: dict[str, ModeGeometry]
-    """Available display modes ("metric" needs a camera and metric columns)."""
-    series: dict[str, np.ndarray]
-    """Plot series per mode: ``"<mode>/position"`` and ``"<mode>/rotation"``, each
-    (F, I, P, 3) float64 (NaN where unknown)."""
+    """Instrument order the arrays use (the replay's, maybe with new ones appended)."""
+    arrays: dict[str, np.ndarray]
+    """``"corners"``, ``"status"``, ``"quality"``, ``"<mode>/<field>"`` and
+    ``"series/<mode>/<kind>"``: each with leading axis ``hi - lo``."""
+    statuses: tuple[str, ...]
+    """Status vocabulary the ``status`` codes refer to."""
 
+
+class Replay:
+    """A sequence's replay: dense per-frame arrays for the viewer, which can grow.
+
+    Every array is dense over ``(frame, instrument, part)`` up to :attr:`capacity` frames;
+    frames ``[0, tracked)`` hold results so far (the rest shows nothing). A replay is built
+    whole by :func:`build_replay`, or empty and then grown with :meth:`write` while a
+    sequence is being tracked (``mistool serve``, :class:`mistool.Viewer`). Writes replace
+    whole frames; readers may read while another thread writes (a frame's arrays are
+    assigned in one step by :meth:`apply`).
+    """
+
+    def __init__(
+        self,
+        config: Config,
+        *,
+        num_frames: int,
+        image_wh: tuple[int, int],
+        instruments: tuple[str, ...] = (),
+        parts: tuple[str, ...] = ("shaft", "clasper"),
+        modes: tuple[str, ...] = MODES,
+    ) -> None:
+        """
+        Args:
+            config: the sequence's configuration (fps, camera, instrument dimensions).
+            num_frames: frames on the timeline (more can be added by writing past it).
+            image_wh: image (width, height), px.
+            instruments: instrument names known so far, in colour order.
+            parts: parts shown, proximal to distal.
+            modes: display modes ("metric" is dropped without a camera).
+        """
+        self.config = config
+        """The sequence's configuration."""
+        self.fps = float(config.fps)
+        """Frames per second."""
+        self.image_wh = (int(image_wh[0]), int(image_wh[1]))
+        """Image size (width, height) in px."""
+        self.parts = tuple(parts)
+        """Parts present, proximal to distal."""
+        self.num_frames = max(1, int(num_frames))
+        """Frames on the timeline (the sequence's length when known)."""
+        self.tracked = 0
+        """Frames ``[0, tracked)`` hold results."""
+        self.revision = 0
+        """Incremented by every change (consumers cache per revision)."""
+        self.complete = False
+        """Set by the writer when no more frames will come (refinement included)."""
+        self.statuses: list[str] = [NOT_VISIBLE, "ok"]
+        """Vocabulary of :attr:`status` codes (0 = not visible, 1 = ok)."""
+        self._mode_names = tuple(m for m in modes if m != "metric" or config.camera is not None)
+        self.instruments: tuple[str, ...] = ()
+        """Instrument names, in colour order."""
+        self.capacity = 0
+        self._allocate(tuple(instruments), self.num_frames)
+
+    # -- storage ------------------------------------------------------------------------
+    def _allocate(self, instruments: tuple[str, ...], capacity: int) -> None:
+        """(Re)allocate every array for ``instruments`` x ``capacity`` frames, keeping
+        what is stored (new instruments are appended)."""
+        old_i, old_f = len(self.instruments), self.capacity
+        shape = (capacity, len(instruments), len(self.parts))
+        old = self.__dict__.copy()
+        self.corners = np.full((*shape, 4, 2), np.nan, dtype=np.float32)
+        """(F, I, P, 4, 2) float32: each part's box corners in px (NaN where absent)."""
+        self.status = np.zeros(shape, dtype=np.uint8)
+        """(F, I, P) uint8: why a part has (code 1, "ok") or has no metric pose, an index
+        into :attr:`statuses`."""
+        self.quality = np.full(shape, np.nan, dtype=np.float32)
+        """(F, I, P) float32: the pose's quality column (IoU, [0, 1]), NaN if unknown."""
+        self.modes: dict[str, ModeGeometry] = {
+            m: _empty_geometry(shape, *mode_constants(m, self.config, self.image_wh))
+            for m in self._mode_names
+        }
+        """Available display modes ("metric" needs a camera)."""
+        self.series: dict[str, np.ndarray] = {
+            f"{m}/{k}": np.full((*shape, 3), np.nan)
+            for m in self._mode_names
+            for k in ("position", "rotation")
+        }
+        """Plot series per mode: ``"<mode>/position"`` and ``"<mode>/rotation"``, each
+        (F, I, P, 3) float64 (NaN where unknown)."""
+        if old_i or old_f:
+            keep = (slice(0, min(old_f, capacity)), slice(0, old_i))
+            for name, arr in self._arrays_of(self.__dict__).items():
+                arr[keep] = self._arrays_of(old)[name][keep]
+        self.instruments = instruments
+        self.capacity = capacity
+        self.colours = PALETTE[np.arange(len(instruments)) % len(PALETTE)]
+        """(I, 3) uint8: one RGB colour per instrument."""
+
+    @staticmethod
+    def _arrays_of(attrs: dict[str, Any]) -> dict[str, np.ndarray]:
+        out = {"corners": attrs["corners"], "status": attrs["status"], "quality": attrs["quality"]}
+        for m, g in attrs["modes"].items():
+            for name in ("centre", "wxyz", "length", "radius", "visible", "joint", "tip"):
+                out[f"{m}/{name}"] = getattr(g, name)
+        for key, arr in attrs["series"].items():
+            out[f"series/{key}"] = arr
+        return out
+
+    # -- writing ------------------------------------------------------------------------
+    def compute(self, table: TrackTable, lo: int, hi: int) -> ReplayPatch:
+        """The arrays of frames ``[lo, hi)`` from ``table`` (its rows of those frames;
+        other rows are ignored). Pure: the replay is not changed.
+
+        Raises:
+            TableError: the table lacks box columns or names an unknown part.
+        """
+        _check_box_columns(table)
+        if table.num_rows:
+            fcol = np.asarray(table["frame"], dtype=np.int64)
+            table = table[(fcol >= lo) & (fcol < hi)]
+        inst_col = np.asarray(table["instrument"]).astype(str)
+        part_col = np.asarray(table["part"]).astype(str)
+        unknown = sorted(set(part_col) - set(self.parts))
+        if unknown:
+            raise TableError(
+                f"motion table: unknown part(s) {', '.join(unknown)}; "
+                f"expected {', '.join(self.parts)}"
+            )
+        new = sorted(set(inst_col) - set(self.instruments), key=_natural_key)
+        instruments = self.instruments + tuple(new)
+        fi = np.asarray(table["frame"], dtype=np.int64) - lo
+        ii = _codes(inst_col, instruments)
+        pi = _codes(part_col, self.parts)
+        shape = (hi - lo, len(instruments), len(self.parts))
+        arrays: dict[str, np.ndarray] = {}
+        corners_cols = tuple(f"{a}{k}_px" for k in range(1, 5) for a in ("x", "y"))
+        corners = np.full((*shape, 4, 2), np.nan)
+        if all(c in table for c in corners_cols):
+            corners = _dense(table, fi, ii, pi, shape, corners_cols).reshape(*shape, 4, 2)
+        arrays["corners"] = corners.astype(np.float32)
+        statuses = list(self.statuses)
+        arrays["status"] = self._status(table, fi, ii, pi, shape, statuses)
+        quality = np.full(shape, np.nan, dtype=np.float32)
+        if "quality" in table:
+            quality[fi, ii, pi] = np.asarray(table["quality"], dtype=np.float32)
+        arrays["quality"] = quality
+        for m in self._mode_names:
+            empty = _empty_geometry(shape, 0.0, "")
+            found = (
+                _metric_geometry(table, fi, ii, pi, shape, self.parts, instruments, self.config)
+                if m == "metric"
+                else _paper_geometry(
+                    _paper_columns(table), fi, ii, pi, shape, self.parts, self.config, self.image_wh
+                )
+            )
+            g = found[0] if found is not None else empty
+            for name in ("centre", "wxyz", "length", "radius", "visible", "joint", "tip"):
+                arrays[f"{m}/{name}"] = getattr(g, name)
+            for k, kind in ((1, "position"), (2, "rotation")):
+                arrays[f"series/{m}/{kind}"] = (
+                    found[k] if found is not None else np.full((*shape, 3), np.nan)
+                )
+        return ReplayPatch(lo, hi, instruments, arrays, tuple(statuses))
+
+    def _status(
+        self,
+        table: TrackTable,
+        fi: np.ndarray,
+        ii: np.ndarray,
+        pi: np.ndarray,
+        shape: tuple[int, int, int],
+        statuses: list[str],
+    ) -> np.ndarray:
+        """Status codes: the ``pose_status`` column when the table has one, else "ok"
+        where the metric end is known and :data:`NO_POSE` where it is not."""
+        out = np.zeros(shape, dtype=np.uint8)  # 0: no row, not visible
+        if table.num_rows == 0:
+            return out
+        if "pose_status" in table:
+            text = np.asarray(table["pose_status"]).astype(str)
+        else:
+            ends = np.column_stack([np.asarray(table[c], float) for c in _END_COLUMNS])
+            known = np.isfinite(ends).all(axis=1)
+            reason = NO_POSE if self.config.camera is not None else "no camera"
+            text = np.where(known, "ok", reason)
+        codes = np.empty(len(text), dtype=np.uint8)
+        for value in np.unique(text):
+            name = str(value) or NO_POSE
+            if name not in statuses:
+                if len(statuses) >= 255:
+                    name = NO_POSE if NO_POSE in statuses else statuses[-1]
+                else:
+                    statuses.append(name)
+            codes[text == value] = statuses.index(name)
+        out[fi, ii, pi] = codes
+        return out
+
+    def apply(self, patch: ReplayPatch) -> None:
+        """Store a computed patch: frames ``[lo, hi)`` replaced, the timeline extended
+        past ``hi`` when needed, new instruments added (fast: array copies only)."""
+        if patch.hi > self.capacity or len(patch.instruments) > len(self.instruments):
+            capacity = self.capacity
+            while capacity < patch.hi:
+                capacity = max(2 * capacity, 64)
+            self._allocate(patch.instruments, capacity)
+        self.statuses = list(patch.statuses)
+        n_i = len(patch.instruments)
+        target = self._arrays_of(self.__dict__)
+        window = slice(patch.lo, patch.hi)
+        for name, arr in patch.arrays.items():
+            dest = target[name]
+            if dest.shape[1] == n_i:
+                dest[window] = arr
+            else:  # cannot happen after _allocate; kept for clarity of shapes
+                dest[window, :n_i] = arr
+        self.tracked = max(self.tracked, patch.hi)
+        self.num_frames = max(self.num_frames, patch.hi)
+        self.revision += 1
+
+    def write(self, table: TrackTable, lo: int, hi: int) -> None:
+        """:meth:`compute` then :meth:`apply`, in windows of :data:`WRITE_WINDOW` frames."""
+        for a in range(lo, hi, WRITE_WINDOW):
+            self.apply(self.compute(table, a, min(hi, a + WRITE_WINDOW)))
+
+    # -- reading ------------------------------------------------------------------------
     @property
     def default_mode(self) -> str:
         """Metric when available (camera known and poses present), else paper."""
@@ -200,6 +441,34 @@ class Replay:
         """RGB colour of a part of the instrument at ``instrument_index``."""
         return part_colour(self.colours[instrument_index], part)
 
+    def first_busy_frame(self) -> int | None:
+        """The first stored frame where some part is drawn in 3D (None: none so far)."""
+        g = self.modes[self.default_mode]
+        busy = g.visible[: self.tracked].any(axis=(1, 2))
+        hits = np.flatnonzero(busy)
+        return int(hits[0]) if len(hits) else None
+
+    def frame_status(self, frame: int) -> list[tuple[str, str, str, float]]:
+        """Per instrument and part at ``frame``: (instrument, part, status, quality)."""
+        out = []
+        if not 0 <= frame < min(self.tracked, self.capacity):
+            return out
+        for i, inst in enumerate(self.instruments):
+            for p, part in enumerate(self.parts):
+                code = int(self.status[frame, i, p])
+                out.append((inst, part, self.statuses[code], float(self.quality[frame, i, p])))
+        return out
+
+
+_END_COLUMNS = ("end_x_mm", "end_y_mm", "end_z_mm")
+
+
+def _codes(values: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+    """Index of each value in ``names`` (every value must be one of them)."""
+    distinct, inverse = np.unique(values, return_inverse=True)
+    lut = np.array([names.index(str(v)) for v in distinct], dtype=np.int64)
+    return lut[inverse.reshape(-1)] if len(values) else np.zeros(0, dtype=np.int64)
+
 
 def _dense(
     table: TrackTable,
@@ -217,16 +486,42 @@ def _dense(
 
 def _paper_columns(table: TrackTable) -> TrackTable:
     """The table with the paper's per-frame columns, computed when they are all missing."""
+    if table.num_rows == 0:
+        return table
     if "paper_x_px" in table and np.isfinite(np.asarray(table["paper_x_px"], float)).any():
         return table
     corners = [f"{a}{k}_px" for k in range(1, 5) for a in ("x", "y")]
     if not all(c in table and np.isfinite(np.asarray(table[c], float)).all() for c in corners):
         return table  # Algorithm 2 needs every box's corners
-    try:
-        from mistool.paper import paper_motion  # the algorithms helper's Algorithm 2
-    except ImportError:  # pragma: no cover - until mistool.paper exists
-        return table
+    from mistool.paper import paper_motion
+
     return paper_motion(table)
+
+
+def _check_box_columns(table: TrackTable) -> None:
+    for name in ("frame", "instrument", "part", "cx_px", "cy_px", "length_px", "width_px"):
+        if name not in table:
+            raise TableError(
+                f"motion table: missing column {name!r}; the viewer needs the "
+                "boxes (cx_px, cy_px, length_px, width_px, angle_deg)"
+            )
+
+
+def table_instruments(table: TrackTable, config: Config) -> tuple[str, ...]:
+    """Instrument names of a table in colour order: the config's, then natural order."""
+    present = {str(s) for s in np.asarray(table["instrument"]).astype(str)}
+    return tuple(
+        dict.fromkeys(
+            [s.name for s in config.instruments if s.name in present]
+            + sorted(present, key=_natural_key)
+        )
+    )
+
+
+def config_parts(config: Config) -> tuple[str, ...]:
+    """Parts the config's labels have, proximal to distal (shaft and clasper at least)."""
+    named = set(config.parts) | {p for s in config.instruments for p in s.parts}
+    return tuple(p for p in PARTS if p in named or p in ("shaft", "clasper"))
 
 
 def build_replay(
@@ -236,7 +531,7 @@ def build_replay(
     num_frames: int | None = None,
     image_wh: tuple[int, int] | None = None,
 ) -> Replay:
-    """Precompute a replay from a track table.
+    """Precompute a replay from a whole track table.
 
     Args:
         table: The motion table (box columns required; paper and metric columns used
@@ -247,86 +542,73 @@ def build_replay(
             else the boxes' extent.
 
     Returns:
-        The replay.
+        The replay (:attr:`Replay.complete` set).
 
     Raises:
         TableError: the table has no rows or lacks box columns.
     """
-    for name in ("frame", "instrument", "part", "cx_px", "cy_px", "length_px", "width_px"):
-        if name not in table:
-            raise TableError(
-                f"motion table: missing column {name!r}; the viewer needs the "
-                "boxes (cx_px, cy_px, length_px, width_px, angle_deg)"
-            )
+    _check_box_columns(table)
     if table.num_rows == 0:
         raise TableError("motion table: no rows (no instrument was found in any frame)")
-    table = _paper_columns(table)
     frames = np.asarray(table["frame"], dtype=np.int64)
     if frames.min() < 0:
         raise TableError(f"motion table: negative frame index {int(frames.min())}")
-    n_frames = (
-        int(frames.max()) + 1 if num_frames is None else max(int(num_frames), int(frames.max()) + 1)
-    )
-    inst_col = np.asarray(table["instrument"]).astype(str)
-    present = {str(s) for s in inst_col}
-    instruments = tuple(
-        dict.fromkeys(
-            [s.name for s in config.instruments if s.name in present]
-            + sorted(present, key=_natural_key)
-        )
-    )
-    part_col = np.asarray(table["part"]).astype(str)
-    unknown = sorted(set(part_col) - set(PARTS))
+    last = int(frames.max())
+    n_frames = last + 1 if num_frames is None else max(int(num_frames), last + 1)
+    part_col = set(np.asarray(table["part"]).astype(str))
+    unknown = sorted(part_col - set(PARTS))
     if unknown:
         raise TableError(
             f"motion table: unknown part(s) {', '.join(unknown)}; expected {', '.join(PARTS)}"
         )
-    parts = tuple(str(p) for p in PARTS if p in set(part_col))
-    ii = np.array([instruments.index(s) for s in inst_col], dtype=np.int64)
-    pi = np.array([parts.index(s) for s in part_col], dtype=np.int64)
-    shape = (n_frames, len(instruments), len(parts))
-
-    corners_cols = tuple(f"{a}{k}_px" for k in range(1, 5) for a in ("x", "y"))
-    if all(c in table for c in corners_cols):
-        corners = _dense(table, frames, ii, pi, shape, corners_cols).reshape(*shape, 4, 2)
-    else:
-        corners = np.full((*shape, 4, 2), np.nan)
     if image_wh is None:
-        if config.camera is not None:
-            image_wh = (int(round(2 * config.camera.cx + 1)), int(round(2 * config.camera.cy + 1)))
-        else:
-            cx = np.asarray(table["cx_px"], float)
-            cy = np.asarray(table["cy_px"], float)
-            image_wh = (int(np.nanmax(cx) * 1.2 + 1), int(np.nanmax(cy) * 1.2 + 1))
-    colours = PALETTE[np.arange(len(instruments)) % len(PALETTE)]
-    fps = float(config.fps)
-
-    modes: dict[str, ModeGeometry] = {}
-    series: dict[str, np.ndarray] = {}
-    paper = _paper_geometry(table, frames, ii, pi, shape, parts, config, image_wh)
-    if paper is not None:
-        modes["paper"], series["paper/position"], series["paper/rotation"] = paper
-    metric = _metric_geometry(table, frames, ii, pi, shape, parts, instruments, config)
-    if metric is not None:
-        modes["metric"], series["metric/position"], series["metric/rotation"] = metric
+        image_wh = _image_wh_of(table, config)
+    modes = []
+    if _has_values(table, ("paper_x_px",)) or _has_values(table, ("x1_px",)):
+        modes.append("paper")
+    if config.camera is not None and _has_values(table, _END_COLUMNS):
+        modes.insert(0, "metric")
     if not modes:
         raise TableError(
             "motion table: neither paper columns (paper_x_px ...) nor metric "
             "columns (end_x_mm ...) hold any value; nothing to show in 3D"
         )
-    return Replay(
-        table=table,
-        config=config,
-        num_frames=n_frames,
-        fps=fps,
-        image_wh=(int(image_wh[0]), int(image_wh[1])),
-        instruments=instruments,
-        parts=parts,
-        colours=colours,
-        corners=corners.astype(np.float32),
-        modes=modes,
-        series=series,
+    replay = Replay(
+        config,
+        num_frames=int(n_frames),
+        image_wh=image_wh,
+        instruments=table_instruments(table, config),
+        parts=tuple(p for p in PARTS if p in part_col),
+        modes=tuple(modes),
     )
+    if "paper" in modes and not _has_values(table, ("paper_x_px",)):
+        table = _paper_columns(table)  # over the whole table: Eq. 5 needs consecutive rows
+        if not _has_values(table, ("paper_x_px",)):
+            replay._mode_names = tuple(m for m in replay._mode_names if m != "paper")
+            replay.modes.pop("paper")
+            replay.series = {k: v for k, v in replay.series.items() if not k.startswith("paper")}
+            if not replay.modes:
+                raise TableError(
+                    "motion table: neither paper columns (paper_x_px ...) nor metric "
+                    "columns (end_x_mm ...) hold any value; nothing to show in 3D"
+                )
+    replay.write(table, 0, replay.num_frames)
+    replay.complete = True
+    return replay
+
+
+def _has_values(table: TrackTable, names: tuple[str, ...]) -> bool:
+    return all(n in table for n in names) and bool(
+        np.isfinite(np.column_stack([np.asarray(table[n], float) for n in names])).all(axis=1).any()
+    )
+
+
+def _image_wh_of(table: TrackTable, config: Config) -> tuple[int, int]:
+    if config.camera is not None:
+        return (int(round(2 * config.camera.cx + 1)), int(round(2 * config.camera.cy + 1)))
+    cx = np.asarray(table["cx_px"], float)
+    cy = np.asarray(table["cy_px"], float)
+    return (int(np.nanmax(cx) * 1.2 + 1), int(np.nanmax(cy) * 1.2 + 1))
 
 
 def _natural_key(text: str) -> tuple[Any, ...]:

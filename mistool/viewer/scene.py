@@ -79,18 +79,6 @@ class SceneView:
             intensity=1.6,
         )
         self.cylinders: dict[tuple[int, int], viser.CylinderHandle] = {}
-        for i, inst in enumerate(replay.instruments):
-            for p, part in enumerate(replay.parts):
-                self.cylinders[i, p] = scene.add_cylinder(
-                    f"/instruments/{node_name(inst)}/{part}",
-                    radius=1.0,
-                    height=1.0,
-                    color=replay.part_colour(i, part),
-                    radial_segments=24,
-                    cast_shadow=False,
-                    receive_shadow=False,
-                    visible=False,
-                )
         fov, aspect = replay.fov_aspect()
         self.frustum = scene.add_camera_frustum(
             "/endoscope",
@@ -110,7 +98,27 @@ class SceneView:
         self._canonical_depth = self.frustum.compute_canonical_frustum_size()[2]
         self.grid: viser.GridHandle | None = None
         self.trails: dict[tuple[int, str], viser.LineSegmentsHandle] = {}
+        self.add_instruments()
+        self.set_mode(mode)
+
+    def add_instruments(self) -> None:
+        """Create the nodes (cylinders, trails) of instruments the replay has gained."""
+        scene, replay = self.server.scene, self.replay
+        known = {i for i, _ in self.cylinders}
         for i, inst in enumerate(replay.instruments):
+            if i in known:
+                continue
+            for p, part in enumerate(replay.parts):
+                self.cylinders[i, p] = scene.add_cylinder(
+                    f"/instruments/{node_name(inst)}/{part}",
+                    radius=1.0,
+                    height=1.0,
+                    color=replay.part_colour(i, part),
+                    radial_segments=24,
+                    cast_shadow=False,
+                    receive_shadow=False,
+                    visible=False,
+                )
             for kind, part in (("tip", replay.parts[-1]), ("joint", "shaft")):
                 colour = np.array(replay.part_colour(i, part), dtype=np.uint8)
                 self.trails[i, kind] = scene.add_line_segments(
@@ -121,7 +129,6 @@ class SceneView:
                     thickness_units="screen",
                     visible=False,
                 )
-        self.set_mode(mode)
 
     # -- modes and static parts ---------------------------------------------------------
     def set_mode(self, mode: str) -> None:

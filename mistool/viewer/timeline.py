@@ -39,6 +39,11 @@ class Timeline:
         self.num_frames = int(num_frames)
         self.fps = float(fps)
         self._draw = draw
+        self.growing = False
+        """More frames are coming (tracking runs): playback holds at the last frame
+        instead of looping or stopping."""
+        self.follow = False
+        """Show each new frame as it arrives (live use), until the user scrubs."""
         self._lock = threading.Lock()
         self._tick = threading.RLock()  # held while playback advances one frame
         self._wake = threading.Event()
@@ -63,7 +68,7 @@ class Timeline:
         self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1x")
         self.loop = gui.add_checkbox("Loop", initial_value=True)
         self.info = gui.add_markdown(self._info_text(0))
-        self.slider.on_update(lambda _: self.request(int(self.slider.value)))
+        self.slider.on_update(self._slider_moved)
         self.play_button.on_click(lambda _: self.toggle())
         self.step_buttons.on_click(
             lambda e: self.step(-1 if str(e.target.value).startswith("-") else 1)
@@ -81,6 +86,25 @@ class Timeline:
         self.commands[3].on_trigger(lambda _: self.step(1))
         self.commands[4].on_trigger(lambda _: self.seek(0))
         self._thread = threading.Thread(target=self._run, name="mistool-timeline", daemon=True)
+
+    def _slider_moved(self, event: viser.GuiEvent) -> None:
+        if event.client is not None and self.follow:
+            latest = int(self.slider.value) >= self.num_frames - 1
+            self.follow = latest  # scrubbing back stops following the newest frame
+        self.request(int(self.slider.value))
+
+    def set_num_frames(self, num_frames: int) -> None:
+        """Frames available on the timeline (grows while a sequence is tracked); the
+        slider's range follows, and with :attr:`follow` the newest frame is shown."""
+        num_frames = max(1, int(num_frames))
+        if num_frames == self.num_frames:
+            return
+        self.num_frames = num_frames
+        self.slider.max = max(num_frames - 1, 1)
+        self.slider.disabled = num_frames < 2
+        if self.follow:
+            self.seek(num_frames - 1)
+        self._wake.set()
 
     def start(self) -> None:
         """Start the render thread (once everything ``draw`` uses exists)."""
@@ -138,7 +162,8 @@ class Timeline:
         with self._tick:
             if playing == self.playing:
                 return
-            if playing and not self.loop.value and self._target >= self.num_frames - 1:
+            at_end = self._target >= self.num_frames - 1
+            if playing and at_end and not self.loop.value and not self.growing:
                 self.seek(0)
             self.playing = playing
             self.play_button.label = "Pause" if playing else "Play"
@@ -190,6 +215,8 @@ class Timeline:
                         continue
                     frame = self._target + 1
                     if frame >= self.num_frames:
+                        if self.growing:  # hold at the newest frame until more come
+                            continue
                         if self.loop.value:
                             frame = 0
                         else:

@@ -1,0 +1,191 @@
+"""Tracking in the background, chunk by chunk, into a cache entry (no viser here).
+
+``mistool serve`` starts a :class:`TrackingJob` and shows each chunk as soon as it is
+stored: a child process tracks the sequence in frame order, stores the raw rows of every
+chunk (and the tracker's state after it) in a :class:`~mistool.cache.CacheEntry`, and at
+the end applies the sequence-level refinement (paper motion over the whole sequence, trocar,
+smoothing) and stores the finished table. The server reads the entry; it never waits for the
+child. Stopping kills the child; what was stored stays valid, and the next job on the same
+entry resumes after the last stored chunk.
+
+Why a process and not a thread: the tracker's Python parts would otherwise share the GIL
+with the viewer's event loop, and its memory (rows, refinement) would add to the server's.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import multiprocessing
+import signal
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mistool.cache import CacheEntry, Progress
+from mistool.config import Config
+from mistool.errors import MistoolError
+from mistool.model import TrackTable
+
+#: Frames of the first chunks: small at first so that the first picture comes at once,
+#: then growing (fewer files, less overhead), at most the last value.
+CHUNK_SCHEDULE = (25, 50, 100, 200, 400, 800)
+#: Frames of paper-motion context carried over a chunk boundary (Eq. 5 needs two).
+_PAPER_CONTEXT = 2
+
+
+def chunk_sizes() -> Iterator[int]:
+    """Chunk lengths in frames: :data:`CHUNK_SCHEDULE`, then its last value forever."""
+    yield from CHUNK_SCHEDULE
+    yield from itertools.repeat(CHUNK_SCHEDULE[-1])
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """What to track (picklable: it is sent to the child process)."""
+
+    sequence: Path
+    """The folder of label images or the mask video."""
+    config: Config
+    """The effective config."""
+    entry: CacheEntry
+    """Where chunks and the finished table go."""
+    metric: bool = True
+    """Compute the metric pose when the config has a camera."""
+    smoothing: str = "offline"
+    """Sequence-level smoothing applied when tracking finishes."""
+    workers: int = 2
+    """Threads decoding and processing frames in the child."""
+
+
+# -- the child ----------------------------------------------------------------------------
+def _paper(table: TrackTable, context: TrackTable | None, config: Config) -> TrackTable:
+    """Paper motion of a chunk, continued from the previous chunk's last rows."""
+    from mistool import paper
+
+    focal = config.camera.fx if config.camera is not None else 1.0
+    if context is None or context.num_rows == 0:
+        return paper.paper_motion(table, focal_px=focal)
+    both = paper.paper_motion(TrackTable.concat([context, table]), focal_px=focal)
+    first = int(table["frame"].min()) if table.num_rows else 0
+    return both[both["frame"] >= first]
+
+
+def _tail(table: TrackTable, frames: int) -> TrackTable:
+    if table.num_rows == 0:
+        return table
+    last = int(table["frame"].max())
+    return table[table["frame"] > last - frames]
+
+
+def track_into(spec: JobSpec, stop: Any = None) -> Progress:
+    """Track ``spec.sequence`` into ``spec.entry``, resuming after its last stored chunk
+    (when the tracker's state is stored with it; else from the start), then refine.
+
+    Args:
+        spec: what to track and where.
+        stop: an event; when set, return after the current chunk.
+
+    Returns:
+        The entry's progress at the end.
+
+    Raises:
+        MistoolError: bad input (also recorded in the entry).
+    """
+    from mistool import api, tracking
+    from mistool.sequence import open_sequence
+
+    entry, cfg = spec.entry, spec.config
+    try:
+        seq = open_sequence(spec.sequence, cfg)
+        cfg = seq.config
+        pose = api._pose_module() if spec.metric and cfg.camera is not None else None
+        entry.begin(seq.num_frames, {"sequence": str(spec.sequence)})
+        progress = entry.progress()
+        if progress.complete:
+            return progress
+        start = progress.done
+        tracker = entry.state(start) if start else None
+        if tracker is None:  # nothing stored, or no state to resume from: start again
+            if start:
+                entry.remove()
+                entry.begin(seq.num_frames, {"sequence": str(spec.sequence)})
+            start, tracker = 0, tracking.IdentityTracker(cfg)
+        context = _tail(entry.read_chunk(*progress.chunks[-1]), _PAPER_CONTEXT) if start else None
+        frames = itertools.islice(seq.frames(), start, None)
+        results = api._ordered_results(frames, cfg, pose, spec.workers, lossy=seq.lossy)
+        for size in chunk_sizes():
+            rows = api._Rows(cfg.fps)
+            end = start
+            for frame, result in itertools.islice(results, size):
+                seq.check_shape(frame, result.shape)
+                names, result = api._identify(tracker, frame.index, result, cfg, pose)
+                rows.add_frame(frame.index, names, result)
+                end = frame.index + 1
+            if end == start:
+                break
+            table = _paper(rows.table(), context, cfg)
+            entry.add_chunk(start, end, table, tracker)
+            context, start = _tail(table, _PAPER_CONTEXT), end
+            if stop is not None and stop.is_set():
+                return entry.progress()
+        raw = entry.read_raw()
+        entry.finish(api._finish(raw, cfg, pose, spec.smoothing))
+    except MistoolError as exc:
+        entry.fail(str(exc))
+        raise
+    return entry.progress()
+
+
+def _child(spec: JobSpec) -> None:
+    """Entry point of the child process: quiet, no traceback for bad input."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us
+    with contextlib.suppress(MistoolError):
+        track_into(spec)
+
+
+# -- the parent ---------------------------------------------------------------------------
+class TrackingJob:
+    """A child process tracking into a cache entry; :meth:`stop` kills it at any time."""
+
+    def __init__(self, spec: JobSpec) -> None:
+        self.spec = spec
+        self._process: multiprocessing.process.BaseProcess | None = None
+        self.started = 0.0
+
+    def start(self) -> None:
+        """Start the child (returns at once)."""
+        ctx = multiprocessing.get_context("spawn")  # the server has threads: never fork
+        self._process = ctx.Process(target=_child, args=(self.spec,), name="mistool-track")
+        self._process.daemon = True
+        self.started = time.monotonic()
+        self._process.start()
+
+    @property
+    def running(self) -> bool:
+        """Whether the child is still working."""
+        return self._process is not None and self._process.is_alive()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop the child now (stored chunks stay; the next job resumes after them)."""
+        p = self._process
+        if p is None:
+            return
+        if p.is_alive():
+            p.terminate()
+            p.join(timeout)
+            if p.is_alive():
+                p.kill()
+                p.join(timeout)
+        p.close()
+        self._process = None
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until the child ends; True if it did."""
+        p = self._process
+        if p is None:
+            return True
+        p.join(timeout)
+        return not p.is_alive()

@@ -1,0 +1,338 @@
+"""The table cache: tracked motion tables stored column by column, resumable, bounded.
+
+``mistool serve`` tracks a sequence once and keeps the result here, so that the next launch
+of the unchanged sequence shows it at once, and a tracking run stopped half-way resumes where
+it stopped. Nothing here imports viser; nothing is ever written beside the sequence.
+
+Layout of one entry, ``<root>/<key>/``::
+
+    meta.json          what the entry is (key inputs, frames, chunks done, complete or not)
+    raw/<a>-<b>.npz    raw (unrefined) rows of frames [a, b), one file per tracked chunk
+    state.pkl          the tracker's state after the last chunk (to resume from there)
+    final/<col>.npy    the finished, refined table: one .npy per column (memory-mapped)
+
+Columns are plain numpy arrays (no pickle): numbers as float64/int64, names (``instrument``,
+``part``, ``pose_status``) as fixed-width unicode. Loading a finished 90,000-frame table
+memory-maps its columns (``scripts/bench_live.py`` measures it). Every file is written to a
+temporary name and renamed, so a run killed at any moment leaves a readable entry.
+
+**Key** (:func:`cache_key`): a digest of mistool's version, the sequence's resolved path,
+every frame file's name, size and modification time (a video: its own), the effective
+config, and the tracking options. Change any of them and the entry is another one.
+
+**Size policy** (:func:`enforce_limit`): the cache holds at most ``MISTOOL_CACHE_MAX_BYTES``
+bytes (default :data:`DEFAULT_MAX_BYTES`); when it is over, whole entries are removed, least
+recently used first (an entry is "used" when opened), never the entry in use.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import pickle
+import shutil
+import tempfile
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mistool.config import Config
+from mistool.errors import TableError
+from mistool.model import COLUMN_DTYPES, TrackTable
+
+#: Default upper bound of the whole cache (bytes), overridden by ``MISTOOL_CACHE_MAX_BYTES``.
+DEFAULT_MAX_BYTES = 2_000_000_000
+#: Environment variable holding the cache's size bound in bytes.
+MAX_BYTES_ENV = "MISTOOL_CACHE_MAX_BYTES"
+#: Version of the on-disk layout (part of every key).
+FORMAT_VERSION = 2
+
+
+def cache_root() -> Path:
+    """Where tables are cached: ``$XDG_CACHE_HOME/mistool/tables`` (default
+    ``~/.cache/mistool/tables``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "mistool" / "tables"
+
+
+def cache_key(seq_path: Path, config: Config, files: Iterable[Path], **options: Any) -> str:
+    """A digest of everything a tracked table depends on.
+
+    Args:
+        seq_path: the sequence folder or mask video.
+        config: the effective config (after ``mistool.toml`` and command-line options).
+        files: the frame files (a video: the video itself).
+        **options: tracking options (e.g. ``metric=True, smoothing="offline"``).
+    """
+    from mistool import __version__
+
+    h = hashlib.sha256(f"{__version__}\n{FORMAT_VERSION}\n{seq_path.resolve()}\n".encode())
+    h.update(repr(config).encode())
+    h.update(json.dumps(options, sort_keys=True, default=str).encode())
+    for f in files:
+        st = f.stat()
+        h.update(f"{f.name}\t{st.st_size}\t{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()[:32]
+
+
+# -- columns <-> numpy -------------------------------------------------------------------
+def _encode(table: TrackTable) -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    for name in table.columns:
+        col = np.asarray(table[name])
+        out[name] = col.astype(str) if col.dtype == object else col
+    return out
+
+
+def _decode(columns: dict[str, np.ndarray]) -> TrackTable:
+    cols: dict[str, np.ndarray] = {}
+    for name, arr in columns.items():
+        if arr.dtype.kind == "U":  # one str object per distinct name, shared by rows
+            names, codes = np.unique(np.asarray(arr), return_inverse=True)
+            lut = np.empty(len(names), dtype=object)
+            lut[:] = names.tolist()
+            cols[name] = lut[codes.reshape(-1)]
+        else:
+            dtype = COLUMN_DTYPES.get(name)
+            cols[name] = arr if dtype is None or dtype is object else arr.astype(dtype, copy=False)
+    return TrackTable(cols)
+
+
+def _atomic_bytes(path: Path, write: Any) -> None:
+    """Write a file through ``write(file_object)`` to a temporary name, then rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+@dataclass
+class Progress:
+    """How far tracking into an entry has got."""
+
+    done: int
+    """Frames tracked (rows stored for frames ``[0, done)``)."""
+    total: int | None
+    """Frames in the sequence (None when unknown)."""
+    complete: bool
+    """The refined table is stored."""
+    chunks: list[tuple[int, int]]
+    """Stored raw chunks, ``[a, b)`` frame ranges in order."""
+    error: str | None = None
+    """The one-line error that stopped tracking, if any."""
+
+
+class CacheEntry:
+    """One cached table (see the module docstring for the layout)."""
+
+    def __init__(self, root: Path, key: str) -> None:
+        self.path = root / key
+        """The entry's folder."""
+        self.key = key
+
+    # -- meta ---------------------------------------------------------------------------
+    def _meta(self) -> dict[str, Any]:
+        try:
+            return json.loads((self.path / "meta.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+
+    def _write_meta(self, meta: dict[str, Any]) -> None:
+        data = json.dumps(meta, indent=1).encode()
+        _atomic_bytes(self.path / "meta.json", lambda f: f.write(data))
+
+    def progress(self) -> Progress:
+        """What is stored (nothing yet: ``done == 0``)."""
+        meta = self._meta()
+        chunks = [(int(a), int(b)) for a, b in meta.get("chunks", [])]
+        return Progress(
+            done=chunks[-1][1] if chunks else 0,
+            total=meta.get("total"),
+            complete=bool(meta.get("complete")) and (self.path / "final").is_dir(),
+            chunks=chunks,
+            error=meta.get("error"),
+        )
+
+    def begin(self, total: int | None, info: dict[str, Any]) -> None:
+        """Create the entry (or keep what it has) and mark it used."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        meta = self._meta()
+        meta.setdefault("chunks", [])
+        meta.update(total=total, info=info, format=FORMAT_VERSION, error=None)
+        self._write_meta(meta)
+        self.touch()
+
+    def touch(self) -> None:
+        """Mark the entry as used now (the size policy removes the least recently used)."""
+        with contextlib.suppress(OSError):
+            (self.path / "used").write_text(f"{time.time():.3f}\n")
+
+    def last_used(self) -> float:
+        """When the entry was last used (seconds since the epoch; 0 if unknown)."""
+        try:
+            return (self.path / "used").stat().st_mtime
+        except OSError:
+            return 0.0
+
+    # -- raw chunks ---------------------------------------------------------------------
+    def add_chunk(self, start: int, stop: int, table: TrackTable, state: Any = None) -> None:
+        """Store the raw rows of frames ``[start, stop)`` (and the tracker's state after
+        them, to resume from); chunks must follow each other."""
+        done = self.progress().done
+        if start != done:
+            raise TableError(f"{self.path}: chunk starts at frame {start}, expected {done}")
+        cols = _encode(table)
+        _atomic_bytes(
+            self.path / "raw" / f"{start:08d}-{stop:08d}.npz",
+            lambda f: np.savez(f, **cols),  # type: ignore[arg-type]
+        )
+        if state is not None:
+            data = pickle.dumps((stop, state))
+            _atomic_bytes(self.path / "state.pkl", lambda f: f.write(data))
+        meta = self._meta()
+        meta["chunks"] = [*meta.get("chunks", []), [start, stop]]
+        self._write_meta(meta)
+
+    def read_chunk(self, start: int, stop: int) -> TrackTable:
+        """The raw rows of one stored chunk."""
+        with np.load(self.path / "raw" / f"{start:08d}-{stop:08d}.npz") as z:
+            return _decode({k: z[k] for k in z.files})
+
+    def read_raw(self) -> TrackTable:
+        """Every stored raw row, in frame order."""
+        return TrackTable.concat([self.read_chunk(a, b) for a, b in self.progress().chunks])
+
+    def state(self, at: int) -> Any:
+        """The tracker state stored after frame ``at - 1``, or None (no or another state)."""
+        try:
+            stop, state = pickle.loads((self.path / "state.pkl").read_bytes())
+        except (OSError, pickle.UnpicklingError, EOFError, ValueError, AttributeError):
+            return None
+        return state if stop == at else None
+
+    def fail(self, message: str) -> None:
+        """Record the error that stopped tracking."""
+        meta = self._meta()
+        meta["error"] = message
+        self._write_meta(meta)
+
+    # -- the finished table -------------------------------------------------------------
+    def finish(self, table: TrackTable) -> None:
+        """Store the refined table (one .npy per column) and mark the entry complete; the
+        raw chunks and state are removed."""
+        tmp = Path(tempfile.mkdtemp(dir=self.path, prefix=".final."))
+        try:
+            cols = _encode(table)
+            for name, arr in cols.items():
+                np.save(tmp / f"{name}.npy", arr)
+            (tmp / "columns.json").write_text(json.dumps(list(cols)), encoding="utf-8")
+            final = self.path / "final"
+            if final.exists():
+                shutil.rmtree(final)
+            os.replace(tmp, final)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        meta = self._meta()
+        meta["complete"] = True
+        self._write_meta(meta)
+        shutil.rmtree(self.path / "raw", ignore_errors=True)
+        with contextlib.suppress(OSError):
+            (self.path / "state.pkl").unlink()
+
+    def read_final(self, mmap: bool = True) -> TrackTable:
+        """The finished table; numeric columns memory-mapped (read on demand) by default.
+
+        Raises:
+            TableError: the entry is not complete or is damaged.
+        """
+        final = self.path / "final"
+        try:
+            names = json.loads((final / "columns.json").read_text(encoding="utf-8"))
+            cols = {
+                n: np.load(final / f"{n}.npy", mmap_mode="r" if mmap else None, allow_pickle=False)
+                for n in names
+            }
+        except (OSError, ValueError) as exc:
+            raise TableError(f"{final}: damaged cache entry ({exc})") from None
+        return _decode(cols)
+
+    def size_bytes(self) -> int:
+        """Bytes on disk."""
+        total = 0
+        for p in self.path.rglob("*"):
+            with contextlib.suppress(OSError):
+                if p.is_file():
+                    total += p.stat().st_size
+        return total
+
+    def remove(self) -> None:
+        """Delete the entry."""
+        shutil.rmtree(self.path, ignore_errors=True)
+
+
+def max_bytes() -> int:
+    """The cache's size bound (bytes): ``MISTOOL_CACHE_MAX_BYTES`` or the default."""
+    try:
+        return max(0, int(os.environ.get(MAX_BYTES_ENV, DEFAULT_MAX_BYTES)))
+    except ValueError:
+        return DEFAULT_MAX_BYTES
+
+
+def entries(root: Path | None = None) -> list[CacheEntry]:
+    """Every entry of the cache, least recently used first."""
+    root = root or cache_root()
+    if not root.is_dir():
+        return []
+    found = [CacheEntry(root, p.name) for p in root.iterdir() if p.is_dir()]
+    return sorted(found, key=lambda e: e.last_used())
+
+
+def enforce_limit(keep: CacheEntry | None = None, limit: int | None = None) -> list[str]:
+    """Remove least recently used entries until the cache is within ``limit`` bytes
+    (default :func:`max_bytes`); ``keep`` is never removed. Returns the removed keys."""
+    limit = max_bytes() if limit is None else limit
+    root = keep.path.parent if keep is not None else None
+    found = entries(root)
+    sizes = {e.key: e.size_bytes() for e in found}
+    total = sum(sizes.values())
+    removed = []
+    for e in found:
+        if total <= limit:
+            break
+        if keep is not None and e.key == keep.key:
+            continue
+        e.remove()
+        total -= sizes[e.key]
+        removed.append(e.key)
+    return removed
+
+
+def open_entry(key: str, root: Path | None = None) -> CacheEntry:
+    """The entry for ``key`` (not created yet until :meth:`CacheEntry.begin`)."""
+    return CacheEntry(root or cache_root(), key)
+
+
+__all__ = [
+    "DEFAULT_MAX_BYTES",
+    "CacheEntry",
+    "Progress",
+    "cache_key",
+    "cache_root",
+    "enforce_limit",
+    "entries",
+    "max_bytes",
+    "open_entry",
+]

@@ -1,0 +1,174 @@
+"""Where a growing replay's frames come from while it is shown (no viser here).
+
+A *feed* turns new results into :class:`~mistool.viewer.replay.ReplayPatch` es that the
+viewer applies one by one (:meth:`ReplayViewer.apply`); it also says how far it has got,
+for the GUI's progress line. :class:`CacheFeed` follows a background tracking job
+(:mod:`mistool.background`) through its cache entry: each stored chunk becomes a patch as
+soon as it is on disk; when the job stores the refined table, the whole timeline is
+rewritten with it, window by window (:data:`~mistool.viewer.replay.WRITE_WINDOW` frames),
+so the picture changes in place without going blank.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from mistool.background import JobSpec, TrackingJob
+from mistool.cache import CacheEntry
+from mistool.errors import MistoolError
+from mistool.viewer.replay import WRITE_WINDOW, Replay, ReplayPatch
+
+#: Seconds of history the frames-per-second estimate averages over.
+RATE_WINDOW_S = 5.0
+
+
+@dataclass
+class FeedStatus:
+    """How far a feed has got (for the progress line)."""
+
+    done: int
+    """Frames with results."""
+    total: int | None
+    """Frames expected (None: unknown, e.g. live use)."""
+    rate: float
+    """Frames per second recently (0 when unknown)."""
+    phase: str
+    """``"tracking"``, ``"refining"``, ``"done"``, ``"stopped"`` or ``"failed"``."""
+    error: str | None = None
+    """The one-line error that stopped tracking."""
+
+    @property
+    def seconds_left(self) -> float | None:
+        """Estimated seconds until every frame is tracked (None when unknown)."""
+        if self.total is None or self.rate <= 0:
+            return None
+        return max(0.0, (self.total - self.done) / self.rate)
+
+    def text(self) -> str:
+        """One line for the GUI."""
+        total = f"{self.total:,}" if self.total is not None else "?"
+        if self.phase == "done":
+            return f"**Tracked** all {self.done:,} frames (refined)"
+        if self.phase == "failed":
+            return f"**Tracking stopped** at frame {self.done:,} of {total}: {self.error}"
+        if self.phase == "refining":
+            return f"**Refining** {self.done:,} frames (trocar, smoothing)..."
+        if self.phase == "stopped":
+            return f"**Tracked** {self.done:,} of {total} frames (stopped)"
+        left = self.seconds_left
+        eta = f" · {_duration(left)} left" if left is not None else ""
+        rate = f" · {self.rate:,.0f} frames/s" if self.rate > 0 else ""
+        return f"**Tracking** {self.done:,} / {total} frames{rate}{eta}"
+
+
+def _duration(seconds: float) -> str:
+    s = int(round(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
+class RateMeter:
+    """Frames per second over the last :data:`RATE_WINDOW_S` seconds."""
+
+    def __init__(self) -> None:
+        self._history: collections.deque[tuple[float, int]] = collections.deque()
+
+    def add(self, done: int, now: float | None = None) -> float:
+        """Record ``done`` frames at ``now``; returns the recent rate."""
+        now = time.monotonic() if now is None else now
+        h = self._history
+        if not h or h[-1][1] != done:
+            h.append((now, done))
+        while len(h) > 2 and now - h[1][0] > RATE_WINDOW_S:
+            h.popleft()
+        if len(h) < 2 or h[-1][0] <= h[0][0]:
+            return 0.0
+        return (h[-1][1] - h[0][1]) / (h[-1][0] - h[0][0])
+
+
+class CacheFeed:
+    """Grows a replay from a cache entry that a background job fills (or has filled)."""
+
+    def __init__(self, entry: CacheEntry, spec: JobSpec | None, total: int | None) -> None:
+        """
+        Args:
+            entry: the cache entry (complete, partial or new).
+            spec: the job that fills it (None: show only what is stored).
+            total: frames in the sequence, when known.
+        """
+        self.entry = entry
+        self.spec = spec
+        self.total = total
+        self.job: TrackingJob | None = None
+        self._shown = 0  # frames [0, _shown) applied from raw chunks
+        self._final_shown = False
+        self._meter = RateMeter()
+        self._phase = "tracking"
+        self._error: str | None = None
+
+    def start(self) -> None:
+        """Start the background job, unless the entry is complete."""
+        if self.spec is not None and not self.entry.progress().complete:
+            self.job = TrackingJob(self.spec)
+            self.job.start()
+
+    def stop(self) -> None:
+        """Stop the job (what is stored stays, for the next launch to resume)."""
+        if self.job is not None:
+            self.job.stop()
+        if self._phase in ("tracking", "refining"):
+            self._phase = "stopped"
+
+    @property
+    def finished(self) -> bool:
+        """Nothing more will come."""
+        return self._phase in ("done", "failed", "stopped")
+
+    def status(self) -> FeedStatus:
+        """Where the feed stands now."""
+        return FeedStatus(
+            self._shown, self.total, self._meter.add(self._shown), self._phase, self._error
+        )
+
+    def poll(self, replay: Replay) -> Iterator[ReplayPatch]:
+        """New patches since the last call (computed, not applied), in frame order;
+        computed one at a time as the caller iterates."""
+        progress = self.entry.progress()
+        if progress.complete:
+            if not self._final_shown:
+                yield from self._final(replay)
+            return
+        for a, b in progress.chunks:
+            if b <= self._shown:
+                continue
+            try:
+                table = self.entry.read_chunk(a, b)
+            except (OSError, ValueError, MistoolError):
+                break  # being replaced (a restarted job): read again next time
+            yield replay.compute(table, a, b)
+            self._shown = b
+        if progress.error:
+            self._phase, self._error = "failed", progress.error
+        elif self.total is not None and self._shown >= self.total:
+            self._phase = "refining"
+        job_ended = self.job is not None and not self.job.running
+        if job_ended and not progress.error and not self.entry.progress().complete:
+            self._phase = "stopped"
+
+    def _final(self, replay: Replay) -> Iterator[ReplayPatch]:
+        """The refined table, as patches over the whole timeline."""
+        table = self.entry.read_final()
+        n = max(replay.num_frames, self._shown)
+        if table.num_rows:
+            n = max(n, int(table["frame"][-1]) + 1)
+        for a in range(0, n, WRITE_WINDOW):
+            yield replay.compute(table, a, min(n, a + WRITE_WINDOW))
+        self._shown = n
+        self._final_shown = True
+        self._phase = "done"
