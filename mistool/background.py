@@ -28,6 +28,7 @@ from mistool.cache import CacheEntry, Progress
 from mistool.config import Config
 from mistool.errors import MistoolError
 from mistool.model import TrackTable
+from mistool.sequence import MaskSequence
 
 #: Frames of the first chunks: small at first so that the first picture comes at once,
 #: then growing (fewer files, less overhead), at most the last value.
@@ -56,8 +57,8 @@ class JobSpec:
     """Compute the metric pose when the config has a camera."""
     smoothing: str = "offline"
     """Sequence-level smoothing applied when tracking finishes."""
-    workers: int = 2
-    """Threads decoding and processing frames in the child."""
+    workers: int = 1
+    """Processes for the per-frame work (1: in the tracking process itself)."""
 
 
 # -- the child ----------------------------------------------------------------------------
@@ -80,6 +81,38 @@ def _tail(table: TrackTable, frames: int) -> TrackTable:
     return table[table["frame"] > last - frames]
 
 
+def _from(seq: MaskSequence, start: int) -> MaskSequence:
+    """The same sequence without its first ``start`` frames (frame names kept)."""
+    if start == 0:
+        return seq
+    return MaskSequence(
+        seq.kind,
+        seq.name,
+        seq.config,
+        lambda: itertools.islice(seq.frames(), start, None),
+        None if seq.num_frames is None else seq.num_frames - start,
+        seq.path,
+        lossy=seq.lossy,
+    )
+
+
+def _displayed(table: TrackTable, config: Config, pose: Any) -> TrackTable:
+    """A raw chunk with what the viewer shows during tracking: the per-frame
+    ``pose_status`` (as :meth:`mistool.Tracker.update` gives it)."""
+    from mistool import api
+
+    if pose is not None:
+        from mistool.pose.status import status_column
+
+        table = table.with_columns(pose_status=status_column(table, table.num_rows))
+    return api._with_status(table, config)
+
+
+def _raw(table: TrackTable) -> TrackTable:
+    """A stored chunk as the refinement wants it (without the displayed status)."""
+    return TrackTable({c: table[c] for c in table.columns if c != "pose_status"})
+
+
 def track_into(spec: JobSpec, stop: Any = None) -> Progress:
     """Track ``spec.sequence`` into ``spec.entry``, resuming after its last stored chunk
     (when the tracker's state is stored with it; else from the start), then refine.
@@ -94,14 +127,15 @@ def track_into(spec: JobSpec, stop: Any = None) -> Progress:
     Raises:
         MistoolError: bad input (also recorded in the entry).
     """
-    from mistool import api, tracking
+    from mistool import api, parallel, tracking
+    from mistool.rows import RowBuilder
     from mistool.sequence import open_sequence
 
     entry, cfg = spec.entry, spec.config
     try:
         seq = open_sequence(spec.sequence, cfg)
         cfg = seq.config
-        pose = api._pose_module() if spec.metric and cfg.camera is not None else None
+        pose = parallel.pose_module(spec.metric, cfg)
         entry.begin(seq.num_frames, {"sequence": str(spec.sequence)})
         progress = entry.progress()
         if progress.complete:
@@ -114,25 +148,31 @@ def track_into(spec: JobSpec, stop: Any = None) -> Progress:
                 entry.begin(seq.num_frames, {"sequence": str(spec.sequence)})
             start, tracker = 0, tracking.IdentityTracker(cfg)
         context = _tail(entry.read_chunk(*progress.chunks[-1]), _PAPER_CONTEXT) if start else None
-        frames = itertools.islice(seq.frames(), start, None)
-        results = api._ordered_results(frames, cfg, pose, spec.workers, lossy=seq.lossy)
-        for size in chunk_sizes():
-            rows = api._Rows(cfg.fps)
-            end = start
-            for frame, result in itertools.islice(results, size):
-                seq.check_shape(frame, result.shape)
-                names, result = api._identify(tracker, frame.index, result, cfg, pose)
-                rows.add_frame(frame.index, names, result)
-                end = frame.index + 1
-            if end == start:
-                break
-            table = _paper(rows.table(), context, cfg)
-            entry.add_chunk(start, end, table, tracker)
-            context, start = _tail(table, _PAPER_CONTEXT), end
-            if stop is not None and stop.is_set():
-                return entry.progress()
-        raw = entry.read_raw()
-        entry.finish(api._finish(raw, cfg, pose, spec.smoothing))
+        pool = parallel.LocalPool(spec.workers) if spec.workers > 1 else None
+        batch = pool.batch_frames if pool is not None else 1
+        work = parallel.batches(_from(seq, start), pose is not None, batch)
+        results = enumerate(parallel.ordered_results(work, pool), start)
+        try:
+            for size in chunk_sizes():
+                rows = RowBuilder(cfg.fps)
+                end = start
+                for index, (name, result) in itertools.islice(results, size):
+                    seq.check_shape(name, result.shape)
+                    names, result = api._identify(tracker, index, result, cfg, pose)
+                    rows.add_frame(index, names, result.instances, result.metrics)
+                    end = index + 1
+                if end == start:
+                    break
+                table = _paper(_displayed(rows.take(), cfg, pose), context, cfg)
+                entry.add_chunk(start, end, table, tracker)
+                context, start = _tail(table, _PAPER_CONTEXT), end
+                if stop is not None and stop.is_set():
+                    return entry.progress()
+        finally:
+            if pool is not None:
+                pool.close()
+        raw = _raw(entry.read_raw())
+        entry.finish(api.refine(raw, cfg, spec.smoothing))
     except MistoolError as exc:
         entry.fail(str(exc))
         raise
