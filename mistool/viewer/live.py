@@ -23,6 +23,7 @@ import threading
 from collections import OrderedDict
 from pathlib import Path
 from types import TracebackType
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -31,6 +32,9 @@ from mistool.config import Config
 from mistool.model import TrackTable
 from mistool.sequence import to_labels
 from mistool.viewer.overlay import FrameStore, display_size
+
+if TYPE_CHECKING:
+    from mistool.viewer.app import ReplayViewer
 
 #: Frames whose label image and video image are kept for the 2D overlay (10 s at 25 fps).
 LIVE_IMAGE_FRAMES = 250
@@ -101,7 +105,7 @@ class LiveFrames(FrameStore):
         if jpeg is None:
             return None
         bgr = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
-        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        return None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 class Viewer:
@@ -172,7 +176,7 @@ class Viewer:
         return self._viewer.port
 
     @property
-    def replay_viewer(self):  # noqa: ANN201 - ReplayViewer, imported lazily
+    def replay_viewer(self) -> ReplayViewer:
         """The underlying :class:`~mistool.viewer.ReplayViewer` (tests, benchmarks)."""
         return self._viewer
 

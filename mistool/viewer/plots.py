@@ -90,7 +90,7 @@ class PlotPanel:
             current = self.instrument.value
             self.instrument.options = options
             if current not in options:
-                self.instrument.value = options[0]
+                self.instrument.value = options[0]  # type: ignore[misc]  # viser's stub
         self._resample()
         self.refresh()
 

@@ -345,13 +345,12 @@ class Replay:
                     _paper_columns(table), fi, ii, pi, shape, self.parts, self.config, self.image_wh
                 )
             )
-            g = found[0] if found is not None else empty
+            nothing = np.full((*shape, 3), np.nan)
+            g, position, rotation = found if found is not None else (empty, nothing, nothing)
             for name in ("centre", "wxyz", "length", "radius", "visible", "joint", "tip"):
                 arrays[f"{m}/{name}"] = getattr(g, name)
-            for k, kind in ((1, "position"), (2, "rotation")):
-                arrays[f"series/{m}/{kind}"] = (
-                    found[k] if found is not None else np.full((*shape, 3), np.nan)
-                )
+            arrays[f"series/{m}/position"] = position
+            arrays[f"series/{m}/rotation"] = rotation
         return ReplayPatch(lo, hi, instruments, arrays, tuple(statuses))
 
     def _status(
@@ -450,7 +449,7 @@ class Replay:
 
     def frame_status(self, frame: int) -> list[tuple[str, str, str, float]]:
         """Per instrument and part at ``frame``: (instrument, part, status, quality)."""
-        out = []
+        out: list[tuple[str, str, str, float]] = []
         if not 0 <= frame < min(self.tracked, self.capacity):
             return out
         for i, inst in enumerate(self.instruments):
