@@ -1,0 +1,141 @@
+"""Benchmark: decoding label PNGs, mistool's reader against ``cv2.imread(IMREAD_UNCHANGED)``.
+
+Does the hand-written grey-PNG decoder (``mistool.sequence.decode_grey_png_fast``, with
+zlib-ng) pay? For each set of real mask PNGs it times, per file:
+
+- ``imread``: ``cv2.imread(path, cv2.IMREAD_UNCHANGED)``, the baseline;
+- ``reader, fast path``: ``read_label_image(path)`` as mistool reads (fast decoder first);
+- ``reader, OpenCV only``: ``read_label_image`` with the fast path closed (what the reader
+  costs without the decoder: ``cv2.imdecode`` plus the label checks);
+- ``fast decode only``: ``decode_grey_png_fast(bytes)`` on bytes already in memory.
+
+Sets: ``sample_masks/`` (the bundled sequence) and fresh ``mistool synth`` output (PNG
+level 3, as ``mistool synth`` writes; 1 and 4 instruments, with every corruption), plus the
+same synth frames re-encoded by OpenCV at level 9 (libpng's adaptive filters, which the fast
+decoder declines). Several runs, median per file, ratios against imread measured in the
+same run.
+
+    python scripts/bench_decode.py [--runs 7] [--frames 100]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+
+from mistool.sequence import FastPathGate, decode_grey_png_fast, read_label_image
+from mistool.synth import synthesize
+from mistool.synth.corrupt import Corruptions
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _per_file(fn: Callable[[], object], n_files: int, runs: int) -> list[float]:
+    """Milliseconds per file of each run."""
+    out = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn()
+        out.append(1e3 * (time.perf_counter() - t0) / n_files)
+    return out
+
+
+def bench_set(name: str, paths: list[Path], runs: int) -> None:
+    """Time the four decoders on ``paths`` and print medians and ratios."""
+    strs = [str(p) for p in paths]
+    blobs = [p.read_bytes() for p in paths]
+    closed = FastPathGate(patience=0)  # never open: the reader's OpenCV-only path
+    decoded = sum(decode_grey_png_fast(b) is not None for b in blobs)
+
+    def imread() -> None:
+        for s in strs:
+            cv2.imread(s, cv2.IMREAD_UNCHANGED)
+
+    def reader_fast() -> None:
+        for p in paths:
+            read_label_image(p)
+
+    def reader_cv() -> None:
+        for p in paths:
+            read_label_image(p, gate=closed)
+
+    def fast_only() -> None:
+        for b in blobs:
+            decode_grey_png_fast(b)
+
+    tasks = {
+        "imread (baseline)": imread,
+        "reader, fast path": reader_fast,
+        "reader, OpenCV only": reader_cv,
+        "fast decode only": fast_only,
+    }
+    for fn in tasks.values():  # warm-up: page cache, imports
+        fn()
+    times: dict[str, list[float]] = {k: [] for k in tasks}
+    for _ in range(runs):  # interleaved, so a busy moment hits every method alike
+        for k, fn in tasks.items():
+            times[k] += _per_file(fn, len(paths), 1)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    size = sum(len(b) for b in blobs) / len(blobs)
+    print(
+        f"{name}: {len(paths)} files, {size / 1024:.1f} KiB mean, "
+        f"fast decoder accepts {decoded}/{len(paths)}"
+    )
+    base = med["imread (baseline)"]
+    for k, v in med.items():
+        spread = f"{min(times[k]):.3f}-{max(times[k]):.3f}"
+        print(f"  {k:22s} {v:7.3f} ms/file (runs {spread})  imread / this = {base / v:5.2f}")
+    took = [s for s, b in zip(strs, blobs, strict=True) if decode_grey_png_fast(b) is not None]
+    if took:  # where the decoder does apply: its best case
+        mine = [b for b in blobs if decode_grey_png_fast(b) is not None]
+        t_cv = statistics.median(
+            _per_file(lambda: [cv2.imread(s, cv2.IMREAD_UNCHANGED) for s in took], len(took), runs)
+        )
+        t_fast = statistics.median(
+            _per_file(lambda: [decode_grey_png_fast(b) for b in mine], len(took), runs)
+        )
+        print(
+            f"  on the {len(took)} files it accepts: imread {t_cv:.3f} ms, fast decode "
+            f"{t_fast:.3f} ms per file (imread / fast = {t_cv / t_fast:.2f})"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=7)
+    parser.add_argument("--frames", type=int, default=100, help="frames per synth set")
+    args = parser.parse_args(argv)
+    print(f"runs {args.runs} (median), OpenCV {cv2.__version__}, load {os.getloadavg()}")
+    bench_set("sample_masks", sorted((ROOT / "sample_masks").glob("*.png")), args.runs)
+    every = Corruptions(jitter_px=1.0, holes=2.0, speckle=2.0, occluders=1, bias_px=0.5)
+    with tempfile.TemporaryDirectory(prefix="mistool-bench-decode-") as tmp:
+        for label, kw in (
+            ("synth, 1 instrument", {"instruments": 1, "seed": 1}),
+            (
+                "synth, 4 instruments, corrupted",
+                {"instruments": 4, "seed": 2, "corruptions": every},
+            ),
+        ):
+            folder = Path(tmp) / label.replace(" ", "_").replace(",", "")
+            synthesize(folder, frames=args.frames, **kw)  # type: ignore[arg-type]
+            paths = sorted(folder.glob("*.png"))
+            bench_set(label, paths, args.runs)
+            level9 = folder.with_name(folder.name + "_l9")
+            level9.mkdir()
+            for p in paths:
+                img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+                cv2.imwrite(str(level9 / p.name), img, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+            bench_set(label + ", re-encoded level 9", sorted(level9.glob("*.png")), args.runs)
+    print(f"load after: {os.getloadavg()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
