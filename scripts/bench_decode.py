@@ -5,15 +5,18 @@ zlib-ng) pay? For each set of real mask PNGs it times, per file:
 
 - ``imread``: ``cv2.imread(path, cv2.IMREAD_UNCHANGED)``, the baseline;
 - ``reader, fast path``: ``read_label_image(path)`` as mistool reads (fast decoder first);
+- ``reader, gated``: the same with a ``FastPathGate``, as sequences read a folder (stops
+  trying the decoder on a folder whose files it keeps declining);
 - ``reader, OpenCV only``: ``read_label_image`` with the fast path closed (what the reader
   costs without the decoder: ``cv2.imdecode`` plus the label checks);
-- ``fast decode only``: ``decode_grey_png_fast(bytes)`` on bytes already in memory.
+- ``fast decode only``: ``decode_grey_png_fast(bytes)`` on bytes already in memory, with
+  zlib-ng, and with the standard library's zlib.
 
 Sets: ``sample_masks/`` (the bundled sequence) and fresh ``mistool synth`` output (PNG
 level 3, as ``mistool synth`` writes; 1 and 4 instruments, with every corruption), plus the
-same synth frames re-encoded by OpenCV at level 9 (libpng's adaptive filters, which the fast
-decoder declines). Several runs, median per file, ratios against imread measured in the
-same run.
+same synth frames re-encoded by ``cv2.imwrite`` with its defaults (Sub-filtered rows, which
+the fast decoder was written for) and at level 9 (libpng's adaptive filters). Several runs,
+median per file, ratios against imread measured in the same run.
 
     python scripts/bench_decode.py [--runs 7] [--frames 100]
 """
@@ -25,11 +28,13 @@ import os
 import statistics
 import tempfile
 import time
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 
+from mistool import sequence
 from mistool.sequence import FastPathGate, decode_grey_png_fast, read_label_image
 from mistool.synth import synthesize
 from mistool.synth.corrupt import Corruptions
@@ -47,35 +52,37 @@ def _per_file(fn: Callable[[], object], n_files: int, runs: int) -> list[float]:
     return out
 
 
-def bench_set(name: str, paths: list[Path], runs: int) -> None:
-    """Time the four decoders on ``paths`` and print medians and ratios."""
+def _tasks(paths: list[Path], blobs: list[bytes]) -> dict[str, Callable[[], object]]:
+    """The decoders to time, each over every file of a set."""
     strs = [str(p) for p in paths]
-    blobs = [p.read_bytes() for p in paths]
     closed = FastPathGate(patience=0)  # never open: the reader's OpenCV-only path
-    decoded = sum(decode_grey_png_fast(b) is not None for b in blobs)
 
-    def imread() -> None:
-        for s in strs:
-            cv2.imread(s, cv2.IMREAD_UNCHANGED)
-
-    def reader_fast() -> None:
+    def reader_gated() -> None:
+        gate = FastPathGate()  # as a sequence reads its folder
         for p in paths:
-            read_label_image(p)
+            read_label_image(p, gate=gate)
 
-    def reader_cv() -> None:
-        for p in paths:
-            read_label_image(p, gate=closed)
+    def fast_stdlib() -> None:
+        saved, sequence._ZLIB = sequence._ZLIB, zlib
+        try:
+            [decode_grey_png_fast(b) for b in blobs]
+        finally:
+            sequence._ZLIB = saved
 
-    def fast_only() -> None:
-        for b in blobs:
-            decode_grey_png_fast(b)
-
-    tasks = {
-        "imread (baseline)": imread,
-        "reader, fast path": reader_fast,
-        "reader, OpenCV only": reader_cv,
-        "fast decode only": fast_only,
+    return {
+        "imread (baseline)": lambda: [cv2.imread(s, cv2.IMREAD_UNCHANGED) for s in strs],
+        "reader, fast path": lambda: [read_label_image(p) for p in paths],
+        "reader, gated": reader_gated,
+        "reader, OpenCV only": lambda: [read_label_image(p, gate=closed) for p in paths],
+        "fast decode only": lambda: [decode_grey_png_fast(b) for b in blobs],
+        "fast, stdlib zlib": fast_stdlib,
     }
+
+
+def bench_set(name: str, paths: list[Path], runs: int) -> None:
+    """Time the decoders on ``paths`` and print medians and ratios."""
+    blobs = [p.read_bytes() for p in paths]
+    tasks = _tasks(paths, blobs)
     for fn in tasks.values():  # warm-up: page cache, imports
         fn()
     times: dict[str, list[float]] = {k: [] for k in tasks}
@@ -83,24 +90,20 @@ def bench_set(name: str, paths: list[Path], runs: int) -> None:
         for k, fn in tasks.items():
             times[k] += _per_file(fn, len(paths), 1)
     med = {k: statistics.median(v) for k, v in times.items()}
+    took = [i for i, b in enumerate(blobs) if decode_grey_png_fast(b) is not None]
     size = sum(len(b) for b in blobs) / len(blobs)
     print(
         f"{name}: {len(paths)} files, {size / 1024:.1f} KiB mean, "
-        f"fast decoder accepts {decoded}/{len(paths)}"
+        f"fast decoder accepts {len(took)}/{len(paths)}"
     )
     base = med["imread (baseline)"]
     for k, v in med.items():
         spread = f"{min(times[k]):.3f}-{max(times[k]):.3f}"
         print(f"  {k:22s} {v:7.3f} ms/file (runs {spread})  imread / this = {base / v:5.2f}")
-    took = [s for s, b in zip(strs, blobs, strict=True) if decode_grey_png_fast(b) is not None]
     if took:  # where the decoder does apply: its best case
-        mine = [b for b in blobs if decode_grey_png_fast(b) is not None]
-        t_cv = statistics.median(
-            _per_file(lambda: [cv2.imread(s, cv2.IMREAD_UNCHANGED) for s in took], len(took), runs)
-        )
-        t_fast = statistics.median(
-            _per_file(lambda: [decode_grey_png_fast(b) for b in mine], len(took), runs)
-        )
+        sub = _tasks([paths[i] for i in took], [blobs[i] for i in took])
+        t_cv = statistics.median(_per_file(sub["imread (baseline)"], len(took), runs))
+        t_fast = statistics.median(_per_file(sub["fast decode only"], len(took), runs))
         print(
             f"  on the {len(took)} files it accepts: imread {t_cv:.3f} ms, fast decode "
             f"{t_fast:.3f} ms per file (imread / fast = {t_cv / t_fast:.2f})"
@@ -127,12 +130,16 @@ def main(argv: list[str] | None = None) -> int:
             synthesize(folder, frames=args.frames, **kw)  # type: ignore[arg-type]
             paths = sorted(folder.glob("*.png"))
             bench_set(label, paths, args.runs)
-            level9 = folder.with_name(folder.name + "_l9")
-            level9.mkdir()
-            for p in paths:
-                img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-                cv2.imwrite(str(level9 / p.name), img, [cv2.IMWRITE_PNG_COMPRESSION, 9])
-            bench_set(label + ", re-encoded level 9", sorted(level9.glob("*.png")), args.runs)
+            for suffix, params in (
+                ("re-encoded by OpenCV's defaults", []),
+                ("re-encoded level 9", [cv2.IMWRITE_PNG_COMPRESSION, 9]),
+            ):
+                again = folder.with_name(folder.name + "_" + str(len(params)))
+                again.mkdir()
+                for p in paths:
+                    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+                    cv2.imwrite(str(again / p.name), img, params)
+                bench_set(f"{label}, {suffix}", sorted(again.glob("*.png")), args.runs)
     print(f"load after: {os.getloadavg()}")
     return 0
 
