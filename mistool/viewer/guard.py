@@ -225,11 +225,11 @@ def guarded(make_server: Callable[[], T], policy: AccessPolicy) -> T:
             used.append(True)
             return original(*args, **kwargs)
 
-        ws_server.serve = serve  # type: ignore[assignment]
+        ws_server.serve = serve  # type: ignore[misc,assignment]  # a class in the stubs
         try:
             server = make_server()
         finally:
-            ws_server.serve = original  # type: ignore[assignment]
+            ws_server.serve = original  # type: ignore[misc]
     if not used:
         with contextlib.suppress(Exception):
             server.stop()  # type: ignore[attr-defined]
