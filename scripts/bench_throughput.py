@@ -1,0 +1,269 @@
+#!/usr/bin/env python
+"""Benchmark: ``mistool track`` throughput against decoding alone, 1 and N workers,
+metric pose on and off, on one instrument and on two crossing instruments with merged
+labels (the realistic EndoVis'17 case); then a small dataset, locally and on a 2-worker
+Dask ``LocalCluster``.
+
+In one run, on ``mistool synth`` sequences (720x576, ``--frames`` frames each, rendered
+once into ``--data`` and reused):
+
+- ``decode``: ``cv2.imread(path, cv2.IMREAD_UNCHANGED)`` over every file, one process;
+- ``track metric wN`` / ``track no-metric wN``: ``mistool track SEQ -o out.csv -q
+  --workers N [--no-metric]`` in-process (``mistool.cli.main``: reading, the per-frame
+  work in N processes, identities, refinement and writing the CSV), N = 1 and
+  ``--workers`` (default: the CPU cores);
+- per stage, in one process (``--stages``): decode, instances (Algorithm 1 +
+  grouping), metric pose, identity (``IdentityTracker.resolve`` + re-measuring split
+  pieces), rows, refinement (paper motion + metric refinement), CSV writing, in ms per
+  frame; the parent's sequential share is identity + rows + refinement + CSV;
+- a dataset (``--dataset-sequences`` sequences of ``--dataset-frames`` frames, half
+  with one instrument and half with two crossing): ``mistool track DATA -o OUT
+  --workers N`` and ``--dask ADDRESS`` on ``LocalCluster(n_workers=2, processes=True,
+  threads_per_worker=1)`` (cluster start-up not timed).
+
+Every timing is the median of ``--runs`` runs, the configurations alternating; ratios
+are frames/s divided by decode-only frames/s measured in the same run (> 1: faster than
+one process only decoding). The machine's load average is printed: other programs on the
+machine lower every wall-clock figure.
+
+Usage::
+
+    python scripts/bench_throughput.py                    # 2,500 frames, 3 runs
+    python scripts/bench_throughput.py --frames 500 --runs 3 --workers 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+
+CASES = {"one": 1, "cross": 2}  # case name -> instruments (merged labels, crossing)
+
+
+def synth(folder: Path, frames: int, instruments: int, seed: int) -> Path:
+    """A ``mistool synth`` sequence, rendered once (reused when already there)."""
+    from mistool.synth import synthesize
+
+    if not (folder / "synth.json").is_file():
+        synthesize(folder, frames=frames, instruments=instruments, seed=seed, force=True)
+    return folder
+
+
+def timed(fn: Callable[[], object]) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def decode_all(files: list[str]) -> None:
+    for f in files:
+        cv2.imread(f, cv2.IMREAD_UNCHANGED)
+
+
+def track_cli(seq: Path, out: Path, workers: int, metric: bool) -> None:
+    from mistool.cli import main
+
+    argv = ["track", str(seq), "-o", str(out), "-q", "--workers", str(workers)]
+    if main(argv + ([] if metric else ["--no-metric"])) != 0:
+        raise SystemExit(f"mistool track {seq} failed")
+
+
+def stages(seq: Path, out: Path) -> dict[str, float]:
+    """Milliseconds per frame of each stage, in this process (metric pose on)."""
+    from mistool import api, parallel, tracking
+    from mistool.export import write_csv
+    from mistool.model import TrackTable
+    from mistool.rows import RowBuilder
+    from mistool.sequence import list_frames, open_sequence, read_label_image
+
+    seqo = open_sequence(seq)
+    cfg = seqo.config
+    pose = parallel.pose_module(True, cfg)
+    tracker = tracking.IdentityTracker(cfg)
+    rows = RowBuilder(cfg.fps)
+    t = dict.fromkeys(("decode", "instances", "metric pose", "identity", "rows"), 0.0)
+    files = list_frames(seq)
+    clock = time.perf_counter
+    for i, f in enumerate(files):
+        t0 = clock()
+        labels = read_label_image(f)
+        t1 = clock()
+        found = tracking.observe_frame(labels, cfg)
+        t2 = clock()
+        shape = (labels.shape[0], labels.shape[1])
+        metrics = [parallel.measure(inst, shape, cfg, pose) for inst in found]
+        t3 = clock()
+        result = parallel.FrameResult(found, metrics, parallel.unknown_values(labels, cfg), shape)
+        names, result = api._identify(tracker, i, result, cfg, pose)
+        t4 = clock()
+        rows.add_frame(i, names, result.instances, result.metrics)
+        t5 = clock()
+        for key, a, b in (
+            ("decode", t0, t1),
+            ("instances", t1, t2),
+            ("metric pose", t2, t3),
+            ("identity", t3, t4),
+            ("rows", t4, t5),
+        ):
+            t[key] += b - a
+    raw = TrackTable.concat([rows.take()])
+    t0 = clock()
+    table = api.refine(raw, cfg)
+    t["refinement"] = clock() - t0
+    t0 = clock()
+    write_csv(table, out)
+    t["CSV"] = clock() - t0
+    return {k: 1e3 * v / len(files) for k, v in t.items()}
+
+
+def bench_case(name: str, seq: Path, tmp: Path, workers: list[int], runs: int) -> dict[str, float]:
+    """Median seconds of decode and of each track configuration."""
+    from mistool.sequence import list_frames
+
+    files = [str(p) for p in list_frames(seq)]
+    configs: dict[str, Callable[[], object]] = {"decode": lambda: decode_all(files)}
+    for w in workers:
+        for metric in (True, False):
+            key = f"track {'metric' if metric else 'no-metric'} w{w}"
+            out = tmp / f"{name}_{w}_{metric}.csv"
+            configs[key] = lambda w=w, metric=metric, out=out: track_cli(seq, out, w, metric)
+    times: dict[str, list[float]] = {k: [] for k in configs}
+    for _ in range(runs):
+        for key, fn in configs.items():
+            times[key].append(timed(fn))
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
+def print_case(name: str, n: int, med: dict[str, float], load: tuple[float, ...]) -> None:
+    dec = n / med["decode"]
+    print(f"\n{name}: {n} frames, load average {load[0]:.1f}")
+    print(f"  {'decode (cv2.imread UNCHANGED, 1 process)':44s} {dec:8.1f} frames/s")
+    for key, secs in med.items():
+        if key == "decode":
+            continue
+        fps = n / secs
+        print(f"  {key:44s} {fps:8.1f} frames/s   ratio to decode {fps / dec:5.2f}")
+    for w in sorted({int(k.rsplit("w", 1)[1]) for k in med if k.startswith("track")}):
+        on, off = med[f"track metric w{w}"], med[f"track no-metric w{w}"]
+        print(f"  metric / no-metric time, w{w}: {on / off:.2f}")
+
+
+def make_dataset(root: Path, data: Path, sequences: int, frames: int) -> Path:
+    """``sequences`` synth sequences (alternately 1 and 2 instruments) in ``root``."""
+    root.mkdir(parents=True, exist_ok=True)
+    for k in range(sequences):
+        inst = 1 + k % 2
+        src = synth(data / f"ds_{frames}_{k}", frames, inst, seed=10 + k)
+        link = root / f"seq{k}"
+        if not link.exists():
+            link.symlink_to(src, target_is_directory=True)
+    return root
+
+
+def bench_dataset(args: argparse.Namespace, data: Path, tmp: Path, workers: int) -> None:
+    from distributed import LocalCluster
+
+    from mistool.cli import main
+    from mistool.sequence import list_frames
+
+    root = make_dataset(tmp / "dataset", data, args.dataset_sequences, args.dataset_frames)
+    total = sum(len(list_frames(p)) for p in root.iterdir())
+    files = [str(f) for p in sorted(root.iterdir()) for f in list_frames(p)]
+
+    def run(extra: list[str]) -> None:
+        out = tmp / "dataset_out"
+        shutil.rmtree(out, ignore_errors=True)  # else the re-run skips up-to-date outputs
+        if main(["track", str(root), "-o", str(out), "-q", *extra]) != 0:
+            raise SystemExit("dataset run failed")
+
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        configs: dict[str, Callable[[], object]] = {
+            "decode": lambda: decode_all(files),
+            f"local, {workers} worker processes": lambda: run(["--workers", str(workers)]),
+            "Dask LocalCluster, 2 worker processes": lambda: run(
+                ["--dask", cluster.scheduler_address]
+            ),
+        }
+        times: dict[str, list[float]] = {k: [] for k in configs}
+        for _ in range(args.runs):
+            for key, fn in configs.items():
+                times[key].append(timed(fn))
+    med = {k: statistics.median(v) for k, v in times.items()}
+    dec = total / med["decode"]
+    print(
+        f"\ndataset: {args.dataset_sequences} sequences x {args.dataset_frames} frames "
+        f"({total} frames, metric pose on), load average {os.getloadavg()[0]:.1f}"
+    )
+    print(f"  {'decode (cv2.imread UNCHANGED, 1 process)':44s} {dec:8.1f} frames/s")
+    for key, secs in med.items():
+        if key != "decode":
+            fps = total / secs
+            print(
+                f"  {key:44s} {fps:8.1f} frames/s   {secs:6.2f} s   ratio to decode "
+                f"{fps / dec:5.2f}"
+            )
+
+
+def main(argv: list[str] | None = None) -> int:
+    from mistool.parallel import default_workers
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=2500, help="frames per sequence")
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--workers", type=int, default=default_workers(), help="N (cores)")
+    parser.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
+    parser.add_argument("--stages", action="store_true", help="also time each stage")
+    parser.add_argument("--dataset-sequences", type=int, default=4)
+    parser.add_argument("--dataset-frames", type=int, default=100)
+    parser.add_argument("--no-dataset", action="store_true")
+    parser.add_argument(
+        "--data",
+        type=Path,
+        default=Path(tempfile.gettempdir()) / "mistool_bench_throughput",
+        help="where the synth sequences are rendered once and reused",
+    )
+    args = parser.parse_args(argv)
+    workers = sorted({1, args.workers})
+    print(
+        f"mistool track throughput: {os.cpu_count()} CPUs, workers {workers}, "
+        f"{args.runs} runs (median), OpenCV {cv2.__version__}, Python "
+        f"{sys.version.split()[0]}; load average {os.getloadavg()}"
+    )
+    with tempfile.TemporaryDirectory(prefix="mistool-bench-") as tmp_s:
+        tmp = Path(tmp_s)
+        for name in args.cases:
+            seq = synth(args.data / f"{name}_{args.frames}", args.frames, CASES[name], seed=3)
+            med = bench_case(name, seq, tmp, workers, args.runs)
+            print_case(
+                f"{name} ({CASES[name]} instrument(s), merged labels)",
+                args.frames,
+                med,
+                os.getloadavg(),
+            )
+            if args.stages:
+                ms = stages(seq, tmp / "stages.csv")
+                parent = sum(ms[k] for k in ("identity", "rows", "refinement", "CSV"))
+                print(
+                    "  stages, ms/frame (one process): "
+                    + ", ".join(f"{k} {v:.2f}" for k, v in ms.items())
+                    + f"; sequential in the parent: {parent:.2f}"
+                )
+        if not args.no_dataset:
+            bench_dataset(args, args.data, tmp, args.workers)
+    print(f"\nload average after: {os.getloadavg()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
