@@ -18,6 +18,8 @@ leaving and coming back is not smeared.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["MODES", "filter_series", "noise_scale"]
@@ -35,36 +37,64 @@ def noise_scale(y: np.ndarray, floor: float) -> float:
 
 
 def _kalman_1d(t: np.ndarray, y: np.ndarray, r: np.ndarray, q: float, smooth: bool) -> np.ndarray:
+    """Constant-velocity Kalman filter (and RTS smoother) of one series.
+
+    The 2x2 algebra is written out on Python floats: the same equations as the matrix
+    form (x = F x, P = F P F^T + Q; gain on the position; RTS with C = P F^T Pp^-1), about
+    7x faster than small numpy matrices (scripts/bench_throughput.py --stages, the
+    refinement stage); results agree with the matrix form to ~1e-13 relative."""
     n = len(t)
-    xs = np.zeros((n, 2))
-    ps = np.zeros((n, 2, 2))
-    xp_all = np.zeros((n, 2))
-    pp_all = np.zeros((n, 2, 2))
-    first = int(np.flatnonzero(np.isfinite(y))[0])
-    x = np.array([y[first], 0.0])
-    P = np.diag([r[first] ** 2, 1e6])
+    tl, yl, rl = t.tolist(), y.tolist(), r.tolist()
+    seen = [math.isfinite(v) for v in yl]
+    first = seen.index(True)
+    x0, x1 = yl[first], 0.0
+    p00, p01, p10, p11 = rl[first] ** 2, 0.0, 0.0, 1e6
+    qq = q * q
+    xs0, xs1 = [0.0] * n, [0.0] * n
+    ps: list[tuple[float, float, float, float]] = [(0.0, 0.0, 0.0, 0.0)] * n
+    xp: list[tuple[float, float]] = [(0.0, 0.0)] * n
+    pp: list[tuple[float, float, float, float]] = [(0.0, 0.0, 0.0, 0.0)] * n
     for k in range(n):
-        if k > 0:
-            dt = t[k] - t[k - 1]
-            F = np.array([[1.0, dt], [0.0, 1.0]])
-            Q = q * q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
-            x = F @ x
-            P = F @ P @ F.T + Q
-        xp_all[k], pp_all[k] = x, P
-        if np.isfinite(y[k]):
-            s = P[0, 0] + r[k] ** 2
-            kg = P[:, 0] / s
-            x = x + kg * (y[k] - x[0])
-            P = P - np.outer(kg, P[0, :])
-        xs[k], ps[k] = x, P
+        if k > 0:  # predict: F = [[1, dt], [0, 1]], Q = q^2 [[dt^3/3, dt^2/2], [dt^2/2, dt]]
+            dt = tl[k] - tl[k - 1]
+            x0 = x0 + dt * x1
+            a00, a01 = p00 + dt * p10, p01 + dt * p11
+            p00 = a00 + a01 * dt + qq * (dt**3 / 3)
+            p01 = a01 + qq * (dt**2 / 2)
+            p10 = p10 + p11 * dt + qq * (dt**2 / 2)
+            p11 = p11 + qq * dt
+        xp[k], pp[k] = (x0, x1), (p00, p01, p10, p11)
+        if seen[k]:  # update with the position measurement
+            s = p00 + rl[k] ** 2
+            k0, k1 = p00 / s, p10 / s
+            innov = yl[k] - x0
+            x0, x1 = x0 + k0 * innov, x1 + k1 * innov
+            p00, p01, p10, p11 = p00 - k0 * p00, p01 - k0 * p01, p10 - k1 * p00, p11 - k1 * p01
+        xs0[k], xs1[k], ps[k] = x0, x1, (p00, p01, p10, p11)
     if smooth:
         for k in range(n - 2, -1, -1):
-            dt = t[k + 1] - t[k]
-            F = np.array([[1.0, dt], [0.0, 1.0]])
-            c = ps[k] @ F.T @ np.linalg.inv(pp_all[k + 1])
-            xs[k] = xs[k] + c @ (xs[k + 1] - xp_all[k + 1])
-            ps[k] = ps[k] + c @ (ps[k + 1] - pp_all[k + 1]) @ c.T
-    return xs[:, 0]
+            dt = tl[k + 1] - tl[k]
+            b00, b01, b10, b11 = ps[k]
+            c00, c01, c10, c11 = b00 + b01 * dt, b01, b10 + b11 * dt, b11  # P F^T
+            e00, e01, e10, e11 = pp[k + 1]
+            det = e00 * e11 - e01 * e10
+            i00, i01, i10, i11 = e11 / det, -e01 / det, -e10 / det, e00 / det
+            g00, g01 = c00 * i00 + c01 * i10, c00 * i01 + c01 * i11  # C = P F^T Pp^-1
+            g10, g11 = c10 * i00 + c11 * i10, c10 * i01 + c11 * i11
+            d0, d1 = xs0[k + 1] - xp[k + 1][0], xs1[k + 1] - xp[k + 1][1]
+            xs0[k] += g00 * d0 + g01 * d1
+            xs1[k] += g10 * d0 + g11 * d1
+            f00, f01, f10, f11 = ps[k + 1]
+            h00, h01, h10, h11 = f00 - e00, f01 - e01, f10 - e10, f11 - e11
+            m00, m01 = g00 * h00 + g01 * h10, g00 * h01 + g01 * h11  # C (P' - Pp)
+            m10, m11 = g10 * h00 + g11 * h10, g10 * h01 + g11 * h11
+            ps[k] = (
+                b00 + m00 * g00 + m01 * g01,
+                b01 + m00 * g10 + m01 * g11,
+                b10 + m10 * g00 + m11 * g01,
+                b11 + m10 * g10 + m11 * g11,
+            )
+    return np.array(xs0)
 
 
 def filter_series(
