@@ -232,6 +232,22 @@ def _init_worker() -> None:
     # compete with the other workers for the same cores.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(1)
+    threading.Thread(target=_exit_with_parent, name="mistool-watchdog", daemon=True).start()
+
+
+def _exit_with_parent() -> None:
+    """Exit this worker as soon as the process that started it is gone.
+
+    A worker waits for tasks on a queue whose write end it also holds, so it would wait
+    forever if the parent were killed (SIGKILL, a crash, a viewer stopping its tracking
+    process) before it could terminate its workers."""
+    from multiprocessing import connection, parent_process
+
+    parent = parent_process()
+    if parent is None or parent.sentinel is None:
+        return
+    connection.wait([parent.sentinel])
+    os._exit(1)
 
 
 def _without_main(prepare: Callable[[str], dict[str, Any]]) -> Callable[[str], dict[str, Any]]:

@@ -174,3 +174,44 @@ def test_a_script_without_a_main_guard_is_not_run_again_by_the_workers(
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.count("rows") == 1 and done.stderr == ""
+
+
+_KILLED_PARENT = """
+import os, sys, time
+from mistool import parallel
+pool = parallel.LocalPool(2)
+futures = [pool.submit(os.getpid) for _ in range(8)]
+print(" ".join(str(p) for p in sorted({f.result() for f in futures})), flush=True)
+time.sleep(60)
+"""
+
+
+def test_workers_exit_when_their_parent_is_killed(tmp_path: Path) -> None:
+    """SIGKILL leaves the parent no chance to stop its workers: they notice and exit."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    child = subprocess.Popen(
+        [sys.executable, "-c", _KILLED_PARENT], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert child.stdout is not None
+        pids = [int(p) for p in child.stdout.readline().split()]
+        assert pids and child.pid not in pids
+    finally:
+        child.send_signal(signal.SIGKILL)
+        child.wait()
+
+    def alive(pid: int) -> bool:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                return f.read().split(")")[-1].split()[0] != "Z"
+        except FileNotFoundError:
+            return False
+
+    deadline = time.monotonic() + 30
+    while any(alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(alive(p) for p in pids), [p for p in pids if alive(p)]
