@@ -18,6 +18,7 @@ import contextlib
 import itertools
 import multiprocessing
 import signal
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -59,6 +60,29 @@ class JobSpec:
     """Sequence-level smoothing applied when tracking finishes."""
     workers: int = 1
     """Processes for the per-frame work (1: in the tracking process itself)."""
+    files: tuple[Path, ...] = ()
+    """The folder's frame files in order, when the caller has listed them already (saves
+    listing a long folder again)."""
+
+
+#: Suffixes of lossy frame files (their label values are widened: listed again instead).
+_LOSSY = frozenset({".jpg", ".jpeg"})
+
+
+def _open(spec: JobSpec) -> MaskSequence:
+    """The sequence to track: from ``spec.files`` when given (PNG folders), else opened."""
+    from mistool.sequence import Frame, open_sequence, read_label_image
+
+    files, cfg = spec.files, spec.config
+    if not files or not spec.sequence.is_dir() or any(f.suffix.lower() in _LOSSY for f in files):
+        return open_sequence(spec.sequence, cfg)
+
+    def frames() -> Iterator[Frame]:
+        for i, f in enumerate(files):
+            yield Frame(i, f.name, lambda f=f: read_label_image(f, colour=cfg.colour_masks))  # type: ignore[misc]
+
+    name = spec.sequence.resolve().name or str(spec.sequence)
+    return MaskSequence("folder", name, cfg, frames, len(files), spec.sequence)
 
 
 # -- the child ----------------------------------------------------------------------------
@@ -129,11 +153,10 @@ def track_into(spec: JobSpec, stop: Any = None) -> Progress:
     """
     from mistool import api, parallel, tracking
     from mistool.rows import RowBuilder
-    from mistool.sequence import open_sequence
 
     entry, cfg = spec.entry, spec.config
     try:
-        seq = open_sequence(spec.sequence, cfg)
+        seq = _open(spec)
         cfg = seq.config
         pose = parallel.pose_module(spec.metric, cfg)
         entry.begin(seq.num_frames, {"sequence": str(spec.sequence)})
@@ -197,7 +220,12 @@ class TrackingJob:
 
     def start(self) -> None:
         """Start the child (returns at once)."""
-        ctx = multiprocessing.get_context("spawn")  # the server has threads: never fork
+        # Forking a process with threads is unsafe (a lock held by another thread stays
+        # held in the child): fork only while this is the only thread (mistool serve
+        # starts tracking before its server), which spares the child the imports.
+        alone = threading.active_count() == 1
+        method = "fork" if alone and "fork" in multiprocessing.get_all_start_methods() else "spawn"
+        ctx = multiprocessing.get_context(method)
         self._process = ctx.Process(target=_child, args=(self.spec,), name="mistool-track")
         self._process.daemon = True
         self.started = time.monotonic()

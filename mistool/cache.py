@@ -11,9 +11,10 @@ Layout of one entry, ``<root>/<key>/``::
     state.pkl          the tracker's state after the last chunk (to resume from there)
     final/<col>.npy    the finished, refined table: one .npy per column (memory-mapped)
 
-Columns are plain numpy arrays (no pickle): numbers as float64/int64, names (``instrument``,
-``part``, ``pose_status``) as fixed-width unicode. Loading a finished 90,000-frame table
-memory-maps its columns (``scripts/bench_live.py`` measures it). Every file is written to a
+Columns are plain numpy arrays (no pickle): numbers as float64/int64, text (``instrument``,
+``part``, ``pose_status``) as int32 codes into a small array of distinct values. Loading a
+finished 90,000-frame table memory-maps its columns (``scripts/bench_live.py`` measures
+it). Every file is written to a
 temporary name and renamed, so a run killed at any moment leaves a readable entry.
 
 **Key** (:func:`cache_key`): a digest of mistool's version, the sequence's resolved path,
@@ -82,25 +83,38 @@ def cache_key(seq_path: Path, config: Config, files: Iterable[Path], **options: 
 
 
 # -- columns <-> numpy -------------------------------------------------------------------
+#: Suffixes of the two arrays storing a text column: codes (int32) and distinct values.
+_CODES, _NAMES = "@codes", "@names"
+
+
 def _encode(table: TrackTable) -> dict[str, np.ndarray]:
+    """Numeric columns as they are; text columns as ``<name>@codes`` (int32) and
+    ``<name>@names`` (unicode), so that no pickle is needed and loading is an index."""
     out: dict[str, np.ndarray] = {}
     for name in table.columns:
         col = np.asarray(table[name])
-        out[name] = col.astype(str) if col.dtype == object else col
+        if col.dtype == object:
+            names, codes = np.unique(col.astype(str), return_inverse=True)
+            out[name + _CODES] = codes.reshape(-1).astype(np.int32)
+            out[name + _NAMES] = names
+        else:
+            out[name] = col
     return out
 
 
 def _decode(columns: dict[str, np.ndarray]) -> TrackTable:
     cols: dict[str, np.ndarray] = {}
-    for name, arr in columns.items():
-        if arr.dtype.kind == "U":  # one str object per distinct name, shared by rows
-            names, codes = np.unique(np.asarray(arr), return_inverse=True)
-            lut = np.empty(len(names), dtype=object)
-            lut[:] = names.tolist()
-            cols[name] = lut[codes.reshape(-1)]
+    for key, arr in columns.items():
+        if key.endswith(_NAMES):
+            continue
+        if key.endswith(_CODES):  # one str object per distinct value, shared by rows
+            name = key[: -len(_CODES)]
+            lut = np.empty(len(columns[name + _NAMES]), dtype=object)
+            lut[:] = [str(v) for v in columns[name + _NAMES]]
+            cols[name] = lut[np.asarray(arr)]
         else:
-            dtype = COLUMN_DTYPES.get(name)
-            cols[name] = arr if dtype is None or dtype is object else arr.astype(dtype, copy=False)
+            dtype = COLUMN_DTYPES.get(key)
+            cols[key] = arr if dtype is None or dtype is object else arr.astype(dtype, copy=False)
     return TrackTable(cols)
 
 

@@ -119,14 +119,22 @@ def run(
     sequence = load_sequence(
         args.sequence, poses=args.poses, background=args.poses is None, fresh=args.no_cache
     )
-    access = AccessPolicy.for_host(args.host, args.allow_origin)
-    viewer = ReplayViewer(
-        sequence,
-        host=args.host,
-        port=args.port,
-        environment_map=args.environment_map,
-        access=access,
-    )
+    stored = sequence.feed.entry.progress() if sequence.feed is not None else None
+    if sequence.feed is not None:  # tracking starts while the server starts
+        sequence.feed.start()
+    try:
+        access = AccessPolicy.for_host(args.host, args.allow_origin)
+        viewer = ReplayViewer(
+            sequence,
+            host=args.host,
+            port=args.port,
+            environment_map=args.environment_map,
+            access=access,
+        )
+    except BaseException:
+        if sequence.feed is not None:
+            sequence.feed.stop()
+        raise
     waiter = stop or threading.Event()
     previous = None
     if threading.current_thread() is threading.main_thread():
@@ -134,12 +142,11 @@ def run(
         previous = signal.signal(signal.SIGTERM, lambda *_: waiter.set())
     replay = sequence.replay
     try:  # from here on, Ctrl+C (even during the prints) stops cleanly
-        if sequence.feed is not None:
-            status = sequence.feed.entry.progress()
+        if stored is not None:
             state = (
                 "tracked (cached)"
-                if status.complete
-                else f"tracking in the background from frame {status.done} (progress in the "
+                if stored.complete
+                else f"tracking in the background from frame {stored.done} (progress in the "
                 "browser)"
             )
             print(

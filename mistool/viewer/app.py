@@ -71,12 +71,16 @@ def cache_dir() -> Path:
 SERVE_TRACKING = {"metric": True, "smoothing": "offline"}
 
 
-def _entry_for(seq_path: Path, config: Config) -> CacheEntry:
-    """The cache entry of a sequence tracked with :data:`SERVE_TRACKING`."""
+def _entry_for(seq_path: Path, config: Config, files: list[Path] | None = None) -> CacheEntry:
+    """The cache entry of a sequence tracked with :data:`SERVE_TRACKING` (``files``: its
+    frame files when already listed)."""
     from mistool.cache import cache_key, enforce_limit, open_entry
     from mistool.sequence import list_frames
 
-    files = list_frames(seq_path) if seq_path.is_dir() else [seq_path]
+    if files is None:
+        files = list_frames(seq_path) if seq_path.is_dir() else [seq_path]
+    elif not files:
+        files = [seq_path]
     entry = open_entry(cache_key(seq_path, config, files, **SERVE_TRACKING))
     with contextlib.suppress(OSError):
         entry.touch()
@@ -117,7 +121,7 @@ def load_sequence(
     """
     from mistool.export import check_frame_numbers, read_csv
     from mistool.resources import sample_masks_dir
-    from mistool.sequence import check_source, list_frames, resolve, widen_for_video
+    from mistool.sequence import check_source, resolve, widen_for_video
 
     seq_path, config = resolve(sample_masks_dir() if path is None else path)
     if seq_path.is_file():  # a mask video: its codec smears label values (as tracking does)
@@ -137,18 +141,24 @@ def load_sequence(
         image_wh = (shape[1], shape[0]) if shape is not None else None
         replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
         return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
-    if seq_path.is_dir() and not list_frames(seq_path):
+    if seq_path.is_dir() and not frames.num_mask_frames:
         raise InputPathError(
             f"{seq_path}: no label images in this folder; pass a folder "
             "of masks, a mask video, or --poses with a motion table"
         )
     check_source(config, num_frames, shape)  # warns when source and masks disagree
     if fresh:
-        _entry_for(seq_path, config).remove()
+        _entry_for(seq_path, config, frames.mask_files).remove()
     if background:
         return _background(seq_path, config, frames, num_frames, shape)
     table, num_frames, config, shape = _track_now(
-        seq_path, config, cache=cache, progress=progress, num_frames=num_frames, shape=shape
+        seq_path,
+        config,
+        cache=cache,
+        progress=progress,
+        num_frames=num_frames,
+        shape=shape,
+        files=frames.mask_files,
     )
     image_wh = (shape[1], shape[0]) if shape is not None else None
     replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
@@ -163,6 +173,7 @@ def _track_now(
     progress: bool,
     num_frames: int | None,
     shape: tuple[int, int] | None,
+    files: list[Path],
 ) -> tuple[TrackTable, int | None, Config, tuple[int, int] | None]:
     """Track in this process (through the cache when ``cache``)."""
     from mistool import api
@@ -170,7 +181,7 @@ def _track_now(
     if cache:
         from mistool.background import JobSpec, track_into
 
-        entry = _entry_for(seq_path, config)
+        entry = _entry_for(seq_path, config, files)
         with contextlib.suppress(OSError, MistoolError):  # a damaged entry: track again
             if entry.progress().complete:
                 return entry.read_final(), num_frames, config, shape
@@ -207,8 +218,14 @@ def _background(
         instruments=tuple(s.name for s in config.instruments),
         parts=config_parts(config),
     )
-    entry = _entry_for(seq_path, config)
-    spec = JobSpec(seq_path, config, entry, **SERVE_TRACKING)  # type: ignore[arg-type]
+    entry = _entry_for(seq_path, config, frames.mask_files)
+    spec = JobSpec(
+        seq_path,
+        config,
+        entry,
+        files=tuple(frames.mask_files),
+        **SERVE_TRACKING,  # type: ignore[arg-type]
+    )
     feed = CacheFeed(entry, spec, num_frames)
     return LoadedSequence(replay=replay, frames=frames, name=seq_path.name, feed=feed)
 

@@ -113,7 +113,9 @@ class CacheFeed:
         self._error: str | None = None
 
     def start(self) -> None:
-        """Start the background job, unless the entry is complete."""
+        """Start the background job, unless the entry is complete or it has started."""
+        if self.job is not None:
+            return
         if self.spec is not None and not self.entry.progress().complete:
             self.job = TrackingJob(self.spec)
             self.job.start()

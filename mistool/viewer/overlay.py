@@ -101,6 +101,11 @@ class FrameStore:
                 self._source_video = _VideoReader(src)
 
     @property
+    def mask_files(self) -> list[Path]:
+        """The label image files, in frame order (empty for a mask video)."""
+        return self._mask_files
+
+    @property
     def has_masks(self) -> bool:
         """Whether label images can be read."""
         return bool(self._mask_files) or self._mask_video is not None
