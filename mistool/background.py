@@ -225,7 +225,7 @@ class TrackingJob:
         # starts tracking before its server), which spares the child the imports.
         alone = threading.active_count() == 1
         method = "fork" if alone and "fork" in multiprocessing.get_all_start_methods() else "spawn"
-        ctx = multiprocessing.get_context(method)
+        ctx: Any = multiprocessing.get_context(method)
         self._process = ctx.Process(target=_child, args=(self.spec,), name="mistool-track")
         self._process.daemon = True
         self.started = time.monotonic()
