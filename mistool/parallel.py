@@ -32,7 +32,6 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import context as mp_context
-from multiprocessing import popen_forkserver as mp_popen_forkserver
 from multiprocessing import spawn as mp_spawn
 from pathlib import Path
 from typing import Any, Protocol
@@ -261,28 +260,35 @@ def _without_main(prepare: Callable[[str], dict[str, Any]]) -> Callable[[str], d
 
 
 _LAUNCH_LOCK = threading.Lock()
-_Popen: Any = mp_popen_forkserver.Popen
+try:
+    from multiprocessing import popen_forkserver as _mp_popen_forkserver
+
+    _Popen: Any = _mp_popen_forkserver.Popen
+    _ForkServerProcess: Any = mp_context.ForkServerProcess
+except (ImportError, AttributeError):  # Windows: no fork server (spawn is used)
+    _Popen = _ForkServerProcess = None
 
 
-class _NoMainPopen(_Popen):
-    """A forkserver process start that leaves the caller's ``__main__`` out (see
-    :func:`worker_context`)."""
+if _Popen is not None:
 
-    def _launch(self, process_obj: Any) -> None:
-        with _LAUNCH_LOCK:  # the module attribute is swapped while this process starts
-            original = mp_spawn.get_preparation_data
-            patched: Any = _without_main(original)
-            mp_spawn.get_preparation_data = patched
-            try:
-                super()._launch(process_obj)
-            finally:
-                mp_spawn.get_preparation_data = original
+    class _NoMainPopen(_Popen):
+        """A forkserver process start that leaves the caller's ``__main__`` out (see
+        :func:`worker_context`)."""
 
+        def _launch(self, process_obj: Any) -> None:
+            with _LAUNCH_LOCK:  # the module attribute is swapped while this process starts
+                original = mp_spawn.get_preparation_data
+                patched: Any = _without_main(original)
+                mp_spawn.get_preparation_data = patched
+                try:
+                    super()._launch(process_obj)
+                finally:
+                    mp_spawn.get_preparation_data = original
 
-class _NoMainProcess(mp_context.ForkServerProcess):
-    @staticmethod
-    def _Popen(process_obj: Any) -> Any:  # noqa: N802 - multiprocessing's name
-        return _NoMainPopen(process_obj)
+    class _NoMainProcess(_ForkServerProcess):
+        @staticmethod
+        def _Popen(process_obj: Any) -> Any:  # noqa: N802 - multiprocessing's name
+            return _NoMainPopen(process_obj)
 
 
 def worker_context() -> Any:
@@ -295,6 +301,8 @@ def worker_context() -> Any:
     need only :func:`observe_batch`, so the main module is left out of the data each
     worker is prepared with. The fork server imports the per-frame code once; each
     worker forks from it (no thread of the caller is forked)."""
+    if _Popen is None:  # pragma: no cover - Windows
+        return mp_context.SpawnContext()
     ctx: Any = mp_context.ForkServerContext()
     ctx.Process = _NoMainProcess
     ctx.set_forkserver_preload(["mistool.parallel"])
