@@ -16,6 +16,9 @@ once into ``--data`` and reused):
   grouping), metric pose, identity (``IdentityTracker.resolve`` + re-measuring split
   pieces), rows, refinement (paper motion + metric refinement), CSV writing, in ms per
   frame; the parent's sequential share is identity + rows + refinement + CSV;
+- with ``--formats``: write/read times and sizes of the last case's table as CSV,
+  ``.npz`` and ``.parquet``; with ``--memory N ...``: peak RSS of tracking N frames (the
+  last case's frames repeated) in a fresh process;
 - a dataset (``--dataset-sequences`` sequences of ``--dataset-frames`` frames, half
   with one instrument and half with two crossing): ``mistool track DATA -o OUT
   --workers N`` and ``--dask ADDRESS`` on ``LocalCluster(n_workers=2, processes=True,
@@ -157,6 +160,49 @@ def print_case(name: str, n: int, med: dict[str, float], load: tuple[float, ...]
         print(f"  metric / no-metric time, w{w}: {on / off:.2f}")
 
 
+def bench_formats(seq: Path, tmp: Path, runs: int) -> None:
+    """Write and read times and sizes of the sequence's table as CSV, .npz, .parquet."""
+    from mistool.api import track
+    from mistool.columnar import read_table, write_table
+
+    table = track(seq, workers=1)
+    print(f"\ntable formats: {table.num_rows} rows x {len(table.full().columns)} columns")
+    for suffix in (".csv", ".npz", ".parquet"):
+        path = tmp / f"table{suffix}"
+        w = statistics.median(timed(lambda p=path: write_table(table, p)) for _ in range(runs))
+        r = statistics.median(timed(lambda p=path: read_table(p)) for _ in range(runs))
+        print(
+            f"  {suffix:9s} write {1e3 * w:8.1f} ms   read {1e3 * r:8.1f} ms   "
+            f"{path.stat().st_size / 2**20:7.2f} MB"
+        )
+
+
+def child_memory(seq: str, frames: int) -> None:
+    """Track ``frames`` frames (the sequence's frames over and over) in this fresh
+    process, one worker, metric pose on; print the peak RSS (MB) and rows."""
+    import itertools
+    import resource
+
+    from mistool import api
+    from mistool.sequence import open_sequence
+
+    cfg = open_sequence(seq).config
+    decoded = [labels for _, _, labels in open_sequence(seq)]
+    result = api.run(itertools.islice(itertools.cycle(decoded), frames), cfg, workers=1)
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"{rss:.1f} {result.table.num_rows}")
+
+
+def bench_memory(seq: Path, frames: list[int]) -> None:
+    import subprocess
+
+    print(f"\nmemory (fresh process, 1 worker, metric pose, frames of {seq.name} repeated):")
+    for n in frames:
+        cmd = [sys.executable, __file__, "--child-memory", str(seq), str(n)]
+        rss, rows = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.split()
+        print(f"  {n:6d} frames ({rows} rows): peak RSS {float(rss):7.1f} MB")
+
+
 def make_dataset(root: Path, data: Path, sequences: int, frames: int) -> Path:
     """``sequences`` synth sequences (alternately 1 and 2 instruments) in ``root``."""
     root.mkdir(parents=True, exist_ok=True)
@@ -227,6 +273,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--dataset-sequences", type=int, default=4)
     parser.add_argument("--dataset-frames", type=int, default=100)
     parser.add_argument("--no-dataset", action="store_true")
+    parser.add_argument("--formats", action="store_true", help="CSV vs .npz vs .parquet")
+    parser.add_argument(
+        "--memory",
+        type=int,
+        nargs="+",
+        metavar="N",
+        help="peak RSS of tracking N frames (the crossing sequence repeated), each N",
+    )
+    parser.add_argument("--child-memory", nargs=2, help=argparse.SUPPRESS)
     parser.add_argument(
         "--data",
         type=Path,
@@ -234,6 +289,9 @@ def main(argv: list[str] | None = None) -> int:
         help="where the synth sequences are rendered once and reused",
     )
     args = parser.parse_args(argv)
+    if args.child_memory:
+        child_memory(args.child_memory[0], int(args.child_memory[1]))
+        return 0
     workers = sorted({1, args.workers})
     print(
         f"mistool track throughput: {os.cpu_count()} CPUs, workers {workers}, "
@@ -259,6 +317,12 @@ def main(argv: list[str] | None = None) -> int:
                     + ", ".join(f"{k} {v:.2f}" for k, v in ms.items())
                     + f"; sequential in the parent: {parent:.2f}"
                 )
+        name = args.cases[-1]
+        last = synth(args.data / f"{name}_{args.frames}", args.frames, CASES[name], seed=3)
+        if args.formats:
+            bench_formats(last, tmp, args.runs)
+        if args.memory:
+            bench_memory(last, args.memory)
         if not args.no_dataset:
             bench_dataset(args, args.data, tmp, args.workers)
     print(f"\nload average after: {os.getloadavg()}")
