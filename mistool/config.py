@@ -18,6 +18,10 @@ Layout (every key optional; no file at all means EndoVis'15 defaults)::
     fy = 580.0
     cx = 359.5
     cy = 287.5
+    distortion = [-0.2, 0.05, 0.0, 0.0, 0.0]   # optional, OpenCV's order (4/5/8/12/14)
+    model = "pinhole"           # or "fisheye" (4 coefficients)
+    # or instead of [camera]: calibration = "camera.yaml" (OpenCV FileStorage
+    # YAML/XML/JSON or ROS camera_info YAML; relative to this file)
 
     [[instrument]]              # one table per instrument with its own label values
     name = "1"
@@ -75,9 +79,19 @@ def pack_rgb(r: int, g: int, b: int) -> int:
     return (int(r) << 16) | (int(g) << 8) | int(b)
 
 
+#: Lens models: OpenCV's pinhole (+ radial/tangential/prism/tilt distortion) and fisheye.
+CAMERA_MODELS: tuple[str, ...] = ("pinhole", "fisheye")
+#: Allowed numbers of distortion coefficients per model (OpenCV's orders).
+DISTORTION_LENGTHS: dict[str, tuple[int, ...]] = {"pinhole": (4, 5, 8, 12, 14), "fisheye": (4,)}
+
+
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole intrinsics (px). Lens distortion is assumed already removed."""
+    """A calibrated camera: pinhole intrinsics (px) and OpenCV lens distortion.
+
+    The metric pose works in the *ideal* image of the same intrinsics without distortion
+    (:mod:`mistool.lens` maps pixels between the two).
+    """
 
     fx: float
     """Focal length along x (px), > 0."""
@@ -87,6 +101,22 @@ class Camera:
     """Principal point x (px)."""
     cy: float
     """Principal point y (px)."""
+    distortion: tuple[float, ...] = ()
+    """OpenCV distortion coefficients: pinhole ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1,
+    s2, s3, s4[, tx, ty]]]])`` (4, 5, 8, 12 or 14 values), fisheye ``(k1, k2, k3, k4)``;
+    empty (or all zero, pinhole) for an ideal lens."""
+    model: str = "pinhole"
+    """``"pinhole"`` or ``"fisheye"`` (OpenCV's ``cv::fisheye`` model)."""
+    image_wh: tuple[int, int] | None = None
+    """(width, height) px of the images the intrinsics belong to (from a calibration
+    file), or None when not known. Masks of another size are an error unless they are a
+    uniform scaling of it (:func:`mistool.lens.fit_camera`)."""
+
+    @property
+    def distorted(self) -> bool:
+        """Whether the lens distorts (a fisheye always does; a pinhole with nonzero
+        coefficients)."""
+        return self.model == "fisheye" or any(d != 0.0 for d in self.distortion)
 
     @property
     def K(self) -> Any:  # noqa: N802 - the usual name of the intrinsic matrix
@@ -179,6 +209,7 @@ _TOP_KEYS = {
     "clasper_length_mm",
     "parts",
     "camera",
+    "calibration",
     "instrument",
 }
 _INSTRUMENT_KEYS = {"name", "shaft_diameter_mm", "clasper_length_mm", *PARTS}
@@ -269,6 +300,63 @@ def _parts(table: Mapping[str, Any], where: str, prefix: str) -> tuple[dict[str,
     return parts, colour
 
 
+_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "distortion", "model")
+
+
+def _camera(cam: Any, where: str) -> Camera:
+    """Parse and validate a ``[camera]`` table."""
+    if not isinstance(cam, dict):
+        raise ConfigError(f"{where}: [camera] must be a table with fx, fy, cx, cy")
+    extra = sorted(set(cam) - set(_CAMERA_KEYS))
+    missing = sorted({"fx", "fy", "cx", "cy"} - set(cam))
+    if extra:
+        raise ConfigError(
+            f"{where}: unknown key(s) in [camera]: {', '.join(extra)}; "
+            f"allowed: {', '.join(_CAMERA_KEYS)}"
+        )
+    if missing:
+        raise ConfigError(f"{where}: [camera] is missing {', '.join(missing)}")
+    model = cam.get("model", "pinhole")
+    if model not in CAMERA_MODELS:
+        raise ConfigError(
+            f"{where}: camera.model = {model!r} is not a lens model; "
+            f"choose one of {', '.join(CAMERA_MODELS)}"
+        )
+    dist = cam.get("distortion", [])
+    if not isinstance(dist, list):
+        raise ConfigError(f"{where}: camera.distortion must be a list of numbers, got {dist!r}")
+    return make_camera(
+        [
+            _number(cam[k], f"camera.{k}", where, positive=k in ("fx", "fy"))
+            for k in "fx fy cx cy".split()
+        ],
+        [_number(d, f"camera.distortion[{i}]", where) for i, d in enumerate(dist)],
+        model,
+        where,
+    )
+
+
+def make_camera(
+    fxfycxcy: list[float],
+    distortion: list[float],
+    model: str,
+    where: str,
+    image_wh: tuple[int, int] | None = None,
+) -> Camera:
+    """A validated :class:`Camera` (``where`` names the source in errors)."""
+    lengths = DISTORTION_LENGTHS[model]
+    if distortion and len(distortion) not in lengths:
+        raise ConfigError(
+            f"{where}: camera.distortion has {len(distortion)} values; the {model} model "
+            f"takes {' or '.join(map(str, lengths))} (OpenCV's order"
+            + (": k1, k2, p1, p2, k3, ...)" if model == "pinhole" else ": k1, k2, k3, k4)")
+        )
+    if model == "fisheye" and not distortion:
+        distortion = [0.0, 0.0, 0.0, 0.0]
+    fx, fy, cx, cy = fxfycxcy
+    return Camera(fx, fy, cx, cy, tuple(float(d) for d in distortion), model, image_wh)
+
+
 def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Config:
     """Build and validate a :class:`Config` from parsed TOML (``path`` names it in errors
     and anchors a relative ``source``)."""
@@ -323,24 +411,22 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         override, colour = _parts(data["parts"], where, "parts.")
         parts.update(override)
     kwargs["parts"] = parts
-    if "camera" in data:
-        cam = data["camera"]
-        if not isinstance(cam, dict):
-            raise ConfigError(f"{where}: [camera] must be a table with fx, fy, cx, cy")
-        extra = sorted(set(cam) - {"fx", "fy", "cx", "cy"})
-        missing = sorted({"fx", "fy", "cx", "cy"} - set(cam))
-        if extra:
-            raise ConfigError(
-                f"{where}: unknown key(s) in [camera]: {', '.join(extra)}; allowed: fx, fy, cx, cy"
-            )
-        if missing:
-            raise ConfigError(f"{where}: [camera] is missing {', '.join(missing)}")
-        kwargs["camera"] = Camera(
-            fx=_number(cam["fx"], "camera.fx", where, positive=True),
-            fy=_number(cam["fy"], "camera.fy", where, positive=True),
-            cx=_number(cam["cx"], "camera.cx", where),
-            cy=_number(cam["cy"], "camera.cy", where),
+    if "camera" in data and "calibration" in data:
+        raise ConfigError(
+            f"{where}: give either [camera] or calibration = FILE, not both (they could disagree)"
         )
+    if "camera" in data:
+        kwargs["camera"] = _camera(data["camera"], where)
+    if "calibration" in data:
+        cal = data["calibration"]
+        if not isinstance(cal, str) or not cal:
+            raise ConfigError(f"{where}: calibration must be a path string, got {cal!r}")
+        cal_path = Path(cal).expanduser()
+        if not cal_path.is_absolute() and path is not None:
+            cal_path = path.parent / cal_path
+        from mistool.calibration import read_calibration  # same layer; avoids a cycle
+
+        kwargs["camera"] = read_calibration(cal_path)
     instruments: list[InstrumentSpec] = []
     tables = data.get("instrument", [])
     if not isinstance(tables, list):

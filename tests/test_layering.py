@@ -16,9 +16,10 @@ LAYERS: list[tuple[str, ...]] = [
     ("errors",),
     ("model",),
     # export (CSV and atomic writes) needs only errors and model; synth writes truth.csv
-    ("config", "resources", "export", "annotations", "columnar"),
+    # calibration (camera files) is read by config (a lazy import: same layer)
+    ("config", "resources", "export", "annotations", "columnar", "calibration"),
     # assignment: the one min-cost matching solver (tracking and evaluation share it)
-    ("geometry", "assignment"),
+    ("geometry", "assignment", "lens"),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
     # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools)
     ("rows", "parallel"),

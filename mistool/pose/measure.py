@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from mistool.config import Camera
+from mistool.lens import distort_points, undistort_points
 from mistool.pose.cylinder import (
     axis_from_image_lines,
     closest_on_axis,
@@ -204,6 +205,17 @@ def _why(out: dict[str, dict[str, float]], reason: str, parts: Any = None) -> No
             out[name][AUX_STATUS] = code
 
 
+def ideal_outline(pix: np.ndarray, bnd: Boundary, camera: Camera) -> tuple[np.ndarray, Boundary]:
+    """The one place where mask points enter the pose: outline pixels (N, 2) and boundary
+    points in the camera's image -> the same points in its ideal pinhole image
+    (:func:`mistool.lens.undistort_points`; unchanged for an undistorted lens)."""
+    if not camera.distorted:
+        return pix, bnd
+    n, m = len(pix), len(bnd.bg)
+    ideal = undistort_points(np.concatenate([pix, bnd.bg, bnd.other]), camera)
+    return ideal[:n], Boundary(bg=ideal[n : n + m], other=ideal[n + m :])
+
+
 def _fill_pose(
     row: dict[str, float], end: np.ndarray | None, axis: np.ndarray | None, start: np.ndarray | None
 ) -> None:
@@ -355,11 +367,15 @@ class _ShaftPoints:
     """Every image point of the shaft that the pose uses (full-image px).
 
     Gathered in one place (:func:`_shaft_points`); the clasper's points enter separately,
-    in :func:`_jaw_tips`.
+    in :func:`_tip`. Points are in the camera's *ideal* pinhole image: with a distorted
+    lens they are undistorted here (:func:`ideal_outline`); ``border`` and ``mask`` stay
+    in the camera's image.
     """
 
     pix: np.ndarray
-    """(N, 2) outline pixels of the measured shaft region."""
+    """(N, 2) outline pixels of the measured shaft region (ideal image, see below)."""
+    centre: np.ndarray
+    """(2,) the region's centroid (ideal image)."""
     moments: dict[str, float]
     """Region moments of that region (crop coordinates, as ``cv2.moments``)."""
     offset: tuple[int, int]
@@ -437,8 +453,11 @@ class _ShaftSolution:
     """Why there is no joint (:mod:`mistool.pose.status`); empty when there is one."""
 
 
-def _shaft_points(parts: Mapping[str, Any], image_shape: tuple[int, int]) -> _ShaftPoints | None:
-    """Gather the shaft's image points (the pose's pixel input), or None for no region.
+def _shaft_points(
+    parts: Mapping[str, Any], image_shape: tuple[int, int], camera: Camera
+) -> _ShaftPoints | None:
+    """Gather the shaft's image points (the pose's pixel input, in the ideal image of
+    ``camera``), or None for no region.
 
     Two shafts in one instance (two tools touching in a merged mask): only the larger
     shaft is kept (and ``merged`` set: the clasper, whose jaws may be either tool's, is
@@ -464,12 +483,16 @@ def _shaft_points(parts: Mapping[str, Any], image_shape: tuple[int, int]) -> _Sh
     pix, mom = _outline(smask, shaft.offset, contours)
     if mom["m00"] <= 0:
         return None
+    border = _on_border(pix, image_shape)  # in the camera's image
+    ideal_pix, bnd = ideal_outline(pix, boundary_points(canvas, pix), camera)
+    centre = (mom["m10"] / mom["m00"] + shaft.offset[0], mom["m01"] / mom["m00"] + shaft.offset[1])
     return _ShaftPoints(
-        pix=pix,
+        pix=ideal_pix,
+        centre=undistort_points(np.array([centre]), camera)[0],
         moments=mom,
         offset=shaft.offset,
-        bnd=boundary_points(canvas, pix),
-        border=_on_border(pix, image_shape),
+        bnd=bnd,
+        border=border,
         mask=shaft_mask,
         merged=merged,
     )
@@ -518,7 +541,7 @@ def _shaft_frame(sp: _ShaftPoints) -> _ShaftFrame:
     mu20 = mom["m20"] / mom["m00"] - xm * xm
     mu02 = mom["m02"] / mom["m00"] - ym * ym
     mu11 = mom["m11"] / mom["m00"] - xm * ym
-    centre = np.array([xm + sp.offset[0], ym + sp.offset[1]])
+    centre = sp.centre
     e = _initial_direction(sp, centre, (mu20, mu02, mu11))
     s_pix = (sp.pix - centre) @ e
     distal = _distal_sign(sp, centre, e, s_pix)
@@ -723,6 +746,7 @@ def _shaft_row(
     K: np.ndarray,
     radius: float,
     image_shape: tuple[int, int],
+    camera: Camera,
 ) -> bool:
     """Fill the shaft's row (J, axis, proximal end, quality, uncertainties); False when
     the joint's uncertainty is too large for any pose (the reason recorded on every row)."""
@@ -756,7 +780,7 @@ def _shaft_row(
     _fill_pose(row, joint, a, start if start_ok else None)
     if start_ok:
         poly = hull_of_cylinder(start, p0 + t_end * a, radius, radius, K)
-        row["quality"] = iou_polygon_mask(poly, sp.mask, sp.offset, image_shape)
+        row["quality"] = iou_polygon_mask(poly, sp.mask, sp.offset, image_shape, camera)
     return True
 
 
@@ -769,13 +793,14 @@ def _clasper_rows(
     radius: float,
     image_shape: tuple[int, int],
     clasper_length_mm: float | None,
+    camera: Camera,
 ) -> None:
     """Fill the clasper's row (tip, clasper axis, quality) and the wrist's (its axis)."""
     clasper = parts.get("clasper")
     c_axis = None
     if clasper is not None and np.any(clasper.mask):
         tip, c_axis, tip_px = _tip(
-            clasper, joint, a, K, image_shape, clasper_length_mm, 2.0 * radius
+            clasper, joint, a, K, image_shape, clasper_length_mm, 2.0 * radius, camera
         )
         crow = out["clasper"]
         if tip_px is not None:
@@ -783,7 +808,9 @@ def _clasper_rows(
         if tip is not None:
             _fill_pose(crow, tip, c_axis, joint)
             poly = hull_of_cylinder(joint, tip, 0.5 * radius, 0.25 * radius, K)
-            crow["quality"] = iou_polygon_mask(poly, clasper.mask, clasper.offset, image_shape)
+            crow["quality"] = iou_polygon_mask(
+                poly, clasper.mask, clasper.offset, image_shape, camera
+            )
         else:
             _why(out, "tip not found", ("clasper", "wrist"))
     else:
@@ -841,7 +868,7 @@ def measure_instance(
     K = np.asarray(camera.K, dtype=np.float64)
     radius = 0.5 * float(shaft_diameter_mm)
     row = out["shaft"]
-    sp = _shaft_points(parts, image_shape)
+    sp = _shaft_points(parts, image_shape, camera)
     if sp is None:
         _why(out, "rejected")
         return out
@@ -863,12 +890,12 @@ def measure_instance(
         _why(out, "rejected")
         return out
     _store_lines(row, sol.lines)
-    if not _shaft_row(out, sol, sp, fr, K, radius, image_shape):
+    if not _shaft_row(out, sol, sp, fr, K, radius, image_shape, camera):
         return out
     if sol.joint is None or sp.merged:
         _why(out, sol.joint_why if sol.joint is None else "merged")
         return out
-    _clasper_rows(out, parts, sol.joint, sol.a, K, radius, image_shape, clasper_length_mm)
+    _clasper_rows(out, parts, sol.joint, sol.a, K, radius, image_shape, clasper_length_mm, camera)
     return out
 
 
@@ -961,8 +988,12 @@ def _tip(
     image_shape: tuple[int, int],
     length: float | None,
     diameter: float,
+    camera: Any,
 ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """Tip (3,), clasper axis (3,) and the tip's pixel (2,) (or Nones).
+    """Tip (3,), clasper axis (3,) and the tip's pixel (2,) in the ideal image (or Nones).
+
+    The jaw ends are found on the clasper's mask, in the camera's image, and undistorted
+    (:mod:`mistool.lens`) before they meet the 3D geometry.
 
     The tip's pixel is the mid-point of the jaw ends (:func:`_jaw_tips`), each end
     pulled back by its end cap's overshoot (the truth's jaw end is the cap's centre, the
@@ -975,12 +1006,14 @@ def _tip(
     """
     mask_u8 = _as_u8(clasper.mask)
     jpx = project(joint[None], K)[0]
+    jpx_image = distort_points(jpx[None], camera)[0] if camera.distorted else jpx
     width_px = K[0, 0] * 0.25 * diameter / max(float(joint[2]), 1.0)
-    ends, nears, dirs, halfw = _jaw_tips(mask_u8, clasper.offset, jpx, max(width_px, 2.0))
+    ends, nears, dirs, halfw = _jaw_tips(mask_u8, clasper.offset, jpx_image, max(width_px, 2.0))
     if not ends:
         return None, None, None
     tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
     hidden = any(bool(np.any(_on_border(nb, image_shape))) for nb in nears)
+    tip_px = undistort_points(tip_px[None], camera)[0]
     tip, c_axis, tip_px = _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
     if tip is None or hidden or not _TIP_CAP:
         return tip, c_axis, tip_px
@@ -990,6 +1023,7 @@ def _tip(
     cos_v = abs(float(c_axis @ tip)) / math.sqrt(float(tip @ tip))
     ends = [e - _TIP_CAP * hw * cos_v * dr for e, dr, hw in zip(ends, dirs, halfw, strict=True)]
     tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
+    tip_px = undistort_points(tip_px[None], camera)[0]
     return _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
 
 

@@ -18,9 +18,11 @@ import math
 import cv2
 import numpy as np
 
+from mistool.config import Camera
+from mistool.lens import distort_points, ideal_bounds
 from mistool.pose.cylinder import cross3, project
 
-__all__ = ["hull_of_cylinder", "iou_polygon_mask", "perpendicular_basis"]
+__all__ = ["hull_of_cylinder", "image_polygon", "iou_polygon_mask", "perpendicular_basis"]
 
 _THETA = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
 _COS, _SIN = np.cos(_THETA), np.sin(_THETA)
@@ -66,21 +68,28 @@ def iou_polygon_mask(
     mask: np.ndarray,
     offset: tuple[int, int],
     image_shape: tuple[int, int],
+    camera: Camera | None = None,
     max_pixels: int = 40000,
 ) -> float:
     """IoU of a filled polygon with a part's mask, inside the image.
 
     Args:
-        poly: (M, 2) polygon (px, full image) or None (-> NaN).
+        poly: (M, 2) convex polygon (px, full image; in the ideal pinhole image when
+            ``camera`` distorts, see :func:`image_polygon`) or None (-> NaN).
         mask: (h, w) bool crop of the part.
         offset: (x0, y0) of the crop (px).
         image_shape: (H, W).
+        camera: the camera, whose lens distortion bends the polygon's edges; None:
+            the polygon is in the image already.
         max_pixels: larger comparison regions are sampled every other pixel in x and y
             (the IoU of two large regions changes by far less than 0.01).
 
     Returns:
         IoU in [0, 1], NaN when ``poly`` is None or both are empty.
     """
+    convex = camera is None or not camera.distorted
+    if not convex and poly is not None:
+        poly = image_polygon(poly, camera, image_shape)  # type: ignore[arg-type]
     if poly is None:
         return float("nan")
     H, W = image_shape
@@ -97,7 +106,10 @@ def iou_polygon_mask(
     hc, wc = -(-(y1 - y0) // st), -(-(x1 - x0) // st)
     canvas = np.zeros((hc, wc), dtype=np.uint8)
     shifted = np.round((poly - np.array([x0, y0], dtype=np.float64)) * (16.0 / st)).astype(np.int32)
-    cv2.fillConvexPoly(canvas, shifted, 1, lineType=cv2.LINE_8, shift=4)
+    if convex:
+        cv2.fillConvexPoly(canvas, shifted, 1, lineType=cv2.LINE_8, shift=4)
+    else:
+        cv2.fillPoly(canvas, [shifted], 1, lineType=cv2.LINE_8, shift=4)
     rend = canvas.view(bool)
     obs = np.zeros_like(rend)
     ia, ja = max(0, -(-(oy - y0) // st)), max(0, -(-(ox - x0) // st))
@@ -108,3 +120,30 @@ def iou_polygon_mask(
     inter = np.count_nonzero(rend & obs)
     union = np.count_nonzero(rend | obs)
     return inter / union if union else float("nan")
+
+
+#: Edges of a polygon are split into pieces at most this long (px) before distortion, so
+#: that their curved images are followed within a small fraction of a pixel.
+_EDGE_STEP_PX = 4.0
+
+
+def image_polygon(
+    poly: np.ndarray, camera: Camera, image_shape: tuple[int, int]
+) -> np.ndarray | None:
+    """A convex polygon of the ideal pinhole image as seen in the camera's image: clipped
+    to the part of the ideal image the camera sees (:func:`mistool.lens.ideal_bounds`),
+    its edges subdivided, every point distorted. (M, 2) float32, or None when nothing is
+    left (the result is not convex in general: fill it with ``cv2.fillPoly``)."""
+    x0, y0, x1, y1 = ideal_bounds(camera, (int(image_shape[1]), int(image_shape[0])))
+    box = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float32)
+    area, clipped = cv2.intersectConvexConvex(np.asarray(poly, dtype=np.float32), box)
+    if clipped is None or area <= 0:
+        return None
+    pts = clipped.reshape(-1, 2).astype(np.float64)
+    nxt = np.roll(pts, -1, axis=0)
+    pieces = []
+    for p, q in zip(pts, nxt, strict=True):
+        n = max(1, int(math.ceil(math.hypot(*(q - p)) / _EDGE_STEP_PX)))
+        t = np.arange(n)[:, None] / n
+        pieces.append(p + t * (q - p))
+    return distort_points(np.concatenate(pieces), camera).astype(np.float32)

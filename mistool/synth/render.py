@@ -8,12 +8,20 @@ is bounded by its two analytic limb lines, its caps by ellipses. Rays are cast o
 each primitive's projected bounding box (clipped to the image), which bounds the cost.
 Nearer surfaces win over farther ones (z-buffer), also between instruments.
 
+A distorted lens (``camera.distortion``, pinhole or fisheye; :mod:`mistool.lens`) is
+rendered exactly too: pixel ``(u, v)``'s ray goes through its *undistorted* position, so
+``d = (x, y, 1)`` with ``(x, y)`` the ideal normalised coordinates of the pixel centre
+(computed once per camera, iteratively to < 1e-9 px). The masks then show the lens' bent
+outlines while the 3D truth stays exact.
+
 Boundary bias (``bias_px``, a segmentation that is uniformly too fat or too thin): every
 primitive's radius is inflated (deflated when negative) per ray by ``bias_px`` times the
 rate at which the ray's distance to the primitive grows per pixel of image displacement
 (``depth / f`` times the obliquity of the closest-approach direction), so that each
 outline (cylinder limb lines, cap ellipses, sphere circles) moves outward by ``bias_px``
 pixels, sub-pixel exactly to first order, at whatever depth each part is.
+(With a distorted lens, ``bias_px`` is in pixels of the ideal image: approximately the
+image's pixels, exact at the principal point.)
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mistool.lens import distort_points, ideal_bounds, undistort_points
 from mistool.synth.scene import Cylinder, ImageCamera, PartGeometry, Primitive, Sphere
 
 #: Rays hitting nearer than this (mm) are ignored (the lens).
@@ -57,6 +66,54 @@ class RayCaster:
         # |d|^2 = xn^2 + yn^2 + 1, separable, so compute it per box from these two vectors
         self.xn2 = self.xn * self.xn
         self.yn2 = self.yn * self.yn + np.float32(1.0)
+        self._lens: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        if c.distorted:  # per-pixel rays through the undistorted pixel centres
+            u, v = np.meshgrid(np.arange(cam.width), np.arange(cam.height))
+            ideal = undistort_points(np.stack([u.ravel(), v.ravel()], axis=1), c)
+            xl = ((ideal[:, 0] - c.cx) / c.fx).reshape(cam.height, cam.width)
+            yl = ((ideal[:, 1] - c.cy) / c.fy).reshape(cam.height, cam.width)
+            self._lens = (
+                xl.astype(np.float32),
+                yl.astype(np.float32),
+                (xl * xl + yl * yl + 1.0).astype(np.float32),
+            )
+
+    def _rays(self, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Normalised ray components ``x``, ``y`` and ``|d|^2`` over a pixel box, as arrays
+        that broadcast to (h, w) (separable for an ideal lens)."""
+        x0, y0, x1, y1 = box
+        if self._lens is not None:
+            xl, yl, dl = self._lens
+            return xl[y0:y1, x0:x1], yl[y0:y1, x0:x1], dl[y0:y1, x0:x1]
+        dd = self.xn2[x0:x1][None, :] + self.yn2[y0:y1][:, None]
+        return self.xn[x0:x1][None, :], self.yn[y0:y1][:, None], dd
+
+    def _image_box(
+        self, u0: float, v0: float, u1: float, v1: float
+    ) -> tuple[float, float, float, float]:
+        """The box of the camera's image covering the ideal-image box (u0, v0, u1, v1):
+        its boundary, clipped to what the camera sees, distorted (the image of a box's
+        inside lies inside the image of its boundary)."""
+        c = self.cam.camera
+        if not c.distorted:
+            return u0, v0, u1, v1
+        bx0, by0, bx1, by1 = ideal_bounds(c, (self.cam.width, self.cam.height))
+        u0, v0 = max(u0, bx0 - 2.0), max(v0, by0 - 2.0)
+        u1, v1 = min(u1, bx1 + 2.0), min(v1, by1 + 2.0)
+        if u1 <= u0 or v1 <= v0:
+            return 0.0, 0.0, -1.0, -1.0
+        us, vs = np.linspace(u0, u1, 33), np.linspace(v0, v1, 33)
+        edge = np.concatenate(
+            [
+                np.stack([us, np.full_like(us, v0)], 1),
+                np.stack([us, np.full_like(us, v1)], 1),
+                np.stack([np.full_like(vs, u0), vs], 1),
+                np.stack([np.full_like(vs, u1), vs], 1),
+            ]
+        )
+        img = distort_points(edge, c)
+        lo, hi = img.min(axis=0) - 2.0, img.max(axis=0) + 2.0
+        return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
 
     # ----------------------------------------------------------------------------------
     def _bbox(
@@ -84,10 +141,16 @@ class RayCaster:
         # a sphere of radius r at depth z projects inside a circle of radius about f r / (z - r)
         ru = c.fx * radius / z * 1.5 + 2.0 + pad_px
         rv = c.fy * radius / z * 1.5 + 2.0 + pad_px
-        x0 = int(np.floor(max((u - ru).min(), 0)))
-        x1 = int(np.ceil(min((u + ru).max() + 1, self.cam.width)))
-        y0 = int(np.floor(max((v - rv).min(), 0)))
-        y1 = int(np.ceil(min((v + rv).max() + 1, self.cam.height)))
+        bu0, bv0, bu1, bv1 = self._image_box(
+            float((u - ru).min()),
+            float((v - rv).min()),
+            float((u + ru).max()),
+            float((v + rv).max()),
+        )
+        x0 = int(np.floor(max(bu0, 0)))
+        x1 = int(np.ceil(min(bu1 + 1, self.cam.width)))
+        y0 = int(np.floor(max(bv0, 0)))
+        y1 = int(np.ceil(min(bv1 + 1, self.cam.height)))
         if x1 <= x0 or y1 <= y0:
             return None
         return x0, y0, x1, y1
@@ -100,12 +163,10 @@ class RayCaster:
         box = self._bbox([p0, p0 + cyl.length * a], cyl.radius, abs(bias_px))
         if box is None:
             return None
-        x0, y0, x1, y1 = box
-        xn, yn = self.xn[x0:x1][None, :], self.yn[y0:y1][:, None]
+        xn, yn, dd = self._rays(box)
         f32 = np.float32
         c = self.cam.camera
         ifx, ify = f32(1.0 / c.fx), f32(1.0 / c.fy)
-        dd = self.xn2[x0:x1][None, :] + self.yn2[y0:y1][:, None]
         da = f32(a[0]) * xn + (f32(a[1]) * yn + f32(a[2]))  # d . a
         dp = f32(p0[0]) * xn + (f32(p0[1]) * yn + f32(p0[2]))  # d . p0
         pa = float(p0 @ a)
@@ -168,10 +229,8 @@ class RayCaster:
         box = self._bbox([c], sph.radius, abs(bias_px))
         if box is None:
             return None
-        x0, y0, x1, y1 = box
-        xn, yn = self.xn[x0:x1][None, :], self.yn[y0:y1][:, None]
+        xn, yn, dd = self._rays(box)
         f32 = np.float32
-        dd = self.xn2[x0:x1][None, :] + self.yn2[y0:y1][:, None]
         dc = f32(c[0]) * xn + (f32(c[1]) * yn + f32(c[2]))
         with np.errstate(invalid="ignore", divide="ignore"):
             if bias_px:

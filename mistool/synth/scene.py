@@ -54,13 +54,28 @@ class ImageCamera:
     """Image height (px)."""
 
     @staticmethod
-    def default(width: int = 720, height: int = 576, focal_px: float = 600.0) -> ImageCamera:
-        """A camera with square pixels and the principal point at the image centre."""
-        cam = Camera(fx=focal_px, fy=focal_px, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0)
+    def default(
+        width: int = 720,
+        height: int = 576,
+        focal_px: float = 600.0,
+        distortion: tuple[float, ...] = (),
+        model: str = "pinhole",
+    ) -> ImageCamera:
+        """A camera with square pixels and the principal point at the image centre, and
+        optionally a distorted lens (OpenCV coefficients, :class:`mistool.config.Camera`)."""
+        cam = Camera(
+            fx=focal_px,
+            fy=focal_px,
+            cx=(width - 1) / 2.0,
+            cy=(height - 1) / 2.0,
+            distortion=tuple(float(d) for d in distortion),
+            model=model,
+        )
         return ImageCamera(cam, width, height)
 
     def project(self, points: np.ndarray) -> np.ndarray:
-        """Project camera-frame points (..., 3) mm to pixels (..., 2) (z must be > 0)."""
+        """Project camera-frame points (..., 3) mm to pixels (..., 2) of the ideal pinhole
+        image (z must be > 0; :func:`mistool.lens.distort_points` gives the camera's)."""
         p = np.asarray(points, dtype=np.float64)
         c = self.camera
         return np.stack(

@@ -33,7 +33,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mistool.config import PRESETS, Camera, Config, load_config
+from mistool.config import CAMERA_MODELS, PRESETS, Camera, Config, load_config, make_camera
 from mistool.errors import ConfigError, InputPathError
 from mistool.export import atomic_write, write_csv
 from mistool.geometry import mask_box
@@ -76,6 +76,11 @@ class SceneOptions:
     """Image height (px)."""
     focal_px: float = 600.0
     """Focal length (px), square pixels, principal point at the image centre."""
+    distortion: tuple[float, ...] = ()
+    """Lens distortion, OpenCV's coefficients (pinhole: 4, 5, 8, 12 or 14; fisheye: 4);
+    the masks are rendered through it exactly (:mod:`mistool.synth.render`)."""
+    lens_model: str = "pinhole"
+    """``"pinhole"`` or ``"fisheye"`` (:class:`mistool.config.Camera`'s ``model``)."""
     tool: str = "robotic"
     """``"robotic"`` (8 mm shaft, bending wrist) or ``"laparoscopic"`` (5 mm, straight)."""
     shaft_diameter_mm: float | None = None
@@ -236,8 +241,13 @@ def _toml_text(
         f"fy = {cam.fy!r}",
         f"cx = {cam.cx!r}",
         f"cy = {cam.cy!r}",
-        "",
     ]
+    if cam.distorted:
+        lines += [
+            f'model = "{cam.model}"',
+            f"distortion = [{', '.join(repr(d) for d in cam.distortion)}]",
+        ]
+    lines += [""]
     if distinct:
         for name, vals in zip(names, values, strict=True):
             lines += ["[[instrument]]", f'name = "{name}"']
@@ -348,6 +358,8 @@ def synthesize(
             f"image {sc.width}x{sc.height} with focal {sc.focal_px} px: need "
             "width, height >= 16 and a focal length > 0"
         )
+    if sc.lens_model not in CAMERA_MODELS:
+        raise ConfigError(f"lens model {sc.lens_model!r} is not one of {', '.join(CAMERA_MODELS)}")
     if sc.shaft_diameter_mm is not None and not 0 < sc.shaft_diameter_mm <= 30:
         raise ConfigError(f"shaft diameter must be in (0, 30] mm, got {sc.shaft_diameter_mm}")
     if sc.tool not in ("robotic", "laparoscopic"):
@@ -363,7 +375,10 @@ def synthesize(
     out = Path(out_dir)
     _prepare_out(out, force)
 
-    cam = ImageCamera.default(sc.width, sc.height, sc.focal_px)
+    lens = make_camera(
+        [sc.focal_px, sc.focal_px, 0.0, 0.0], list(sc.distortion), sc.lens_model, "synth lens"
+    )
+    cam = ImageCamera.default(sc.width, sc.height, sc.focal_px, lens.distortion, lens.model)
     geom = InstrumentGeometry.for_tool(sc.tool, sc.shaft_diameter_mm)
     motion = sc.motion
     if sc.tool == "laparoscopic" and motion.wrist:
