@@ -36,7 +36,7 @@ import numpy as np
 
 from mistool import paper, parallel, tracking
 from mistool.config import Config, load_config
-from mistool.errors import ConfigError
+from mistool.errors import ConfigError, MistoolWarning
 from mistool.model import PARTS, TrackTable
 from mistool.rows import RowBuilder
 from mistool.sequence import MaskSequence, open_sequence, to_labels
@@ -51,10 +51,6 @@ DEFAULT_CHUNK_FRAMES = 256
 #: least this many frames (known length): starting the workers costs more than it saves on
 #: a short sequence. The output is the same either way.
 POOL_MIN_FRAMES = 200
-
-
-class MistoolWarning(UserWarning):
-    """Something in the input is unusual but not an error (e.g. unknown label values)."""
 
 
 @dataclass

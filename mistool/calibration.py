@@ -24,15 +24,16 @@ the masks.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import cv2
 
-from mistool.config import Camera, make_camera
+from mistool.config import Camera, Config, make_camera
 from mistool.errors import ConfigError
 
-__all__ = ["read_calibration"]
+__all__ = ["read_calibration", "with_calibration"]
 
 _MATRIX_KEYS = ("camera_matrix", "cameraMatrix", "K")
 _DIST_KEYS = ("distortion_coefficients", "distCoeffs", "dist_coeffs", "D")
@@ -164,3 +165,11 @@ def _camera(fs: Any, where: str) -> Camera:
     dist_found = _first(fs, _DIST_KEYS)
     dist = _numbers(dist_found[1], dist_found[0], where) if dist_found is not None else []
     return make_camera([fx, fy, cx, cy], dist, _model(fs, where), where, _size(fs, where))
+
+
+def with_calibration(config: Config, path: str | Path | None) -> Config:
+    """``config`` with its camera read from a calibration file (``--calibration FILE``
+    overrides ``[camera]`` and ``calibration =`` of ``mistool.toml``); unchanged for None."""
+    if path is None:
+        return config
+    return replace(config, camera=read_calibration(path), calibration=Path(path))

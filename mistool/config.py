@@ -171,6 +171,9 @@ class Config:
     """True when parts are given as ``#rrggbb`` colours: frames are read as packed RGB."""
     path: Path | None = None
     """The file this config was read from, if any."""
+    calibration: Path | None = None
+    """The calibration file the camera was read from (``calibration = FILE`` or
+    ``--calibration``), if any."""
 
     def part_names(self) -> tuple[str, ...]:
         """The parts this config can produce, proximal to distal."""
@@ -427,6 +430,7 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         from mistool.calibration import read_calibration  # same layer; avoids a cycle
 
         kwargs["camera"] = read_calibration(cal_path)
+        kwargs["calibration"] = cal_path
     instruments: list[InstrumentSpec] = []
     tables = data.get("instrument", [])
     if not isinstance(tables, list):

@@ -35,3 +35,8 @@ class InputWarning(UserWarning):
     """Something odd about the input that does not stop the command (a mask video that
     ends early, a ``source`` video that disagrees with the masks); the command line
     prints it as one ``mistool: warning: ...`` line."""
+
+
+class MistoolWarning(UserWarning):
+    """Something in the input is unusual but not an error (e.g. unknown label values, or
+    camera intrinsics scaled to the masks' size)."""

@@ -68,6 +68,7 @@ import numpy as np
 
 from mistool.config import CONFIG_NAME, MAX_PIXELS, Config, ValueRange, load_config
 from mistool.errors import InputPathError, InputWarning, MaskFormatError
+from mistool.lens import fit_camera
 
 IMAGE_EXTENSIONS: frozenset[str] = frozenset(
     {".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".jpg", ".jpeg", ".webp"}
@@ -646,8 +647,8 @@ def open_sequence(
         path, found = resolve(source)
         config = config if config is not None else found
         if path.is_dir():
-            return _open_folder(path, config)
-        return _open_video(path, config)
+            return fit_lens(_open_folder(path, config))
+        return fit_lens(_open_video(path, config))
     if isinstance(source, np.ndarray) and (
         source.ndim == 2 or (source.ndim == 3 and source.shape[2] in (3, 4))
     ):
@@ -655,7 +656,50 @@ def open_sequence(
             f"source: got one array of shape {source.shape}; pass a list "
             "of frames, e.g. [labels], or an (N, H, W) stack"
         )
-    return _open_arrays(source, config if config is not None else Config())
+    return fit_lens(_open_arrays(source, config if config is not None else Config()))
+
+
+def fit_lens(seq: MaskSequence) -> MaskSequence:
+    """Fit a calibration's camera to the masks' size (:func:`mistool.lens.fit_camera`).
+
+    Only for a camera that knows its image size (from a calibration file): the first
+    frame's size is read (one decode; a generator of arrays is not consumed: its first
+    frame is kept). Masks that are a uniform scaling of the calibration get scaled
+    intrinsics and an :class:`~mistool.errors.InputWarning` saying so (the command line
+    prints it); any other size is
+    a :class:`~mistool.errors.ConfigError`.
+    """
+    cam = seq.config.camera
+    if cam is None or cam.image_wh is None:
+        return seq
+    frames = seq.frames()
+    try:
+        first = next(frames)
+    except StopIteration:
+        return seq
+    shape = first.load().shape
+    fitted, note = fit_camera(cam, (int(shape[1]), int(shape[0])), _calibration_name(seq.config))
+    if note is not None:
+        warnings.warn(note, InputWarning, stacklevel=3)
+    seq.config = replace(seq.config, camera=fitted)
+    if seq.kind == "arrays":  # do not lose the frame taken from a one-shot iterator
+        make = seq._frames
+        pending: list[tuple[Frame, Iterator[Frame]]] = [(first, frames)]
+
+        def again() -> Iterator[Frame]:
+            if pending:
+                head, rest = pending.pop()
+                yield head
+                yield from rest
+            else:
+                yield from make()
+
+        seq._frames = again
+    return seq
+
+
+def _calibration_name(config: Config) -> str:
+    return str(config.calibration) if config.calibration is not None else "camera"
 
 
 def _open_folder(folder: Path, config: Config) -> MaskSequence:

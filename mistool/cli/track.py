@@ -121,6 +121,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--min-area", type=int, metavar="PX", help="ignore connected specks smaller than PX pixels"
     )
     p.add_argument(
+        "--calibration",
+        metavar="FILE",
+        help="camera calibration file (OpenCV YAML/XML/JSON or ROS camera_info YAML); "
+        "overrides [camera] of mistool.toml",
+    )
+    p.add_argument(
         "--no-metric",
         action="store_true",
         help="skip the metric 3D pose even when [camera] is given",
@@ -210,11 +216,12 @@ def run_track(args: argparse.Namespace) -> int:
 
 def _run_sequence(args: argparse.Namespace) -> int:
     from mistool import api, sequence
+    from mistool.calibration import with_calibration
     from mistool.columnar import table_format, write_table
     from mistool.export import STDOUT, check_output, stdout_stream, write_stdout, write_table_csv
 
     path, config = sequence.resolve(args.sequence)
-    config = config.with_overrides(**_overrides(args))
+    config = with_calibration(config.with_overrides(**_overrides(args)), args.calibration)
     out = None if args.output == STDOUT else Path(args.output or default_output(path))
     if out is None:
         stdout_stream()  # closed stdout: say so before tracking
