@@ -35,7 +35,7 @@ from types import ModuleType
 import numpy as np
 
 from mistool import paper, parallel, tracking
-from mistool.config import Config, load_config
+from mistool.config import Config, load_config, preset_hint
 from mistool.errors import ConfigError, MistoolWarning
 from mistool.model import PARTS, TrackTable
 from mistool.rows import RowBuilder
@@ -386,6 +386,7 @@ def unknown_values_message(values: Iterable[int], colour: bool = False) -> str:
     return (
         f"{len(vals)} label value(s) not in mistool.toml were ignored: {shown} "
         "(set them in [parts] or [[instrument]] if they are instrument parts)"
+        + preset_hint(vals, colour)
     )
 
 

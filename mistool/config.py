@@ -4,7 +4,7 @@ Layout (every key optional; no file at all means EndoVis'15 defaults)::
 
     fps = 25.0
     source = "Video.avi"        # the procedure's own video or RGB frame folder (viewer)
-    labels = "endovis15"        # label preset: endovis15 | endovis17 | ternaus
+    labels = "endovis15"        # preset: endovis15 | endovis17 | ternaus | endovis18 (colour)
     min_area_px = 20            # connected specks smaller than this are ignored
     shaft_diameter_mm = 8.0     # defaults for instruments without their own table
     clasper_length_mm = 10.0
@@ -62,16 +62,51 @@ MAX_PIXELS: int = 50_000_000
 MAX_PIXELS_LIMIT: int = 2**31 - 1
 
 
-#: Label presets: part -> label value (single-channel masks).
+#: Label presets: part -> label value (single-channel masks), or packed ``#rrggbb`` colour
+#: (:func:`pack_rgb`) for the presets in :data:`COLOUR_PRESETS`. ``endovis18``: the
+#: EndoVis'18 Robotic Scene Segmentation colour-coded labels (instrument-shaft ``#00ff00``,
+#: instrument-clasper ``#00ffff``, instrument-wrist ``#7dff0c``; the challenge's
+#: ``labels.json``, as reproduced by MMSegmentation's ``Endovis2018Dataset`` palette).
 PRESETS: dict[str, dict[str, int]] = {
     "endovis15": {"shaft": 160, "clasper": 70},
     "endovis17": {"shaft": 10, "wrist": 20, "clasper": 30},
     "ternaus": {"shaft": 85, "wrist": 170, "clasper": 255},
+    "endovis18": {"shaft": 0x00FF00, "wrist": 0x7DFF0C, "clasper": 0x00FFFF},
 }
+#: Presets whose values are ``#rrggbb`` colours (frames are read as packed RGB).
+COLOUR_PRESETS: frozenset[str] = frozenset({"endovis18"})
 
 #: Value ranges are inclusive ``(lo, hi)`` of label values. Colours ``#rrggbb`` are packed
 #: as ``r << 16 | g << 8 | b`` (see :func:`pack_rgb`), the value colour frames are read as.
 ValueRange = tuple[int, int]
+
+
+def matching_preset(values: Any, colour: bool = False) -> str | None:
+    """The label preset whose part values are among ``values`` (label values, or packed
+    colours when ``colour``), for a hint when a sequence's values are not in its config:
+    at least two of a preset's values (all of them for a two-part preset) must be present;
+    the preset with the most values present wins. None when no preset matches."""
+    present = {int(v) for v in values}
+    best, best_n = None, 0
+    for name, parts in PRESETS.items():
+        if (name in COLOUR_PRESETS) != colour:
+            continue
+        n = len(present & set(parts.values()))
+        if n >= min(2, len(parts)) and n > best_n:
+            best, best_n = name, n
+    return best
+
+
+def preset_hint(values: Any, colour: bool = False) -> str:
+    """``'; they are the endovis17 preset's values: set labels = "endovis17" ...'`` when
+    :func:`matching_preset` finds one, else an empty string."""
+    name = matching_preset(values, colour)
+    if name is None:
+        return ""
+    return (
+        f'; they are the {name} preset\'s values: set labels = "{name}" in mistool.toml '
+        f"(or --labels {name})"
+    )
 
 
 def pack_rgb(r: int, g: int, b: int) -> int:
@@ -401,7 +436,7 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         )
     kwargs["labels"] = labels
     parts = {p: (v, v) for p, v in PRESETS[labels].items()}
-    colour = False
+    colour = labels in COLOUR_PRESETS
     if "parts" in data:
         if not isinstance(data["parts"], dict):
             raise ConfigError(f"{where}: [parts] must be a table")

@@ -66,7 +66,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mistool.config import CONFIG_NAME, MAX_PIXELS, Config, ValueRange, load_config
+from mistool.config import CONFIG_NAME, MAX_PIXELS, Config, ValueRange, load_config, preset_hint
 from mistool.errors import InputPathError, InputWarning, MaskFormatError
 from mistool.lens import fit_camera
 
@@ -185,9 +185,12 @@ def to_labels(
         return _palette_indices(arr, palette, where)
     c0 = arr[..., 0]
     if not (np.array_equal(c0, arr[..., 1]) and np.array_equal(c0, arr[..., 2])):
+        hint = ""
+        if arr.dtype == np.uint8:
+            hint = preset_hint(np.unique(_pack_bgr(arr)).tolist(), colour=True)
         raise MaskFormatError(
             f"{where}: colour pixels (channels differ) but mistool.toml gives grey label "
-            'values; give the parts as "#rrggbb" colours in [parts] or [[instrument]]'
+            'values; give the parts as "#rrggbb" colours in [parts] or [[instrument]]' + hint
         )
     return _integer_labels(np.ascontiguousarray(c0), where)
 

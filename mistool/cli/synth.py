@@ -6,7 +6,7 @@ import argparse
 import sys
 import time
 
-from mistool.config import PRESETS
+from mistool.config import COLOUR_PRESETS, PRESETS
 from mistool.errors import ConfigError
 
 DESCRIPTION = """\
@@ -97,7 +97,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--preset",
-        choices=sorted(PRESETS),
+        choices=sorted(set(PRESETS) - COLOUR_PRESETS),
         default="endovis15",
         help="label values (default endovis15)",
     )

@@ -10,7 +10,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from mistool.config import FPS_RANGE, PRESETS, check_number
+from mistool.config import COLOUR_PRESETS, FPS_RANGE, PRESETS, check_number
 from mistool.errors import ConfigError, InputPathError
 
 DESCRIPTION = """\
@@ -187,7 +187,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, object]:
     if args.labels:
         overrides.update(
             labels=args.labels,
-            colour_masks=False,
+            colour_masks=args.labels in COLOUR_PRESETS,
             parts={p: (v, v) for p, v in PRESETS[args.labels].items()},
         )
     return overrides

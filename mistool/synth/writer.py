@@ -33,7 +33,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mistool.config import CAMERA_MODELS, PRESETS, Camera, Config, load_config, make_camera
+from mistool.config import (
+    CAMERA_MODELS,
+    COLOUR_PRESETS,
+    PRESETS,
+    Camera,
+    Config,
+    load_config,
+    make_camera,
+)
 from mistool.errors import ConfigError, InputPathError
 from mistool.export import atomic_write, write_csv
 from mistool.geometry import mask_box
@@ -103,8 +111,9 @@ class SynthResult:
 
 def label_values(preset: str, instruments: int, distinct: bool) -> list[dict[str, int]]:
     """Per instrument: label part -> value (see the module docstring)."""
-    if preset not in PRESETS:
-        raise ConfigError(f"preset {preset!r} is not one of {', '.join(PRESETS)}")
+    grey = [p for p in PRESETS if p not in COLOUR_PRESETS]
+    if preset not in grey:
+        raise ConfigError(f"preset {preset!r} is not one of {', '.join(grey)} (grey-level presets)")
     base = PRESETS[preset]
     if not distinct:
         return [dict(base) for _ in range(instruments)]
