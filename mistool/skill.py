@@ -10,9 +10,14 @@ What the metrics see (see docs/teaching.md for every definition and its source):
 
 1. the table's own positions (``mistool track`` smooths the metric pose with its Kalman
    filter, ``--smoothing offline`` by default; a ground-truth table is exact);
-2. gaps of at most :data:`MAX_GAP_S` bridged by linear interpolation (a longer gap splits
-   the track into separate runs: no path, speed or jerk across it);
-3. a zero-phase Gaussian low-pass of standard deviation ``smoothing_s`` (default
+2. outliers dropped: a sample that would imply a speed above :data:`MAX_SPEED_MM_S` from
+   the last accepted sample less than :data:`MAX_GAP_S` before it (a jump to another
+   tool's tip at a crossing, a merged blob); after a longer time a sample is accepted
+   again as the start of a new run;
+3. gaps of at most :data:`MAX_GAP_S` bridged by linear interpolation unless that implies
+   a speed above :data:`MAX_SPEED_MM_S` (a longer or faster gap splits the track into
+   separate runs: no path, speed or jerk across it);
+4. a zero-phase Gaussian low-pass of standard deviation ``smoothing_s`` (default
    :data:`SMOOTHING_S`) along time within each run, so that frame-to-frame estimation
    noise does not add path length; ``smoothing_s=0`` turns it off.
 
@@ -39,6 +44,9 @@ from mistool.model import TrackTable, require_columns
 DEFAULT_FPS = 25.0
 #: Gaps in a track up to this long are bridged by linear interpolation (s).
 MAX_GAP_S = 0.5
+#: A sample implying a faster move than this from the last accepted sample (within
+#: :data:`MAX_GAP_S`) is an outlier and dropped (mm/s); instrument tips move far slower.
+MAX_SPEED_MM_S = 500.0
 #: Standard deviation of the Gaussian low-pass applied to positions (s).
 SMOOTHING_S = 0.1
 #: Idle: speed at or below this, measured on the track resampled to 1 Hz (mm/s).
@@ -173,13 +181,15 @@ def runs(valid: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-def bridge_gaps(values: np.ndarray, max_gap: int) -> np.ndarray:
+def bridge_gaps(values: np.ndarray, max_gap: int, max_step: float = math.inf) -> np.ndarray:
     """Fill gaps of at most ``max_gap`` samples (NaN rows) between known rows by linear
-    interpolation; longer gaps and the ends stay NaN.
+    interpolation; longer gaps, gaps across a move faster than ``max_step`` per sample,
+    and the ends stay NaN.
 
     Args:
         values: (N, D) float64 with NaN rows where unknown.
         max_gap: longest gap (samples) to fill.
+        max_step: the largest plausible change per sample (Euclidean).
 
     Returns:
         A new (N, D) array.
@@ -190,7 +200,8 @@ def bridge_gaps(values: np.ndarray, max_gap: int) -> np.ndarray:
     if len(idx) < 2:
         return out
     for a, b in zip(idx[:-1], idx[1:], strict=True):
-        if 1 < b - a <= max_gap + 1:
+        jump = float(np.linalg.norm(out[b] - out[a]))
+        if 1 < b - a <= max_gap + 1 and jump <= max_step * (b - a):
             w = (np.arange(a + 1, b) - a) / (b - a)
             out[a + 1 : b] = out[a] + w[:, None] * (out[b] - out[a])
     return out
@@ -226,10 +237,33 @@ def gaussian_smooth(values: np.ndarray, sigma: float) -> np.ndarray:
     return out
 
 
+def drop_outliers(xyz: np.ndarray, max_step_mm: float, max_gap: int) -> np.ndarray:
+    """Drop (NaN) each sample farther than ``max_step_mm`` per frame elapsed from the last
+    accepted sample, unless that one is more than ``max_gap`` frames back (then the sample
+    starts a new run).
+
+    Args:
+        xyz: (N, 3) positions, NaN rows unknown.
+        max_step_mm: the largest plausible move per frame (mm).
+        max_gap: frames after which a sample is accepted whatever its distance.
+    """
+    out = np.array(xyz, dtype=np.float64, copy=True)
+    last = -1
+    for i in np.flatnonzero(np.all(np.isfinite(out), axis=1)):
+        if last >= 0 and i - last <= max_gap:
+            if float(np.linalg.norm(out[i] - out[last])) > max_step_mm * (i - last):
+                out[i] = np.nan
+                continue
+        last = int(i)
+    return out
+
+
 def prepare(track: PointTrack, fps: float, smoothing_s: float = SMOOTHING_S) -> np.ndarray:
-    """The positions the metrics see: gaps bridged, then low-passed. (N, 3), NaN between
-    runs."""
-    bridged = bridge_gaps(track.xyz_mm, int(round(MAX_GAP_S * fps)))
+    """The positions the metrics see: outliers dropped, gaps bridged, then low-passed.
+    (N, 3), NaN between runs."""
+    max_gap = int(round(MAX_GAP_S * fps))
+    kept = drop_outliers(track.xyz_mm, MAX_SPEED_MM_S / fps, max_gap)
+    bridged = bridge_gaps(kept, max_gap, MAX_SPEED_MM_S / fps)
     return gaussian_smooth(bridged, smoothing_s * fps)
 
 

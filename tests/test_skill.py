@@ -17,6 +17,7 @@ from mistool.model import TrackTable
 from mistool.skill import (
     COLUMNS,
     bridge_gaps,
+    drop_outliers,
     gaussian_smooth,
     ldlj,
     parse_window,
@@ -119,6 +120,23 @@ def test_gaps_short_are_bridged_long_are_out_of_view() -> None:
     r = skill(make_table({"a": long}))
     assert r["path_length_mm"][0] == pytest.approx(10.0 * (99 + 49) / FPS)
     assert r["out_of_view_s"][0] == pytest.approx(2.0)
+
+
+def test_outliers_are_dropped_and_a_lasting_jump_starts_a_new_run() -> None:
+    xyz = line(100, 10.0)
+    spiky = xyz.copy()
+    spiky[30] += [0.0, 40.0, 0.0]  # one frame 40 mm off: 1000 mm/s, not a tip's motion
+    spiky[61:63] += [0.0, 80.0, 0.0]  # two frames off
+    r = skill(make_table({"a": spiky}), smoothing_s=0.0)
+    assert r["path_length_mm"][0] == pytest.approx(10.0 * 99 / FPS)
+    assert r["visible_s"][0] == pytest.approx(4.0)  # the samples were there
+    assert r["movements"][0] == 0.0
+    moved = xyz.copy()
+    moved[50:] += [0.0, 300.0, 0.0]  # a lasting relocation: dropped for 0.5 s, then kept
+    kept = drop_outliers(moved, 500.0 / FPS, 12)
+    assert np.isnan(kept[50:62]).all() and np.isfinite(kept[62:]).all()
+    r = skill(make_table({"a": moved}), smoothing_s=0.0)
+    assert r["path_length_mm"][0] == pytest.approx(10.0 * (49 + 37) / FPS)  # no jump
 
 
 def test_joint_is_used_when_the_clasper_is_not_tracked() -> None:
@@ -239,3 +257,19 @@ def test_tracked_metrics_agree_with_truth_on_noisy_synth(tmp_path: Path) -> None
         assert rp["working_volume_cm3"][j] == pytest.approx(rt["working_volume_cm3"][i], rel=0.20)
         assert abs(rp["idle_fraction"][j] - rt["idle_fraction"][i]) <= 0.10
         assert rp["out_of_view_s"][j] == pytest.approx(rt["out_of_view_s"][i], abs=0.5)
+
+
+def test_cli_tracks_a_sequence_source(tmp_path: Path) -> None:
+    from mistool.synth import synthesize
+    from mistool.synth.writer import SceneOptions
+
+    seq = tmp_path / "seq"
+    scene = SceneOptions(width=360, height=288, focal_px=300.0)
+    synthesize(seq, frames=30, instruments=1, seed=1, fps=10.0, scene=scene)
+    out = tmp_path / "skill.csv"
+    assert main(["skill", str(seq), "-o", str(out), "-q"]) == 0
+    lines = out.read_text().splitlines()
+    assert len(lines) == 2 and lines[1].startswith("seq,")
+    row = dict(zip(lines[0].split(","), lines[1].split(","), strict=True))
+    assert float(row["duration_s"]) == pytest.approx(3.0)  # 30 frames at the toml's 10 fps
+    assert float(row["path_length_mm"]) > 0
