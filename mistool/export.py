@@ -214,22 +214,45 @@ def write_stdout(write: Callable[[IO[str]], None]) -> None:
 #: Largest frame number a motion table may hold (the viewer keeps dense per-frame arrays:
 #: a million frames is 11 hours at 25 fps, a few hundred MB of arrays).
 MAX_TABLE_FRAME = 1_000_000
+#: Largest magnitude of a box coordinate or size in a motion table (px).
+MAX_TABLE_PX = 1e6
+#: Box columns every row of a motion table needs as finite numbers (Algorithm 1's box).
+_BOX_COLUMNS = ("cx_px", "cy_px", "length_px", "width_px")
 
 
-def check_frame_numbers(table: TrackTable, where: str, limit: int = MAX_TABLE_FRAME) -> None:
-    """Raise :class:`TableError` when a ``frame`` value is negative or beyond ``limit``
-    (a viewer would allocate per-frame arrays up to the largest one)."""
-    if "frame" not in table.columns or table.num_rows == 0:
+def check_table_limits(table: TrackTable, where: str, limit: int = MAX_TABLE_FRAME) -> None:
+    """Raise :class:`TableError` unless ``table`` is safe to lay out densely per frame:
+    ``frame`` values in ``0..limit``, and box columns (and corners, when present) finite
+    and within :data:`MAX_TABLE_PX`, sizes not negative."""
+    if table.num_rows == 0:
         return
-    frames = np.asarray(table["frame"])
-    lo, hi = int(frames.min()), int(frames.max())
-    if lo < 0:
-        raise TableError(f"{where}: frame {lo} is negative; frames count from 0")
-    if hi > limit:
-        raise TableError(
-            f"{where}: frame {hi} is beyond the limit of {limit} frames "
-            f"({limit / 25 / 3600:.0f} h at 25 fps); is the frame column right?"
-        )
+    if "frame" in table.columns:
+        frames = np.asarray(table["frame"])
+        lo, hi = int(frames.min()), int(frames.max())
+        if lo < 0:
+            raise TableError(f"{where}: frame {lo} is negative; frames count from 0")
+        if hi > limit:
+            raise TableError(
+                f"{where}: frame {hi} is beyond the limit of {limit} frames "
+                f"({limit / 25 / 3600:.0f} h at 25 fps); is the frame column right?"
+            )
+    corners = tuple(f"{a}{k}_px" for k in range(1, 5) for a in ("x", "y"))
+    for name in (*_BOX_COLUMNS, *(c for c in corners if c in table.columns)):
+        if name not in table.columns:
+            continue
+        try:
+            values = np.asarray(table[name], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TableError(f"{where}: column {name!r} must hold numbers") from None
+        bad = ~(np.abs(values) <= MAX_TABLE_PX)
+        if name in ("length_px", "width_px"):
+            bad |= values < 0
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise TableError(
+                f"{where}: row {row + 1}, column {name!r}: {values[row]!r} is not a box "
+                f"value (finite, |v| <= {MAX_TABLE_PX:g} px, sizes >= 0)"
+            )
 
 
 def format_value(value: Any) -> str:

@@ -154,11 +154,13 @@ class Batch:
 _GATES: dict[Path, FastPathGate] = {}
 
 
-def _load(item: Path | np.ndarray, colour: bool) -> np.ndarray:
+def _load(item: Path | np.ndarray, config: Config) -> np.ndarray:
     if isinstance(item, np.ndarray):
         return item
     gate = _GATES.setdefault(item.parent, FastPathGate())
-    return read_label_image(item, colour=colour, gate=gate)
+    return read_label_image(
+        item, colour=config.colour_masks, gate=gate, max_pixels=config.max_pixels
+    )
 
 
 def observe_batch(batch: Batch) -> list[FrameResult]:
@@ -172,7 +174,7 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
     out = []
     for name, item in zip(batch.names, batch.items, strict=True):
         try:
-            labels = _load(item, batch.config.colour_masks)
+            labels = _load(item, batch.config)
             out.append(observe_labels(labels, batch.config, pose, batch.lossy))
         except MistoolError as exc:
             where = str(item) if isinstance(item, Path) else name

@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_masks"
 PY = sys.executable
 #: The command line run for ``mistool`` (the checkout's own code, whatever is installed).
-MISTOOL = [PY, "-c", "import sys; from mistool.cli import main; sys.exit(main())"]
+MISTOOL = [PY, "-P", "-c", "import sys; from mistool.cli import main; sys.exit(main())"]
 #: The checkout whose mistool is run (``--against`` another one for a "before" figure).
 CODE = ROOT
 #: First sample frame used (both instruments are in view from here on).

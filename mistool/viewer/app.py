@@ -119,7 +119,7 @@ def load_sequence(
     Raises:
         MistoolError: bad path, masks, ``mistool.toml`` or table (one-line message).
     """
-    from mistool.export import check_frame_numbers, read_csv
+    from mistool.export import check_table_limits, read_csv
     from mistool.resources import sample_masks_dir
     from mistool.sequence import check_source, resolve, widen_for_video
 
@@ -136,7 +136,7 @@ def load_sequence(
     if table is None and poses is not None:
         table = read_csv(poses)
     if table is not None:
-        check_frame_numbers(table, str(poses) if poses is not None else "motion table")
+        check_table_limits(table, str(poses) if poses is not None else "motion table")
         check_source(config, num_frames, shape)  # warns when source and masks disagree
         image_wh = (shape[1], shape[0]) if shape is not None else None
         replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
