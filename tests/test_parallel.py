@@ -215,3 +215,52 @@ def test_workers_exit_when_their_parent_is_killed(tmp_path: Path) -> None:
     while any(alive(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not any(alive(p) for p in pids), [p for p in pids if alive(p)]
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.append(int(stat.parent.name))
+    return out
+
+
+def test_ctrl_c_on_the_command_line_stops_every_worker(crossing: Path, tmp_path: Path) -> None:
+    """SIGINT to the whole process group, as a terminal's Ctrl+C: one line, exit 130, no
+    output file, and no process of the run left."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "o.csv"
+    code = (
+        "import sys; from mistool.cli import main; "
+        f"sys.exit(main(['track', {str(crossing)!r}, '-o', {str(out)!r}, '--workers', '2']))"
+    )
+    child = subprocess.Popen(
+        [sys.executable, "-c", code], stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 120
+        workers: list[int] = []
+        while len(workers) < 2 and time.monotonic() < deadline and child.poll() is None:
+            workers = [w for s in _children(child.pid) for w in _children(s)]
+            time.sleep(0.02)
+        assert len(workers) == 2, "the workers never started"
+        os.killpg(child.pid, signal.SIGINT)
+        _, err = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == 130 and err == "mistool: interrupted\n", err
+    assert not out.exists()
+    deadline = time.monotonic() + 30
+    while any(Path(f"/proc/{w}").exists() for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [w for w in workers if Path(f"/proc/{w}").exists()]
