@@ -123,3 +123,31 @@ def test_read_csv_errors(tmp_path: Path, text: str, message: str) -> None:
 def test_read_csv_missing_file(tmp_path: Path) -> None:
     with pytest.raises(InputPathError, match="no such file"):
         read_csv(tmp_path / "none.csv")
+
+
+def test_csv_blocks_write_the_same_text_as_cell_by_cell(monkeypatch: pytest.MonkeyPatch) -> None:
+    """write_table_csv formats a block of rows per column; the text is format_value's."""
+    import csv as csv_module
+    import io
+
+    from mistool import export
+
+    vals = [float("nan"), float("inf"), -float("inf"), -0.0, 0.0, -1e-9, 5e-7, -5e-7, 1e300]
+    vals += [123.4567895, 2.5, -7.0, 1 / 3]
+    n = len(vals)
+    table = TrackTable(
+        {
+            "frame": np.arange(n),
+            "instrument": ["a,b"] * n,
+            "part": ["shaft"] * n,
+            "cx_px": np.array(vals),
+            "count": np.arange(n, dtype=np.int32) - 5,
+        }
+    )
+    expected = io.StringIO()
+    writer = csv_module.writer(expected, lineterminator="\n")
+    writer.writerow(table.columns)
+    for i in range(n):
+        writer.writerow([export.format_value(table[c][i]) for c in table.columns])
+    monkeypatch.setattr(export, "CSV_BLOCK_ROWS", 4)  # blocks of 4 rows: 4 blocks
+    assert export.table_to_csv_text(table) == expected.getvalue()
