@@ -30,7 +30,6 @@ import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 
@@ -38,6 +37,8 @@ from mistool import paper, parallel, tracking
 from mistool.config import Config, load_config, preset_hint
 from mistool.errors import ConfigError, MistoolWarning
 from mistool.model import PARTS, TrackTable
+from mistool.pose import refine_sequence
+from mistool.pose.status import status_column
 from mistool.rows import RowBuilder
 from mistool.sequence import MaskSequence, open_sequence, to_labels
 
@@ -109,7 +110,7 @@ def _identify(
     index: int,
     result: parallel.FrameResult,
     config: Config,
-    pose: ModuleType | None,
+    metric: bool,
 ) -> tuple[list[str], parallel.FrameResult]:
     """Instrument names for a frame's instances, in frame order (sequential).
 
@@ -120,7 +121,7 @@ def _identify(
     instances, names = tracker.resolve(index, result.instances)
     if instances is result.instances:
         return list(names), result
-    metrics = [parallel.measure(inst, result.shape, config, pose) for inst in instances]
+    metrics = [parallel.measure(inst, result.shape, config, metric) for inst in instances]
     return list(names), parallel.FrameResult(list(instances), metrics, result.unknown, result.shape)
 
 
@@ -194,17 +195,17 @@ def iter_chunks(
     """
     _check_chunk(chunk_frames)
     cfg = seq.config
-    pose = parallel.pose_module(metric, cfg)
+    measured = parallel.metric_pose(metric, cfg)
     tracker = tracking.IdentityTracker(cfg)
     rows = RowBuilder(cfg.fps)
     batch = pool.batch_frames if pool is not None else 1
-    work = parallel.batches(seq, pose is not None, batch)
+    work = parallel.batches(seq, measured, batch)
     start, count, yielded = 0, 0, False
     unknown: set[int] = set()
     index = 0
     for index, (name, result) in enumerate(parallel.ordered_results(work, pool)):
         seq.check_shape(name, result.shape)
-        names, result = _identify(tracker, index, result, cfg, pose)
+        names, result = _identify(tracker, index, result, cfg, measured)
         rows.add_frame(index, names, result.instances, result.metrics)
         unknown.update(int(v) for v in result.unknown.ravel())
         count += 1
@@ -300,9 +301,8 @@ def refine(
     table = table.sorted()
     focal = cfg.camera.fx if cfg.camera is not None else 1.0
     table = paper.paper_motion(table, focal_px=focal)
-    pose = parallel.pose_module(True, cfg)
-    if pose is not None and hasattr(pose, "refine_sequence"):
-        table = pose.refine_sequence(table, cfg, smoothing=smoothing)
+    if parallel.metric_pose(True, cfg):
+        table = refine_sequence(table, cfg, smoothing=smoothing)
     return _with_status(table, cfg).sorted()
 
 
@@ -373,7 +373,7 @@ def run(
         unknown_values=tuple(sorted(unknown)),
         seconds=time.perf_counter() - start,
         name=seq.name,
-        metric=parallel.pose_module(metric, cfg) is not None,
+        metric=parallel.metric_pose(metric, cfg),
         config=cfg,
     )
 
@@ -472,7 +472,7 @@ class Tracker:
         self.config: Config = _resolve_config(config) or Config()
         """The config the pixels are read with."""
         self.smoothing = smoothing
-        self._pose = parallel.pose_module(metric, self.config)
+        self._metric = parallel.metric_pose(metric, self.config)
         self._tracker = tracking.IdentityTracker(self.config)
         self._frames: list[TrackTable] = []
         self._last: dict[tuple[str, str], tuple[TrackTable, ...]] = {}
@@ -507,8 +507,8 @@ class Tracker:
                 f"{where}: frame size changed: {shape[1]}x{shape[0]} px, "
                 f"earlier frames are {self._shape[1]}x{self._shape[0]} px"
             )
-        result = parallel.observe_labels(arr, self.config, self._pose)
-        names, result = _identify(self._tracker, index, result, self.config, self._pose)
+        result = parallel.observe_labels(arr, self.config, self._metric)
+        names, result = _identify(self._tracker, index, result, self.config, self._metric)
         rows = RowBuilder(self.config.fps)
         rows.add_frame(index, names, result.instances, result.metrics)
         raw = rows.take()
@@ -519,9 +519,7 @@ class Tracker:
             warnings.warn(
                 unknown_values_message(new, self.config.colour_masks), MistoolWarning, stacklevel=2
             )
-        if self._pose is not None:
-            from mistool.pose.status import status_column
-
+        if self._metric:
             raw = raw.with_columns(pose_status=status_column(raw, raw.num_rows))
         raw = _with_status(raw, self.config)
         focal = self.config.camera.fx if self.config.camera is not None else 1.0

@@ -120,12 +120,12 @@ def _from(seq: MaskSequence, start: int) -> MaskSequence:
     )
 
 
-def _displayed(table: TrackTable, config: Config, pose: Any) -> TrackTable:
+def _displayed(table: TrackTable, config: Config, measured: bool) -> TrackTable:
     """A raw chunk with what the viewer shows during tracking: the per-frame
     ``pose_status`` (as :meth:`mistool.Tracker.update` gives it)."""
     from mistool import api
 
-    if pose is not None:
+    if measured:
         from mistool.pose.status import status_column
 
         table = table.with_columns(pose_status=status_column(table, table.num_rows))
@@ -158,7 +158,7 @@ def track_into(spec: JobSpec, stop: Any = None) -> Progress:
     try:
         seq = _open(spec)
         cfg = seq.config
-        pose = parallel.pose_module(spec.metric, cfg)
+        measured = parallel.metric_pose(spec.metric, cfg)
         entry.begin(seq.num_frames, {"sequence": str(spec.sequence)})
         progress = entry.progress()
         if progress.complete:
@@ -173,7 +173,7 @@ def track_into(spec: JobSpec, stop: Any = None) -> Progress:
         context = _tail(entry.read_chunk(*progress.chunks[-1]), _PAPER_CONTEXT) if start else None
         pool = parallel.LocalPool(spec.workers) if spec.workers > 1 else None
         batch = pool.batch_frames if pool is not None else 1
-        work = parallel.batches(_from(seq, start), pose is not None, batch)
+        work = parallel.batches(_from(seq, start), measured, batch)
         results = enumerate(parallel.ordered_results(work, pool), start)
         try:
             for size in chunk_sizes():
@@ -181,12 +181,12 @@ def track_into(spec: JobSpec, stop: Any = None) -> Progress:
                 end = start
                 for index, (name, result) in itertools.islice(results, size):
                     seq.check_shape(name, result.shape)
-                    names, result = api._identify(tracker, index, result, cfg, pose)
+                    names, result = api._identify(tracker, index, result, cfg, measured)
                     rows.add_frame(index, names, result.instances, result.metrics)
                     end = index + 1
                 if end == start:
                     break
-                table = _paper(_displayed(rows.take(), cfg, pose), context, cfg)
+                table = _paper(_displayed(rows.take(), cfg, measured), context, cfg)
                 entry.add_chunk(start, end, table, tracker)
                 context, start = _tail(table, _PAPER_CONTEXT), end
                 if stop is not None and stop.is_set():

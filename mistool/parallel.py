@@ -42,6 +42,8 @@ import numpy as np
 from mistool import tracking
 from mistool.config import Config
 from mistool.errors import MistoolError
+from mistool.model import InstanceObservation
+from mistool.pose import measure_instance
 from mistool.sequence import VIDEO_TOLERANCE, FastPathGate, MaskSequence, read_label_image
 
 #: Frames per task sent to a local worker process: enough to amortise the inter-process
@@ -70,9 +72,9 @@ def default_workers() -> int:
 class FrameResult:
     """One frame's per-frame results (everything but the identities)."""
 
-    instances: list[Any]
-    """``mistool.tracking.observe_frame``'s instances (InstanceObservation)."""
-    metrics: list[dict[str, dict[str, Any]] | None]
+    instances: list[InstanceObservation]
+    """``mistool.tracking.observe_frame``'s instances."""
+    metrics: list[dict[str, dict[str, float]] | None]
     """Per instance: the metric pose per part (None without camera / metric pose)."""
     unknown: np.ndarray
     """Label values present that the config does not know (1-D int64)."""
@@ -80,29 +82,21 @@ class FrameResult:
     """``(H, W)`` of the frame."""
 
 
-def pose_module(metric: bool, config: Config) -> Any:
-    """``mistool.pose`` when the metric pose should run for this config, else None."""
-    if not metric or config.camera is None:
-        return None
-    import importlib
-
-    try:
-        pose = importlib.import_module("mistool.pose")
-    except ModuleNotFoundError as exc:
-        if exc.name == "mistool.pose":
-            return None
-        raise
-    return pose if hasattr(pose, "measure_instance") else None
+def metric_pose(metric: bool, config: Config) -> bool:
+    """Whether the per-frame metric pose runs: asked for (``metric``) and the config has a
+    camera."""
+    return metric and config.camera is not None
 
 
 def measure(
-    inst: Any, shape: tuple[int, int], config: Config, pose: Any
-) -> dict[str, dict[str, Any]] | None:
-    """The per-frame metric pose of one instance, or None without a camera/pose step."""
-    if pose is None or config.camera is None:
+    inst: InstanceObservation, shape: tuple[int, int], config: Config, metric: bool
+) -> dict[str, dict[str, float]] | None:
+    """The per-frame metric pose of one instance, or None when the metric pose does not
+    run (see :func:`metric_pose`)."""
+    if not metric or config.camera is None:
         return None
     name = inst.label
-    return pose.measure_instance(
+    return measure_instance(
         inst,
         shape,
         config.camera,
@@ -128,12 +122,12 @@ def unknown_values(labels: np.ndarray, config: Config, lossy: bool = False) -> n
 
 
 def observe_labels(
-    labels: np.ndarray, config: Config, pose: Any, lossy: bool = False
+    labels: np.ndarray, config: Config, metric: bool, lossy: bool = False
 ) -> FrameResult:
     """The per-frame work on a decoded label image (pure; thread- and process-safe)."""
     instances = tracking.observe_frame(labels, config)
     shape = (int(labels.shape[0]), int(labels.shape[1]))
-    metrics = [measure(inst, shape, config, pose) for inst in instances]
+    metrics = [measure(inst, shape, config, metric) for inst in instances]
     return FrameResult(instances, metrics, unknown_values(labels, config, lossy), shape)
 
 
@@ -170,12 +164,12 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
         MistoolError: a frame that cannot be read or is not a label image; the message
             names the frame.
     """
-    pose = pose_module(batch.metric, batch.config)
+    metric = metric_pose(batch.metric, batch.config)
     out = []
     for name, item in zip(batch.names, batch.items, strict=True):
         try:
             labels = _load(item, batch.config)
-            out.append(observe_labels(labels, batch.config, pose, batch.lossy))
+            out.append(observe_labels(labels, batch.config, metric, batch.lossy))
         except MistoolError as exc:
             where = str(item) if isinstance(item, Path) else name
             if where in str(exc):
@@ -452,6 +446,6 @@ __all__ = [
     "observe_batch",
     "observe_labels",
     "ordered_results",
-    "pose_module",
+    "metric_pose",
     "unknown_values",
 ]

@@ -25,15 +25,15 @@ shaft seen end-on, J out of the image, numerically unstable solutions) the cells
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
 
 from mistool.config import Camera
 from mistool.lens import distort_points, undistort_points
+from mistool.model import InstanceObservation, PartObservation
 from mistool.pose.cylinder import (
     axis_from_image_lines,
     closest_on_axis,
@@ -121,7 +121,9 @@ def _as_u8(mask: np.ndarray) -> np.ndarray:
 
 
 def _outline(
-    mask_u8: np.ndarray, offset: tuple[int, int], contours: Any = None
+    mask_u8: np.ndarray,
+    offset: tuple[int, int],
+    contours: Sequence[np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[str, float]]:
     """Outline pixels (N, 2) of a mask (full-image px) and its region moments.
 
@@ -196,7 +198,7 @@ def _on_border(px: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
     return (px[:, 0] <= 0) | (px[:, 1] <= 0) | (px[:, 0] >= W - 1) | (px[:, 1] >= H - 1)
 
 
-def _why(out: dict[str, dict[str, float]], reason: str, parts: Any = None) -> None:
+def _why(out: dict[str, dict[str, float]], reason: str, parts: Iterable[str] | None = None) -> None:
     """Record why the pose is empty (:mod:`mistool.pose.status`) on the given parts' rows
     (default: all), keeping a reason already recorded."""
     code = reason_code(reason)
@@ -454,7 +456,7 @@ class _ShaftSolution:
 
 
 def _shaft_points(
-    parts: Mapping[str, Any], image_shape: tuple[int, int], camera: Camera
+    parts: Mapping[str, PartObservation], image_shape: tuple[int, int], camera: Camera
 ) -> _ShaftPoints | None:
     """Gather the shaft's image points (the pose's pixel input, in the ideal image of
     ``camera``), or None for no region.
@@ -786,7 +788,7 @@ def _shaft_row(
 
 def _clasper_rows(
     out: dict[str, dict[str, float]],
-    parts: Mapping[str, Any],
+    parts: Mapping[str, PartObservation],
     joint: np.ndarray,
     a: np.ndarray,
     K: np.ndarray,
@@ -820,7 +822,7 @@ def _clasper_rows(
 
 
 def measure_instance(
-    instance: Any,
+    instance: InstanceObservation,
     image_shape: tuple[int, int],
     camera: Camera | None,
     shaft_diameter_mm: float | None,
@@ -981,14 +983,14 @@ def _jaw_tips(
 
 
 def _tip(
-    clasper: Any,
+    clasper: PartObservation,
     joint: np.ndarray,
     a: np.ndarray,
     K: np.ndarray,
     image_shape: tuple[int, int],
     length: float | None,
     diameter: float,
-    camera: Any,
+    camera: Camera,
 ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Tip (3,), clasper axis (3,) and the tip's pixel (2,) in the ideal image (or Nones).
 
