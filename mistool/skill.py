@@ -104,6 +104,7 @@ KEY_COLUMNS: tuple[str, ...] = (
     "point",
     "window_start_s",
     "window_end_s",
+    "phase",
     "fps",
 )
 COLUMNS: tuple[str, ...] = KEY_COLUMNS + METRIC_NAMES
@@ -442,6 +443,7 @@ def skill(
     num_frames: int | None = None,
     fps: float | None = None,
     window_s: float | str | None = None,
+    phases: Sequence[tuple[int, str]] | None = None,
     smoothing_s: float = SMOOTHING_S,
 ) -> dict[str, np.ndarray]:
     """Skill metrics of one recording, one row per instrument (and time window).
@@ -453,6 +455,9 @@ def skill(
         fps: frame rate (default: from ``time_s``, else :data:`DEFAULT_FPS`).
         window_s: split the recording into windows of this many seconds (phases); a
             number or a text such as ``"60s"``. Default: one window.
+        phases: split the recording at these ``(start frame, name)`` instead (e.g. the
+            ``phase`` bookmarks): each phase runs to the next one's start; frames before
+            the first phase form a window named ``""``.
         smoothing_s: the Gaussian low-pass's standard deviation (s; 0 = none).
 
     Returns:
@@ -462,7 +467,7 @@ def skill(
 
     Raises:
         TableError: the table lacks ``frame``, ``instrument`` or ``part``.
-        ConfigError: a bad ``fps``, ``window_s`` or ``smoothing_s``.
+        ConfigError: a bad ``fps``, ``window_s``, ``phases`` or ``smoothing_s``.
     """
     if fps is not None and not (fps > 0 and math.isfinite(fps)):
         raise ConfigError(f"skill: fps must be > 0, got {fps}")
@@ -474,10 +479,8 @@ def skill(
     n = len(tracks[0].seen) if tracks else 0
     xyz = [prepare(t, rate, smoothing_s) for t in tracks]
     speed = [speeds(p, rate) for p in xyz]
-    step = n if window is None else max(1, int(round(window * rate)))
     rows: list[dict[str, Any]] = []
-    for w0 in range(0, n, step) if n else []:
-        sl = slice(w0, min(n, w0 + step))
+    for sl, name in windows(n, rate, window, phases):
         for k, track in enumerate(tracks):
             row: dict[str, Any] = {
                 "recording": recording,
@@ -485,6 +488,7 @@ def skill(
                 "point": track.point,
                 "window_start_s": sl.start / rate,
                 "window_end_s": sl.stop / rate,
+                "phase": name,
                 "fps": rate,
             }
             row.update(_window_metrics(track, xyz[k], speed[k], rate, sl))
@@ -495,10 +499,30 @@ def skill(
     return _columns(rows)
 
 
+def windows(
+    n: int, fps: float, window_s: float | None, phases: Sequence[tuple[int, str]] | None
+) -> list[tuple[slice, str]]:
+    """The frame ranges metrics are computed over, with their phase names."""
+    if window_s is not None and phases:
+        raise ConfigError("skill: give time windows or phases, not both")
+    if n == 0:
+        return []
+    if phases:
+        starts = sorted((int(f), str(name)) for f, name in phases if 0 <= int(f) < n)
+        if not starts:
+            return [(slice(0, n), "")]
+        if starts[0][0] > 0:
+            starts.insert(0, (0, ""))
+        ends = [f for f, _ in starts[1:]] + [n]
+        return [(slice(f, e), name) for (f, name), e in zip(starts, ends, strict=True) if e > f]
+    step = n if window_s is None else max(1, int(round(window_s * fps)))
+    return [(slice(w0, min(n, w0 + step)), "") for w0 in range(0, n, step)]
+
+
 def _columns(rows: list[dict[str, Any]]) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for c in COLUMNS:
-        if c in ("recording", "instrument", "point"):
+        if c in ("recording", "instrument", "point", "phase"):
             arr = np.empty(len(rows), dtype=object)
             arr[:] = [str(r[c]) for r in rows]
             out[c] = arr

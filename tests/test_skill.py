@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import mistool
+from mistool.annotations import Bookmark, save_annotations
 from mistool.cli import main
 from mistool.evaluation import match_instruments
 from mistool.export import read_csv, write_csv
@@ -189,6 +190,27 @@ def test_windows_split_the_recording() -> None:
     assert parse_window("2min") == 120.0 and parse_window("90") == 90.0
 
 
+def test_phases_split_at_their_start_frames(tmp_path: Path) -> None:
+    r = skill(make_table({"a": line(100, 10.0)}), phases=[(75, "closing"), (25, "suturing")])
+    assert r["phase"].tolist() == ["", "suturing", "closing"]
+    assert list(r["window_start_s"]) == [0.0, 1.0, 3.0]
+    assert list(r["window_end_s"]) == [1.0, 3.0, 4.0]
+    assert r["path_length_mm"] == pytest.approx([10.0 * 24 / FPS, 10.0 * 49 / FPS, 10.0 * 24 / FPS])
+    with pytest.raises(mistool.MistoolError, match="not both"):
+        skill(make_table({"a": line(10, 1.0)}), phases=[(0, "x")], window_s=1.0)
+    src, marks = tmp_path / "rec.csv", tmp_path / "rec.json"
+    write_csv(make_table({"a": line(100, 10.0)}), src)
+    save_annotations(marks, [Bookmark(50, "second half", "phase"), Bookmark(10, "x", "event")])
+    out = tmp_path / "s.csv"
+    assert (
+        main(["skill", str(src), "-o", str(out), "-q", "--phases", "--annotations", str(marks)])
+        == 0
+    )
+    rows = out.read_text().splitlines()[1:]
+    assert [r.split(",")[5] for r in rows] == ["", "second half"]
+    assert main(["skill", str(src), "-o", str(out), "-q", "--phases"]) == 1
+
+
 @pytest.mark.parametrize("bad", ["abc", "0s", "-5", "nan"])
 def test_bad_window_is_a_config_error(bad: str) -> None:
     with pytest.raises(mistool.MistoolError, match="--window"):
@@ -219,7 +241,7 @@ def test_cli_writes_csv_and_reports_bad_input(tmp_path: Path, capsys) -> None:
     text = out.read_text().splitlines()
     assert text[0] == ",".join(COLUMNS)
     assert len(text) == 1 + 2 * 2 * 2  # 2 recordings x 2 windows x 2 instruments
-    assert text[1].startswith("rec,a,tip,0,2,25,2,2,0,19.6,")
+    assert text[1].startswith("rec,a,tip,0,2,,25,2,2,0,19.6,")
     assert any(line.startswith("rec#2,") for line in text)
     capsys.readouterr()
     assert main(["skill", str(tmp_path / "missing.csv"), "-o", str(out)]) == 1

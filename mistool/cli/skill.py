@@ -35,6 +35,7 @@ and accuracy against ground truth: docs/teaching.md.
 examples:
   mistool skill motion.csv -o skill.csv
   mistool skill novice/ expert/ -o skill.csv --window 60s
+  mistool skill masks/ -o skill.csv --phases      # per phase bookmark (mistool bookmark)
 """
 
 
@@ -51,6 +52,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "-o", "--output", metavar="OUT.csv", help="CSV to write (default: CSV on stdout)"
     )
     p.add_argument("--window", metavar="DURATION", help="also split into windows, e.g. 60s or 2min")
+    p.add_argument(
+        "--phases",
+        action="store_true",
+        help="also split at the 'phase' bookmarks (annotations.json of each sequence)",
+    )
+    p.add_argument(
+        "--annotations",
+        nargs="+",
+        metavar="JSON",
+        help="with --phases: bookmark files, one per SOURCE (default: each sequence's)",
+    )
     p.add_argument("--fps", type=float, metavar="F", help="frame rate (default: from the data)")
     p.add_argument(
         "--smoothing-s",
@@ -77,6 +89,22 @@ def write_skill_csv(result: dict, out: object) -> None:
         writer.writerow([format_value(result[c][i]) for c in names])
 
 
+def _phases(args: argparse.Namespace, k: int, rec: object) -> list[tuple[int, str]]:
+    """The (start frame, name) of the phase bookmarks of the ``k``-th SOURCE."""
+    from mistool.annotations import default_path, load_annotations
+
+    sequence = getattr(rec, "sequence", None)
+    if args.annotations:
+        path = args.annotations[k]
+    elif sequence is not None:
+        path = default_path(sequence)
+    else:
+        raise ConfigError(
+            f"--phases: {args.sources[k]} is a table; give its bookmarks with --annotations"
+        )
+    return [(b.frame, b.text) for b in load_annotations(path) if b.kind == "phase"]
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``mistool skill``."""
     import mistool.skill as sk  # the module (mistool.skill is also callable)
@@ -89,11 +117,19 @@ def run(args: argparse.Namespace) -> int:
     if not smoothing >= 0:
         raise ConfigError(f"--smoothing-s must be >= 0, got {args.smoothing_s}")
     window = sk.parse_window(args.window)
+    if args.phases and window is not None:
+        raise ConfigError("give --window or --phases, not both")
+    if args.annotations and len(args.annotations) != len(args.sources):
+        raise ConfigError(
+            f"--annotations gives {len(args.annotations)} file(s) for "
+            f"{len(args.sources)} SOURCE(s); give one per SOURCE"
+        )
     recordings = [open_recording(s, progress=not args.quiet) for s in args.sources]
     unique_names(recordings)
     results = []
-    for r in recordings:
+    for k, r in enumerate(recordings):
         sk.check_table(r.table, r.name)
+        phases = _phases(args, k, r) if args.phases else None
         results.append(
             sk.skill(
                 r.table,
@@ -101,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
                 num_frames=r.num_frames,
                 fps=args.fps or r.fps,
                 window_s=window,
+                phases=phases,
                 smoothing_s=smoothing,
             )
         )
