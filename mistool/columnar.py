@@ -118,3 +118,11 @@ def read_table(path: str | Path) -> TrackTable:
         return TrackTable(columns)
     except TableError as exc:
         raise TableError(f"{p}: {exc}") from None
+
+
+def read_any(path: str | Path) -> TrackTable:
+    """:func:`read_table` for ``.npz`` and ``.parquet`` files, the CSV reader for any
+    other name (a motion table with another suffix is read as CSV, as before)."""
+    if Path(path).suffix.lower() in (".npz", ".parquet"):
+        return read_table(path)
+    return read_csv(path)

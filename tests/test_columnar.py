@@ -79,3 +79,17 @@ def test_cli_writes_the_format_of_the_suffix(
     assert main(["track", str(seq), "-o", str(out), "-q", "--workers", "1"]) == 0
     _exact(read_table(out), table.full())
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["seq", out.name])
+
+
+def test_eval_reads_columnar_predictions(
+    table: TrackTable, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    truth = tmp_path / "truth.csv"
+    write_table(table, truth)
+    reports = []
+    for suffix in (".csv", ".npz", ".parquet"):
+        pred = write_table(table, tmp_path / f"pred{suffix}")
+        capsys.readouterr()
+        assert main(["eval", str(pred), str(truth)]) == 0
+        reports.append(capsys.readouterr().out)
+    assert reports[0] and reports[0] == reports[1] == reports[2]

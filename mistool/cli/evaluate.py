@@ -81,8 +81,9 @@ def _method_names(paths: list[Path]) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``mistool eval``."""
+    from mistool.columnar import read_any
     from mistool.evaluation import evaluate, format_report
-    from mistool.export import atomic_write, check_output, read_csv, write_table_csv
+    from mistool.export import atomic_write, check_output, write_table_csv
 
     files = [Path(f) for f in args.files]
     if args.truth is None:
@@ -105,8 +106,8 @@ def run(args: argparse.Namespace) -> int:
     for out in (args.json, args.per_frame):  # before the work; never over an input
         if out:
             check_output(out, [truth_path, *pred_paths])
-    truth = read_csv(truth_path)
-    preds = {n: read_csv(p) for n, p in zip(names, pred_paths, strict=True)}
+    truth = read_any(truth_path)  # CSV, or a columnar .npz / .parquet table
+    preds = {n: read_any(p) for n, p in zip(names, pred_paths, strict=True)}
     report = evaluate(preds, truth, min_area_px=args.min_area)
     if args.json:
         with atomic_write(args.json, "w", encoding="utf-8") as f:
