@@ -144,3 +144,34 @@ def test_tracking_meets_the_complexity_limit():
         text=True,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+@pytest.mark.parametrize("k, back", [(2, [math.inf, math.inf]), (2, [math.inf, 80.0]), (3, None)])
+def test_nearest_axis_matches_the_segment_distances(k, back):
+    from mistool.tracking.split import _segment_distance, nearest_axis
+
+    rng = np.random.default_rng(k)
+    p = rng.uniform(0, 400, (3000, 2))
+    ends = rng.uniform(100, 300, (k, 2))
+    dirs = rng.normal(size=(k, 2))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    b = np.array(back if back is not None else rng.uniform(20, 200, k))
+    r = rng.uniform(5, 15, k)
+    want = _segment_distance(p, ends, dirs, b, r).argmin(1)
+    assert np.array_equal(nearest_axis(p, ends, dirs, b, r), want)
+
+
+def test_principal_direction_closed_form():
+    from mistool.tracking.split import _principal_direction
+
+    rng = np.random.default_rng(3)
+    t = 0.7
+    q = (
+        rng.normal(size=(500, 2))
+        * [9.0, 1.0]
+        @ np.array([[math.cos(t), math.sin(t)], [-math.sin(t), math.cos(t)]])
+    )
+    c, d = _principal_direction(q + [5.0, -2.0])
+    _, v = np.linalg.eigh(np.cov(q.T))
+    assert np.allclose(c, q.mean(0) + [5.0, -2.0])
+    assert abs(abs(float(d @ v[:, 1])) - 1.0) < 1e-12

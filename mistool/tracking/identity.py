@@ -43,7 +43,14 @@ from mistool.config import Config
 from mistool.model import InstanceObservation, RotatedBox
 from mistool.tracking.instances import angle_diff_deg, unit_vector
 from mistool.tracking.motion import ConstantVelocity
-from mistool.tracking.split import border_entries, border_runs, split_on_entries, split_scored
+from mistool.tracking.split import (
+    BlobPixels,
+    border_entries,
+    border_runs,
+    fit_split,
+    split_on_entries,
+    split_pieces,
+)
 
 __all__ = ["CostWeights", "IdentityTracker", "Track", "TrackState", "track_cost"]
 
@@ -357,21 +364,28 @@ class IdentityTracker:
         return out
 
     def _split_crossings(self, fr: _Frame) -> None:
-        """Crossing handler: each blob holding hidden tracks split between its tracks
-        (the better of two motion hypotheses; the second only when it can help)."""
+        """Crossing handler: each blob holding hidden tracks split between its tracks.
+
+        Two motion hypotheses (:data:`SPLIT_STOP_FRAMES`) share the blob's pixels; only
+        their axes are fitted (cheap), and only the best-scoring fit is measured (its
+        pieces' boxes), the other only if that one yields no pieces."""
         min_area = max(self._config.min_area_px, 1)
         for b, hidden in fr.blob_of.items():
             group = [fr.live[fr.owner[b]]] + [fr.live[a] for a in hidden]
-            best: tuple[float, list[InstanceObservation]] | None = None
+            pixels = BlobPixels(fr.instances[b])
+            fits = []
             for steps in (SPLIT_STOP_FRAMES, None):
                 expected = [self._expected_boxes(t, fr.index, steps) for t in group]
                 if any(e is None for e in expected):
                     break
-                got = split_scored(fr.instances[b], [e for e in expected if e], min_area)
-                if got is not None and (best is None or got[0] < best[0]):
-                    best = got
-            if best is not None:
-                fr.pieces[b] = best[1]
+                fit = fit_split(pixels, [e for e in expected if e], min_area)
+                if fit is not None:
+                    fits.append(fit)
+            for fit in sorted(fits, key=lambda f: f.score):
+                pieces = split_pieces(pixels, fit, min_area)
+                if pieces is not None:
+                    fr.pieces[b] = pieces
+                    break
 
     def _split_entries(self, fr: _Frame) -> None:
         """Entry handler: a blob with more shafts entering from the border than tracks

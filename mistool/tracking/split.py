@@ -21,8 +21,12 @@ __all__ = [
     "Axis",
     "border_entries",
     "border_runs",
+    "BlobPixels",
+    "SplitFit",
+    "fit_split",
     "split_instance",
     "split_on_entries",
+    "split_pieces",
     "split_scored",
 ]
 
@@ -34,7 +38,7 @@ SPLIT_MIN_ANGLE_DEG = 8.0
 #: Rounds of "nearest axis, then refit each axis to its pixels".
 SPLIT_REFIT_ROUNDS = 6
 #: The refits use at most about this many shaft pixels (evenly subsampled).
-SPLIT_FIT_POINTS = 4000
+SPLIT_FIT_POINTS = 1000
 #: An axis's distal end may move past its expected end by this fraction of the
 #: expected shaft length.
 SPLIT_END_MARGIN = 0.1
@@ -282,18 +286,33 @@ def _initial_axes(expected: list[dict[str, RotatedBox]], axes: list[Axis] | None
     )
 
 
+def _principal_direction(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centroid (2,), unit direction of largest spread (2,)) of points (N, 2), in
+    closed form (the 2x2 covariance's major axis)."""
+    c = q.mean(0)
+    r = q - c
+    sxx = float(r[:, 0] @ r[:, 0])
+    syy = float(r[:, 1] @ r[:, 1])
+    sxy = float(r[:, 0] @ r[:, 1])
+    t = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    return c, np.array([math.cos(t), math.sin(t)])
+
+
 def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous: bool) -> bool:
     """Rounds of nearest axis, then each axis refitted to its points (direction by PCA,
-    distal end at the points' reach); False when an axis keeps too few points."""
+    distal end at the points' reach), until no point changes axis; False when an axis
+    keeps too few points."""
+    prev: np.ndarray | None = None
     for _ in range(SPLIT_REFIT_ROUNDS):
-        lab = ax.distance(pts).argmin(1)
+        lab = nearest_axis(pts, ax.ends, ax.dirs, ax.back, ax.radius)
+        if prev is not None and np.array_equal(lab, prev):
+            break  # the same points give the same axes: converged
+        prev = lab
         for j in range(len(ax.dirs)):
             q = pts[lab == j]
             if len(q) < 3 or len(q) * weight < min_area_px:
                 return False
-            c = q.mean(0)
-            _, v = np.linalg.eigh(np.cov((q - c).T))
-            d = v[:, 1]  # largest spread: along the shaft
+            c, d = _principal_direction(q)  # largest spread: along the shaft
             ax.dirs[j] = d if d @ ax.dirs[j] >= 0 else -d
             # the distal end: the pixels' reach, never beyond the expected end + margin
             limit = float((ax.limit_end[j] + ax.margin[j] * ax.dirs[j] - c) @ ax.dirs[j])
@@ -343,26 +362,117 @@ def _part_distance(
     return _segment_distance(p, c + h[:, None] * u, u, 2 * h, r)
 
 
-def _pieces(
-    inst: InstanceObservation, ax: _Axes, expected: list[dict[str, RotatedBox]], min_area: int
-) -> list[dict[str, PartObservation]]:
-    """Every part's pixels given to the nearest instrument, measured per instrument."""
-    k = len(expected)
+def nearest_axis(
+    p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
+) -> np.ndarray:
+    """(N,) index of the nearest of K segments (the distances of
+    :func:`_segment_distance`, ties to the lower index) for points (N, 2), cheaply:
+    the coordinates along and across every segment are one (N, 2) x (2, 2K) product,
+    and squared distances are compared (no square roots, no (N, K, 2) temporaries)."""
+    k = len(ends)
+    nrm = np.stack([-dirs[:, 1], dirs[:, 0]], 1)  # (K, 2) left normals
+    frame = np.concatenate([dirs, nrm]).T  # (2, 2K)
+    coords = p @ frame
+    coords -= np.concatenate([(ends * dirs).sum(1), (ends * nrm).sum(1)])
+    along, perp = coords[:, :k], coords[:, k:]
+    excess = np.maximum(along, 0.0)  # past the distal end
+    for j in np.flatnonzero(np.isfinite(back)):  # behind a segment's proximal end
+        excess[:, j] += np.maximum(-along[:, j] - back[j], 0.0)
+    d2 = perp * perp
+    d2 += excess * excess
+    d2 *= 1.0 / (radius * radius)
+    if k == 2:
+        return (d2[:, 1] < d2[:, 0]).astype(np.intp)
+    return d2.argmin(1)
+
+
+class BlobPixels:
+    """A blob's part pixels, computed once and shared by every split hypothesis."""
+
+    def __init__(self, inst: InstanceObservation) -> None:
+        self.inst = inst
+        self._cache: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def get(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ys, xs) in the part's crop and (N, 2) float64 full-image (x, y) points."""
+        if name not in self._cache:
+            part = self.inst.parts[name]
+            ys, xs = np.nonzero(part.mask)
+            pts = np.stack([xs + part.offset[0], ys + part.offset[1]], 1).astype(np.float64)
+            self._cache[name] = (ys, xs, pts)
+        return self._cache[name]
+
+
+@dataclass
+class SplitFit:
+    """A blob's shaft axes fitted for a split (:func:`fit_split`), before measuring."""
+
+    score: float
+    """The worst RMS distance of a shaft's pixels to its axis (half-widths); lower is
+    better."""
+    axes: _Axes
+    expected: list[dict[str, RotatedBox]]
+
+
+def fit_split(
+    pixels: BlobPixels,
+    expected: list[dict[str, RotatedBox]],
+    min_area_px: int,
+    axes: list[Axis] | None = None,
+    contiguous: bool = False,
+) -> SplitFit | None:
+    """Fit one shaft axis per instrument to a blob's shaft pixels; None when the split is
+    not shaft-like (see :func:`split_instance`).
+
+    Args:
+        pixels: the blob's pixels (:class:`BlobPixels`).
+        expected: per instrument, part -> expected box (each with a ``"shaft"``).
+        min_area_px: each instrument needs at least this many shaft pixels.
+        axes: the shafts' axes when not from ``expected`` (:func:`distal_axis`).
+        contiguous: each shaft ends at the first gap of :data:`SPLIT_CONTIGUOUS_GAP`
+            half-widths in its pixels along its axis (shafts entering from the border,
+            their ends unknown).
+    """
+    inst = pixels.inst
+    if "shaft" not in inst.parts or len(expected) < 2 or any("shaft" not in e for e in expected):
+        return None
+    pts = pixels.get("shaft")[2]
+    step = max(1, len(pts) // SPLIT_FIT_POINTS)  # the fits need no more points than this
+    fit_pts = pts[::step]
+    ax = _initial_axes(expected, axes)
+    if not _refit(ax, fit_pts, step, min_area_px, contiguous):
+        return None
+    score = _score(ax, fit_pts)
+    return None if score is None else SplitFit(score, ax, expected)
+
+
+def split_pieces(
+    pixels: BlobPixels, fit: SplitFit, min_area_px: int
+) -> list[InstanceObservation] | None:
+    """The blob's pixels given to the nearest fitted instrument, each piece measured
+    (Algorithm 1); None when a piece has no shaft left."""
+    inst = pixels.inst
+    k = len(fit.expected)
     pieces: list[dict[str, PartObservation]] = [{} for _ in range(k)]
     for name, part in inst.parts.items():
-        ys, xs = np.nonzero(part.mask)
-        p = np.stack([xs + part.offset[0], ys + part.offset[1]], 1).astype(np.float64)
-        owner = _part_distance(name, p, ax, expected).argmin(1)
+        ys, xs, p = pixels.get(name)
+        if name == "shaft":
+            ax = fit.axes
+            owner = nearest_axis(p, ax.ends, ax.dirs, ax.back, ax.radius)
+        else:
+            owner = _part_distance(name, p, fit.axes, fit.expected).argmin(1)
         for j in range(k):
             sel = owner == j
             if not sel.any():
                 continue
             m = np.zeros(part.mask.shape, np.uint8)
             m[ys[sel], xs[sel]] = 255
-            obs = part_observation(name, m, part.offset[0], part.offset[1], min_area)
+            obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
             if obs is not None:
                 pieces[j][name] = obs
-    return pieces
+    if any("shaft" not in parts for parts in pieces):
+        return None
+    return [make_instance(None, parts, inst.image_shape) for parts in pieces]
 
 
 def split_scored(
@@ -372,31 +482,11 @@ def split_scored(
     axes: list[Axis] | None = None,
     contiguous: bool = False,
 ) -> tuple[float, list[InstanceObservation]] | None:
-    """:func:`split_instance` and its score (the worst RMS distance of a shaft's pixels
-    to its axis, in half-widths; lower is better).
-
-    Args:
-        inst: the merged instance.
-        expected: per instrument, part -> expected box (each with a ``"shaft"``).
-        min_area_px: each instrument needs at least this many shaft pixels.
-        axes: the shafts' axes when not from ``expected`` (:func:`distal_axis`).
-        contiguous: each shaft ends at the first gap of :data:`SPLIT_CONTIGUOUS_GAP`
-            half-widths in its pixels along its axis (shafts entering from the border,
-            their ends unknown).
-    """
-    shaft = inst.parts.get("shaft")
-    if shaft is None or len(expected) < 2 or any("shaft" not in e for e in expected):
+    """:func:`split_instance` and its score (see :class:`SplitFit`); arguments as
+    :func:`fit_split`."""
+    pixels = BlobPixels(inst)
+    fit = fit_split(pixels, expected, min_area_px, axes, contiguous)
+    if fit is None:
         return None
-    pts = _pixels(shaft)
-    step = max(1, len(pts) // SPLIT_FIT_POINTS)  # the fits need no more points than this
-    fit_pts = pts[::step]
-    ax = _initial_axes(expected, axes)
-    if not _refit(ax, fit_pts, step, min_area_px, contiguous):
-        return None
-    score = _score(ax, fit_pts)
-    if score is None:
-        return None
-    pieces = _pieces(inst, ax, expected, min_area_px)
-    if any("shaft" not in parts for parts in pieces):
-        return None
-    return score, [make_instance(None, parts, inst.image_shape) for parts in pieces]
+    pieces = split_pieces(pixels, fit, min_area_px)
+    return None if pieces is None else (fit.score, pieces)
