@@ -404,37 +404,62 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
         raise ConfigError(
             f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_TOP_KEYS))}"
         )
-    kwargs: dict[str, Any] = {"path": path}
+    kwargs: dict[str, Any] = {"path": path, **_scalars(data, where)}
+    if "source" in data:
+        if not isinstance(data["source"], str) or not data["source"]:
+            raise ConfigError(f"{where}: source must be a path string, got {data['source']!r}")
+        kwargs["source"] = _relative_to(data["source"], path)
+    labels, parts, colour = _labels_and_parts(data, where)
+    kwargs["labels"], kwargs["parts"] = labels, parts
+    kwargs.update(_camera_entries(data, path, where))
+    instruments, inst_colour = _instruments(data.get("instrument", []), where)
+    kwargs["instruments"] = tuple(instruments)
+    kwargs["colour_masks"] = colour or inst_colour
+    _check_overlaps(parts, instruments, where, labels)
+    return Config(**kwargs)
+
+
+def _relative_to(value: str, path: Path | None) -> Path:
+    """A path from mistool.toml: ``~`` expanded, relative to the file's folder."""
+    out = Path(value).expanduser()
+    if not out.is_absolute() and path is not None:
+        out = path.parent / out
+    return out
+
+
+def _scalars(data: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """The validated top-level numbers: fps, min_area_px, max_pixels and the sizes."""
+    out: dict[str, Any] = {}
     if "fps" in data:
-        kwargs["fps"] = _number(data["fps"], "fps", where, positive=True)
+        out["fps"] = _number(data["fps"], "fps", where, positive=True)
     if "min_area_px" in data:
         v = data["min_area_px"]
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ConfigError(f"{where}: min_area_px must be an integer >= 0, got {v!r}")
-        kwargs["min_area_px"] = v
+        out["min_area_px"] = v
     if "max_pixels" in data:
         v = data["max_pixels"]
         if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_PIXELS_LIMIT:
             raise ConfigError(
                 f"{where}: max_pixels must be an integer in 1..{MAX_PIXELS_LIMIT}, got {v!r}"
             )
-        kwargs["max_pixels"] = v
+        out["max_pixels"] = v
     for key in ("shaft_diameter_mm", "clasper_length_mm"):
         if key in data:
-            kwargs[key] = _number(data[key], key, where, positive=True)
-    if "source" in data:
-        if not isinstance(data["source"], str) or not data["source"]:
-            raise ConfigError(f"{where}: source must be a path string, got {data['source']!r}")
-        src = Path(data["source"]).expanduser()
-        if not src.is_absolute() and path is not None:
-            src = path.parent / src
-        kwargs["source"] = src
+            out[key] = _number(data[key], key, where, positive=True)
+    return out
+
+
+def _labels_and_parts(
+    data: Mapping[str, Any], where: str
+) -> tuple[str, dict[str, ValueRange], bool]:
+    """The label preset, its part values with ``[parts]`` applied, and whether they are
+    colours."""
     labels = data.get("labels", "endovis15")
     if not isinstance(labels, str) or labels not in PRESETS:
         raise ConfigError(
             f"{where}: labels = {labels!r} is not a preset; choose one of {', '.join(PRESETS)}"
         )
-    kwargs["labels"] = labels
     parts = {p: (v, v) for p, v in PRESETS[labels].items()}
     colour = labels in COLOUR_PRESETS
     if "parts" in data:
@@ -448,61 +473,70 @@ def config_from_dict(data: Mapping[str, Any], path: Path | None = None) -> Confi
             )
         override, colour = _parts(data["parts"], where, "parts.")
         parts.update(override)
-    kwargs["parts"] = parts
+    return labels, parts, colour
+
+
+def _camera_entries(data: Mapping[str, Any], path: Path | None, where: str) -> dict[str, Any]:
+    """``camera`` (from ``[camera]`` or ``calibration = FILE``) and ``calibration``."""
     if "camera" in data and "calibration" in data:
         raise ConfigError(
             f"{where}: give either [camera] or calibration = FILE, not both (they could disagree)"
         )
     if "camera" in data:
-        kwargs["camera"] = _camera(data["camera"], where)
+        return {"camera": _camera(data["camera"], where)}
     if "calibration" in data:
         cal = data["calibration"]
         if not isinstance(cal, str) or not cal:
             raise ConfigError(f"{where}: calibration must be a path string, got {cal!r}")
-        cal_path = Path(cal).expanduser()
-        if not cal_path.is_absolute() and path is not None:
-            cal_path = path.parent / cal_path
+        cal_path = _relative_to(cal, path)
         from mistool.calibration import read_calibration  # same layer; avoids a cycle
 
-        kwargs["camera"] = read_calibration(cal_path)
-        kwargs["calibration"] = cal_path
-    instruments: list[InstrumentSpec] = []
-    tables = data.get("instrument", [])
+        return {"camera": read_calibration(cal_path), "calibration": cal_path}
+    return {}
+
+
+def _instruments(tables: Any, where: str) -> tuple[list[InstrumentSpec], bool]:
+    """The ``[[instrument]]`` tables, validated; and whether any gives colours."""
     if not isinstance(tables, list):
         raise ConfigError(f"{where}: instrument must be an array of tables ([[instrument]])")
+    instruments: list[InstrumentSpec] = []
+    colour = False
     for i, table in enumerate(tables):
-        tag = f"instrument[{i}]"
-        if not isinstance(table, dict):
-            raise ConfigError(f"{where}: {tag} must be a table")
-        extra = sorted(set(table) - _INSTRUMENT_KEYS)
-        if extra:
-            raise ConfigError(
-                f"{where}: unknown key(s) in {tag}: {', '.join(extra)}; "
-                f"allowed: {', '.join(sorted(_INSTRUMENT_KEYS))}"
-            )
-        name = table.get("name", str(i + 1))
-        if not isinstance(name, (str, int)) or isinstance(name, bool) or str(name) == "":
-            raise ConfigError(f"{where}: {tag}.name must be a non-empty string, got {name!r}")
-        name = str(name)
-        if any(inst.name == name for inst in instruments):
-            raise ConfigError(f"{where}: {tag}.name {name!r} is used twice")
-        inst_parts, inst_colour = _parts(table, where, f"{tag}.")
+        spec, inst_colour = _instrument(table, i, {inst.name for inst in instruments}, where)
+        instruments.append(spec)
         colour |= inst_colour
-        if not inst_parts:
-            raise ConfigError(
-                f"{where}: {tag} ({name}) gives no part values; "
-                f"set at least one of {', '.join(PARTS)}"
-            )
-        dims = {
-            k: _number(table[k], f"{tag}.{k}", where, positive=True)
-            for k in ("shaft_diameter_mm", "clasper_length_mm")
-            if k in table
-        }
-        instruments.append(InstrumentSpec(name=name, parts=inst_parts, **dims))
-    kwargs["instruments"] = tuple(instruments)
-    kwargs["colour_masks"] = colour
-    _check_overlaps(parts, instruments, where, labels)
-    return Config(**kwargs)
+    return instruments, colour
+
+
+def _instrument(table: Any, i: int, taken: set[str], where: str) -> tuple[InstrumentSpec, bool]:
+    """One ``[[instrument]]`` table (the ``i``-th; ``taken``: the names before it),
+    validated; and whether it gives colours."""
+    tag = f"instrument[{i}]"
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: {tag} must be a table")
+    extra = sorted(set(table) - _INSTRUMENT_KEYS)
+    if extra:
+        raise ConfigError(
+            f"{where}: unknown key(s) in {tag}: {', '.join(extra)}; "
+            f"allowed: {', '.join(sorted(_INSTRUMENT_KEYS))}"
+        )
+    name = table.get("name", str(i + 1))
+    if not isinstance(name, (str, int)) or isinstance(name, bool) or str(name) == "":
+        raise ConfigError(f"{where}: {tag}.name must be a non-empty string, got {name!r}")
+    name = str(name)
+    if name in taken:
+        raise ConfigError(f"{where}: {tag}.name {name!r} is used twice")
+    inst_parts, colour = _parts(table, where, f"{tag}.")
+    if not inst_parts:
+        raise ConfigError(
+            f"{where}: {tag} ({name}) gives no part values; set at least one of {', '.join(PARTS)}"
+        )
+    dims = {
+        k: _number(table[k], f"{tag}.{k}", where, positive=True)
+        for k in ("shaft_diameter_mm", "clasper_length_mm")
+        if k in table
+    }
+    return InstrumentSpec(name=name, parts=inst_parts, **dims), colour
 
 
 def _overlap(named: list[tuple[str, ValueRange]], where: str) -> None:

@@ -315,6 +315,57 @@ def _swap_in(tmp: Path, out: Path) -> None:
         os.replace(tmp, out)
 
 
+def _check_options(
+    frames: int,
+    instruments: int,
+    fps: float,
+    sc: SceneOptions,
+    video: str | None,
+    distinct_labels: bool,
+) -> None:
+    """Raise :class:`ConfigError` for an invalid :func:`synthesize` option."""
+    if not isinstance(frames, int) or frames < 1:
+        raise ConfigError(f"frames must be an integer >= 1, got {frames!r}")
+    if not isinstance(instruments, int) or not 1 <= instruments <= 4:
+        raise ConfigError(f"instruments must be an integer in 1..4, got {instruments!r}")
+    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise ConfigError(f"fps must be a number > 0, got {fps!r}")
+    if sc.width < 16 or sc.height < 16 or not sc.focal_px > 0:
+        raise ConfigError(
+            f"image {sc.width}x{sc.height} with focal {sc.focal_px} px: need "
+            "width, height >= 16 and a focal length > 0"
+        )
+    if sc.lens_model not in CAMERA_MODELS:
+        raise ConfigError(f"lens model {sc.lens_model!r} is not one of {', '.join(CAMERA_MODELS)}")
+    if sc.shaft_diameter_mm is not None and not 0 < sc.shaft_diameter_mm <= 30:
+        raise ConfigError(f"shaft diameter must be in (0, 30] mm, got {sc.shaft_diameter_mm}")
+    if sc.tool not in ("robotic", "laparoscopic"):
+        raise ConfigError(f"tool must be robotic or laparoscopic, got {sc.tool!r}")
+    if video is not None and video not in VIDEO_CODECS:
+        raise ConfigError(f"video codec {video!r} is not one of {', '.join(VIDEO_CODECS)}")
+    if video is not None and distinct_labels:
+        raise ConfigError(
+            "video and distinct labels do not mix: a lossy codec smears the "
+            "close per-instrument values into each other"
+        )
+
+
+def _video_writer(path: Path, video: str, fps: float, size_wh: tuple[int, int]) -> cv2.VideoWriter:
+    """An open grey-video writer with codec ``video`` (see :data:`VIDEO_CODECS`)."""
+    writer = cv2.VideoWriter(
+        str(path), cv2.VideoWriter.fourcc(*VIDEO_CODECS[video]), fps, size_wh, False
+    )
+    if not writer.isOpened():
+        raise ConfigError(f"this OpenCV build cannot write {video} video")
+    return writer
+
+
+def _write_png(path: Path, labels: np.ndarray, level: int) -> None:
+    """Write one label image as PNG at zlib ``level``."""
+    if not cv2.imwrite(str(path), labels, [cv2.IMWRITE_PNG_COMPRESSION, int(level)]):
+        raise InputPathError(f"{path}: cannot write")
+
+
 def synthesize(
     out_dir: str | Path,
     frames: int = 100,
@@ -356,30 +407,7 @@ def synthesize(
     """
     corr = corruptions or Corruptions()
     sc = scene or SceneOptions()
-    if not isinstance(frames, int) or frames < 1:
-        raise ConfigError(f"frames must be an integer >= 1, got {frames!r}")
-    if not isinstance(instruments, int) or not 1 <= instruments <= 4:
-        raise ConfigError(f"instruments must be an integer in 1..4, got {instruments!r}")
-    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
-        raise ConfigError(f"fps must be a number > 0, got {fps!r}")
-    if sc.width < 16 or sc.height < 16 or not sc.focal_px > 0:
-        raise ConfigError(
-            f"image {sc.width}x{sc.height} with focal {sc.focal_px} px: need "
-            "width, height >= 16 and a focal length > 0"
-        )
-    if sc.lens_model not in CAMERA_MODELS:
-        raise ConfigError(f"lens model {sc.lens_model!r} is not one of {', '.join(CAMERA_MODELS)}")
-    if sc.shaft_diameter_mm is not None and not 0 < sc.shaft_diameter_mm <= 30:
-        raise ConfigError(f"shaft diameter must be in (0, 30] mm, got {sc.shaft_diameter_mm}")
-    if sc.tool not in ("robotic", "laparoscopic"):
-        raise ConfigError(f"tool must be robotic or laparoscopic, got {sc.tool!r}")
-    if video is not None and video not in VIDEO_CODECS:
-        raise ConfigError(f"video codec {video!r} is not one of {', '.join(VIDEO_CODECS)}")
-    if video is not None and distinct_labels:
-        raise ConfigError(
-            "video and distinct labels do not mix: a lossy codec smears the "
-            "close per-instrument values into each other"
-        )
+    _check_options(frames, instruments, fps, sc, video, distinct_labels)
     values = label_values(preset, instruments, distinct_labels)
     out = Path(out_dir)
     _prepare_out(out, force)
@@ -410,15 +438,7 @@ def synthesize(
     writer = None
     try:
         if video is not None:
-            writer = cv2.VideoWriter(
-                str(tmp / "masks.avi"),
-                cv2.VideoWriter.fourcc(*VIDEO_CODECS[video]),
-                float(fps),
-                (sc.width, sc.height),
-                False,
-            )
-            if not writer.isOpened():
-                raise ConfigError(f"this OpenCV build cannot write {video} video")
+            writer = _video_writer(tmp / "masks.avi", video, float(fps), (sc.width, sc.height))
         rows: list[dict] = []
         for f in range(frames):
             frame_poses = [p[f] for p in poses]
@@ -438,12 +458,7 @@ def synthesize(
                 labels = corruptor.apply(clean, buf.instance, buf.part, f, all_values)
             else:
                 labels = clean
-            if not cv2.imwrite(
-                str(tmp / f"{f:06d}.png"),
-                labels,
-                [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)],
-            ):
-                raise InputPathError(f"{tmp / f'{f:06d}.png'}: cannot write")
+            _write_png(tmp / f"{f:06d}.png", labels, png_compression)
             if writer is not None:
                 writer.write(labels)
             if progress is not None:
