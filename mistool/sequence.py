@@ -1005,3 +1005,15 @@ def unknown_values(labels: np.ndarray, config: Config) -> np.ndarray:
     for lo, hi in ranges:
         known |= (values >= lo) & (values <= hi)
     return values[~known]
+
+
+def inputs_of(source: str | Path) -> list[Path]:
+    """The files a command reads for one SOURCE argument: a sequence (folder, mask video,
+    ``mistool.toml``) gives :func:`input_files`; anything else (a motion table) is itself."""
+    p = Path(source).expanduser()
+    if p.is_dir() or p.suffix.lower() in VIDEO_EXTENSIONS or p.name == CONFIG_NAME:
+        try:
+            return input_files(*resolve(p))
+        except (InputPathError, MaskFormatError):
+            return [p]
+    return [p]

@@ -523,6 +523,30 @@ def _export_onto_frame(d: Path) -> list[str]:
     return ["export-html", str(s), "--poses", str(table_csv(d)), "-o", str(s / "000001.png"), "-q"]
 
 
+CALIBRATION = (
+    "image_width: 720\nimage_height: 576\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+    "  data: [600, 0, 359.5, 0, 600, 287.5, 0, 0, 1]\n"
+)
+
+
+def _calibration_out(d: Path) -> list[str]:
+    s = seq(d)
+    (d / "camera.yaml").write_text(CALIBRATION)
+    (d / "out.csv").symlink_to(d / "camera.yaml")
+    return ["track", str(s), "--calibration", str(d / "camera.yaml"), "-o", str(d / "out.csv")]
+
+
+def _table_command_out(d: Path, command: str) -> list[str]:
+    s = seq(d)
+    t = table_csv(d)
+    return {
+        "export-html": ["export-html", str(s), "--poses", str(t), "-o", str(t), "-q"],
+        "report": ["report", str(t), "-o", str(t), "-q"],
+        "skill": ["skill", str(t), "-o", str(t), "-q"],
+        "eval": ["eval", str(t), str(t), "--json", str(t)],
+    }[command]
+
+
 def _export_missing_folder(d: Path) -> list[str]:
     s = seq(d, n=30)
     return ["export-html", str(s), "--no-cache", "-o", str(d / "nope" / "r.html"), "-q"]
@@ -768,6 +792,11 @@ CASES: list[Case] = [
         expect="ok",
     ),
     Case("min_area_px = 1.5", lambda d: toml_seq(d, "min_area_px = 1.5\n")),
+    Case("output is a link to the calibration file", _calibration_out),
+    Case("export-html onto its --poses table", lambda d: _table_command_out(d, "export-html")),
+    Case("report onto its input table", lambda d: _table_command_out(d, "report")),
+    Case("skill onto its input table", lambda d: _table_command_out(d, "skill")),
+    Case("eval --json onto its input table", lambda d: _table_command_out(d, "eval")),
     Case("camera = 5", lambda d: toml_seq(d, "camera = 5\n")),
     Case(
         'camera fx = "580"',

@@ -134,6 +134,45 @@ def test_track_refuses_the_source_video_as_output(
     assert _snapshot(tmp_path) == before
 
 
+CALIBRATION = (
+    "image_width: 128\nimage_height: 96\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+    "  data: [500, 0, 64, 0, 500, 48, 0, 0, 1]\n"
+)
+
+
+def test_track_refuses_a_link_to_the_calibration_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    seq = _seq(tmp_path)
+    (tmp_path / "camera.yaml").write_text(CALIBRATION)
+    (tmp_path / "out.csv").symlink_to(tmp_path / "camera.yaml")
+    before = _snapshot(tmp_path)
+    args = ["--calibration", str(tmp_path / "camera.yaml"), "-o", str(tmp_path / "out.csv")]
+    code = main(["track", str(seq), *args, "-q"])
+    _one_error(capsys, code, "is an input", "camera.yaml")
+    assert _snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("command", ["export-html", "report", "skill"])
+def test_table_commands_refuse_their_input_table_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture, command: str
+) -> None:
+    seq = _seq(tmp_path)
+    table = tmp_path / "t.csv"
+    assert main(["track", str(seq), "-o", str(table), "-q"]) == 0
+    link = tmp_path / "out.html"
+    link.symlink_to(table)
+    argv = {
+        "export-html": ["export-html", str(seq), "--poses", str(table), "-o", str(link)],
+        "report": ["report", str(table), "-o", str(link)],
+        "skill": ["skill", str(table), "-o", str(table)],
+    }[command]
+    capsys.readouterr()
+    before = _snapshot(tmp_path)
+    _one_error(capsys, main([*argv, "-q"]), "is an input")
+    assert _snapshot(tmp_path) == before
+
+
 def test_export_html_refuses_a_frame_before_any_work(
     tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:

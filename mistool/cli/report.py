@@ -60,7 +60,9 @@ def run(args: argparse.Namespace) -> int:
     """Run ``mistool report``."""
     from mistool.annotations import default_path, load_annotations
     from mistool.cli._recording import open_recording, unique_names
+    from mistool.export import check_output
     from mistool.report import ReportRecording, write_report
+    from mistool.sequence import inputs_of
     from mistool.skill import SMOOTHING_S, check_table
 
     if args.annotations and len(args.annotations) != len(args.sources):
@@ -72,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
     if not smoothing >= 0:
         raise ConfigError(f"--smoothing-s must be >= 0, got {args.smoothing_s}")
     out = Path(args.output)
+    sources = [p for s in args.sources for p in inputs_of(s)]
+    check_output(out, [*sources, *(args.annotations or [])])  # before the work
     recordings = [open_recording(s, progress=not args.quiet) for s in args.sources]
     unique_names(recordings)
     inputs = []

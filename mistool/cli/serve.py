@@ -26,7 +26,10 @@ recently used entries removed first, MISTOOL_CACHE_MAX_BYTES to change): the nex
 serve' of the unchanged sequence shows it at once, and a run stopped half-way resumes where
 it stopped (--no-cache tracks again from the start). Problems with SEQUENCE are reported
 before the server starts. The URL printed is the one really in use: when the port is busy
-the next free one is taken. Ctrl+C stops the server and the tracking at any moment.
+the next free one is taken (with a warning). Ctrl+C stops the server and the tracking at any
+moment. Only the viewer's own page may connect (other sites' pages and unknown Host names
+get 403; --allow-origin admits more); beyond loopback (--host 0.0.0.0) the URL carries a
+per-run token, printed once (docs/hardening.md).
 
 3D modes (switch in the GUI): 'metric' (millimetres, the default when mistool.toml has
 [camera]) and 'paper' (the paper's vpython scene in pixel units: cylinder length = box
@@ -40,7 +43,7 @@ examples:
   mistool serve                         # the bundled sample_masks/
   mistool serve masks/ --port 8081
   mistool serve masks/ --poses masks_motion.csv
-  mistool serve masks/ --host 0.0.0.0   # reachable from other machines
+  mistool serve masks/ --host 0.0.0.0   # reachable from other machines: URL with a token
 """
 
 

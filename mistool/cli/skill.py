@@ -109,10 +109,16 @@ def run(args: argparse.Namespace) -> int:
     """Run ``mistool skill``."""
     import mistool.skill as sk  # the module (mistool.skill is also callable)
     from mistool.cli._recording import open_recording, unique_names
-    from mistool.export import atomic_write
+    from mistool.config import FPS_RANGE, check_number
+    from mistool.export import atomic_write, check_output, stdout_stream, write_stdout
+    from mistool.sequence import inputs_of
 
-    if args.fps is not None and not args.fps > 0:
-        raise ConfigError(f"--fps must be > 0, got {args.fps}")
+    if args.fps is not None:
+        check_number("--fps", args.fps, *FPS_RANGE)
+    if args.output not in (None, "-"):  # before the work; never over an input
+        check_output(args.output, [p for s in args.sources for p in inputs_of(s)])
+    else:
+        stdout_stream()
     smoothing = sk.SMOOTHING_S if args.smoothing_s is None else args.smoothing_s
     if not smoothing >= 0:
         raise ConfigError(f"--smoothing-s must be >= 0, got {args.smoothing_s}")
@@ -143,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         )
     result = sk.concat(results)
     if args.output in (None, "-"):
-        write_skill_csv(result, sys.stdout)
+        write_stdout(lambda stream: write_skill_csv(result, stream))
     else:
         with atomic_write(args.output, "w", newline="", encoding="utf-8") as f:
             write_skill_csv(result, f)
