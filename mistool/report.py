@@ -154,8 +154,12 @@ def svg_time_plot(
     ylabel: str,
     marks: Sequence[tuple[float, str]] = (),
     x_range: tuple[float, float] | None = None,
+    cursor: bool = False,
 ) -> str:
-    """An inline SVG line plot with axes, ticks, and vertical marks (x, label)."""
+    """An inline SVG line plot with axes, ticks, and vertical marks (x, label).
+
+    With ``cursor``, the SVG carries ``data-t0 data-t1`` (the x range) and ``data-px0
+    data-px1`` (its pixels) and a ``line.cursor`` at x0 for a script to move."""
     w, h = _PLOT_W, _PLOT_H
     ml, mr, mt, mb = _MARGIN
     x0, x1 = x_range or _range([s.x for s in series])
@@ -168,7 +172,10 @@ def svg_time_plot(
     def sy(v: np.ndarray | float) -> np.ndarray | float:
         return mt + (y1 - np.asarray(v)) / (y1 - y0) * (h - mt - mb)
 
-    out = [f'<svg class="plot" viewBox="0 0 {w} {h}" width="{w}" height="{h}" role="img">']
+    data = (
+        f' data-t0="{x0:g}" data-t1="{x1:g}" data-px0="{ml}" data-px1="{w - mr}"' if cursor else ""
+    )
+    out = [f'<svg class="plot" viewBox="0 0 {w} {h}" width="{w}" height="{h}"{data} role="img">']
     out.append(
         f'<rect x="{ml}" y="{mt}" width="{w - ml - mr}" height="{h - mt - mb}" class="frame"/>'
     )
@@ -195,6 +202,8 @@ def svg_time_plot(
         d = _path(np.asarray(sx(xs)), np.asarray(sy(ys)))
         out.append(f'<path d="{d}" stroke="{s.colour}" class="line"><title>')
         out.append(f"{html.escape(s.label)}</title></path>")
+    if cursor:
+        out.append(f'<line class="cursor" x1="{ml}" y1="{mt}" x2="{ml}" y2="{h - mb}"/>')
     out.append(f'<text x="{(ml + w - mr) / 2}" y="{h - 2}" class="axis" text-anchor="middle">')
     out.append(f"{html.escape(xlabel)}</text>")
     out.append(
@@ -314,6 +323,40 @@ def _bookmark_list(marks: list[Bookmark], fps: float) -> str:
         for b in marks
     )
     return f'<ul class="bookmarks">{items}</ul>'
+
+
+def tip_plots(
+    table: TrackTable,
+    *,
+    num_frames: int | None = None,
+    fps: float | None = None,
+    bookmarks: Sequence[Bookmark] = (),
+    smoothing_s: float = SMOOTHING_S,
+    cursor: bool = False,
+) -> tuple[list[Series], str]:
+    """The speed and depth plots of each instrument's tip (``(speed series, SVG text)``),
+    as in the report; ``cursor`` as :func:`svg_time_plot`."""
+    rate = fps or table_fps(table)
+    tracks = point_tracks(table, num_frames)
+    speed: list[Series] = []
+    depth: list[Series] = []
+    for k, tr in enumerate(tracks):
+        xyz = prepare(tr, rate, smoothing_s)
+        t = np.arange(len(xyz)) / rate
+        label = f"instrument {tr.instrument} ({tr.point})"
+        speed.append(Series(t, speeds(xyz, rate), colour(k), label))
+        depth.append(Series(t, xyz[:, 2], colour(k), label))
+    if not tracks:
+        return speed, ""
+    n = len(tracks[0].seen)
+    marks = [(b.time_s(rate), b.text) for b in bookmarks]
+    xr = (0.0, max(n / rate, 1e-3))
+    text = svg_time_plot(
+        speed, xlabel="time (s)", ylabel="tip speed (mm/s)", marks=marks, x_range=xr, cursor=cursor
+    ) + svg_time_plot(
+        depth, xlabel="time (s)", ylabel="tip depth z (mm)", marks=marks, x_range=xr, cursor=cursor
+    )
+    return speed, text
 
 
 def _recording_section(

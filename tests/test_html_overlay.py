@@ -1,0 +1,115 @@
+"""The fuller HTML replay: title, frame counter with units, legend and plots around
+viser's player, paused at 0 s unless autoplay is asked; checked in headless chromium on
+a real export."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from mistool.report import tip_plots
+from mistool.viewer.html_overlay import LegendEntry, decorate_replay_html
+
+CHROMIUM = Path("/usr/bin/chromium")
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--no-first-run"]
+FRAMES, FPS = 30, 10.0
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
+    from mistool.synth import synthesize
+    from mistool.synth.writer import SceneOptions
+    from mistool.viewer import export_html, load_sequence
+
+    folder = tmp_path_factory.mktemp("overlay")
+    scene = SceneOptions(width=360, height=288, focal_px=300.0)
+    synthesize(folder / "seq", frames=FRAMES, instruments=2, seed=3, fps=FPS, scene=scene)
+    sequence = load_sequence(folder / "seq", poses=folder / "seq" / "truth.csv")
+    export_html(sequence, folder / "replay.html", images=False)
+    from mistool.export import read_csv
+
+    _, plots = tip_plots(read_csv(folder / "seq" / "truth.csv"), fps=FPS, cursor=True)
+    return (folder / "replay.html").read_text(encoding="utf-8"), plots
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    if not CHROMIUM.exists():
+        pytest.fail(f"{CHROMIUM} is needed (apt-get install chromium)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
+        yield b
+        b.close()
+
+
+def _open(browser, tmp_path: Path, text: str):
+    out = tmp_path / "page.html"
+    out.write_text(text, encoding="utf-8")
+    page = browser.new_page(viewport={"width": 1100, "height": 700})
+    remote: list[str] = []
+    page.on("request", lambda r: remote.append(r.url) if r.url.startswith("http") else None)
+    page.goto(out.as_uri())
+    page.wait_for_selector("canvas[data-engine]", timeout=30000)
+    return page, remote
+
+
+def _frames_seen(page, seconds: float) -> set[str]:
+    seen = set()
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        seen.add(page.locator("#mistool-counter").get_attribute("data-frame") or "")
+        time.sleep(0.1)
+    return seen
+
+
+def _decorate(page_text: str, plots: str, autoplay: bool) -> str:
+    legend = [LegendEntry("instrument 1", "#1f77b4"), LegendEntry("instrument 2", "#ff7f0e")]
+    return decorate_replay_html(
+        page_text,
+        title="Lab replay",
+        fps=FPS,
+        num_frames=FRAMES,
+        legend=legend,
+        plots_html=plots,
+        note="camera frame, mm",
+        autoplay=autoplay,
+    )
+
+
+def test_paused_at_zero_without_autoplay(browser, exported, tmp_path: Path) -> None:
+    text, plots = exported
+    page, remote = _open(browser, tmp_path, _decorate(text, plots, autoplay=False))
+    try:
+        assert page.title().startswith("Lab replay")
+        assert page.locator("#mistool-panel h1").inner_text() == "Lab replay"
+        assert "instrument 2" in page.locator("#mistool-legend").inner_text()
+        assert page.locator("#mistool-plots svg").count() == 2
+        time.sleep(1.0)
+        assert _frames_seen(page, 1.5) == {"0"}
+        assert page.locator("#mistool-counter").inner_text().startswith("frame 0 (0–29) · 0.00 s")
+        assert page.locator("#mistool-counter").inner_text().endswith("3.00 s · 10 fps")
+        assert not remote, remote
+    finally:
+        page.close()
+
+
+def test_autoplay_when_asked_moves_counter_and_cursor(browser, exported, tmp_path) -> None:
+    text, plots = exported
+    page, _ = _open(browser, tmp_path, _decorate(text, plots, autoplay=True))
+    try:
+        cursor = page.locator("#mistool-plots line.cursor").first
+        xs = set()
+        frames = set()
+        end = time.monotonic() + 2.5
+        while time.monotonic() < end:
+            frames.add(page.locator("#mistool-counter").get_attribute("data-frame"))
+            xs.add(cursor.get_attribute("x1"))
+            time.sleep(0.1)
+        assert len(frames) >= 5 and len(xs) >= 5
+    finally:
+        page.close()
