@@ -196,15 +196,15 @@ def bridge_gaps(values: np.ndarray, max_gap: int, max_step: float = math.inf) ->
         A new (N, D) array.
     """
     out = np.array(values, dtype=np.float64, copy=True)
-    known = np.all(np.isfinite(out), axis=1)
-    idx = np.flatnonzero(known)
+    idx = np.flatnonzero(np.all(np.isfinite(out), axis=1))
     if len(idx) < 2:
         return out
-    for a, b in zip(idx[:-1], idx[1:], strict=True):
-        jump = float(np.linalg.norm(out[b] - out[a]))
-        if 1 < b - a <= max_gap + 1 and jump <= max_step * (b - a):
-            w = (np.arange(a + 1, b) - a) / (b - a)
-            out[a + 1 : b] = out[a] + w[:, None] * (out[b] - out[a])
+    gap = np.diff(idx)
+    jump = np.linalg.norm(np.diff(out[idx], axis=0), axis=1)
+    fill = (gap > 1) & (gap <= max_gap + 1) & (jump <= max_step * gap)
+    for a, b in zip(idx[:-1][fill].tolist(), idx[1:][fill].tolist(), strict=True):
+        w = (np.arange(a + 1, b) - a) / (b - a)
+        out[a + 1 : b] = out[a] + w[:, None] * (out[b] - out[a])
     return out
 
 
@@ -249,13 +249,23 @@ def drop_outliers(xyz: np.ndarray, max_step_mm: float, max_gap: int) -> np.ndarr
         max_gap: frames after which a sample is accepted whatever its distance.
     """
     out = np.array(xyz, dtype=np.float64, copy=True)
+    known = np.flatnonzero(np.all(np.isfinite(out), axis=1))
+    if len(known) < 2:
+        return out
+    gaps = np.diff(known)
+    steps = np.linalg.norm(np.diff(out[known], axis=0), axis=1)
+    if np.all((steps <= max_step_mm * gaps) | (gaps > max_gap)):
+        return out  # nothing to drop (the usual case): no per-sample loop
+    points = out[known].tolist()  # plain floats: the loop below runs per sample
     last = -1
-    for i in np.flatnonzero(np.all(np.isfinite(out), axis=1)):
-        if last >= 0 and i - last <= max_gap:
-            if float(np.linalg.norm(out[i] - out[last])) > max_step_mm * (i - last):
-                out[i] = np.nan
+    drop = []
+    for k, i in enumerate(known.tolist()):
+        if last >= 0 and i - known[last] <= max_gap:
+            if math.dist(points[k], points[last]) > max_step_mm * (i - known[last]):
+                drop.append(i)
                 continue
-        last = int(i)
+        last = k
+    out[drop] = np.nan
     return out
 
 
