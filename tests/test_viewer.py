@@ -343,7 +343,7 @@ def test_viewer_draws_frames_and_timeline_coalesces_scrubbing(sequence) -> None:
         tl.seek(k)
         assert tl.wait_shown(k)
         assert viewer.wait_overlay(k), "the overlay of the frame shown never arrived"
-        cyl = viewer.scene.cylinders[0, 0]
+        cyl = viewer.scene.parts[0, 0]
         assert cyl.visible == bool(viewer.replay.modes[viewer.scene.mode].visible[k, 0, 0])
     finally:
         viewer.close()
@@ -558,7 +558,7 @@ def test_single_frame_single_part_without_masks() -> None:
         viewer.timeline.set_playing(False)
         viewer._set_mode("metric")
         assert viewer.overlays is None and not viewer.timeline.draw_errors
-        assert viewer.scene.cylinders[0, 0].visible
+        assert viewer.scene.parts[0, 0].visible
     finally:
         viewer.close()
 

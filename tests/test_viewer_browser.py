@@ -275,8 +275,8 @@ def test_endoscope_view_lines_up_with_the_mask(browser, viewer: ReplayViewer) ->
                 lambda wh=(w, h): (client.camera.image_width, client.camera.image_height) == wh
             )
             time.sleep(0.5)  # the new layout follows the camera message
-            for cyl in viewer.scene.cylinders.values():
-                cyl.visible = False
+            for nodes in viewer.scene.parts.values():
+                nodes.hide()
             time.sleep(1.0)
             backdrop = _shot(page, {"x": 0, "y": 0, **size})
             client.scene.set_background_image(None)

@@ -1,8 +1,10 @@
-"""The 3D scene: linked cylinders per instrument, the endoscope frustum with the current
-mask on its image plane, a ground grid, and trails of each tip and joint.
+"""The 3D scene: each instrument's parts as meshes (:mod:`mistool.viewer.meshes`), the
+endoscope frustum with the current mask on its image plane, a ground grid, and trails of
+each tip and joint.
 
 World frame, units and the two display modes are described in :mod:`mistool.viewer.replay`.
-Node names: ``/instruments/<instrument>/<part>`` (one cylinder per part),
+Node names: ``/instruments/<instrument>/<part>`` (a part's body; its end cap and jaws
+beside it, see :mod:`mistool.viewer.meshes`),
 ``/endoscope`` (frustum), ``/grid``, ``/trails/<instrument>/tip`` and ``.../joint``.
 """
 
@@ -14,6 +16,7 @@ import re
 import numpy as np
 import viser
 
+from mistool.viewer.meshes import PartNodes
 from mistool.viewer.replay import R_WORLD_CAMERA, Replay, scene_extent
 
 #: Camera presets offered in the GUI.
@@ -78,7 +81,7 @@ class SceneView:
             ground_color=(110, 110, 120),
             intensity=1.6,
         )
-        self.cylinders: dict[tuple[int, int], viser.CylinderHandle] = {}
+        self.parts: dict[tuple[int, int], PartNodes] = {}
         fov, aspect = replay.fov_aspect()
         self.frustum = scene.add_camera_frustum(
             "/endoscope",
@@ -104,20 +107,18 @@ class SceneView:
     def add_instruments(self) -> None:
         """Create the nodes (cylinders, trails) of instruments the replay has gained."""
         scene, replay = self.server.scene, self.replay
-        known = {i for i, _ in self.cylinders}
+        known = {i for i, _ in self.parts}
         for i, inst in enumerate(replay.instruments):
             if i in known:
                 continue
             for p, part in enumerate(replay.parts):
-                self.cylinders[i, p] = scene.add_cylinder(
+                self.parts[i, p] = PartNodes(
+                    scene,
                     f"/instruments/{node_name(inst)}/{part}",
-                    radius=1.0,
-                    height=1.0,
-                    color=replay.part_colour(i, part),
-                    radial_segments=24,
-                    cast_shadow=False,
-                    receive_shadow=False,
-                    visible=False,
+                    part,
+                    replay.part_colour(i, part),
+                    replay.part_colour(i, "wrist"),
+                    with_wrist="wrist" not in replay.parts,
                 )
             for kind, part in (("tip", replay.parts[-1]), ("joint", "shaft")):
                 colour = np.array(replay.part_colour(i, part), dtype=np.uint8)
@@ -176,16 +177,12 @@ class SceneView:
         """Pose every cylinder and trail for ``frame`` (call inside ``server.atomic()``)."""
         self.frame = frame
         g = self.replay.modes[self.mode]
-        for (i, p), cyl in self.cylinders.items():
+        for (i, p), nodes in self.parts.items():
             if g.visible[frame, i, p]:
-                r = float(g.radius[frame, i, p])
-                cyl.position = g.centre[frame, i, p]
-                cyl.wxyz = g.wxyz[frame, i, p]
-                cyl.scale = (r, r, float(g.length[frame, i, p]))
-                if not cyl.visible:
-                    cyl.visible = True
-            elif cyl.visible:
-                cyl.visible = False
+                r, length = float(g.radius[frame, i, p]), float(g.length[frame, i, p])
+                nodes.show(g.centre[frame, i, p], g.wxyz[frame, i, p], length, r)
+            else:
+                nodes.hide()
         self._show_trails(frame)
 
     def set_trail_frames(self, n: int) -> None:
