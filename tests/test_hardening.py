@@ -278,34 +278,47 @@ def test_disk_full_is_one_line_and_keeps_the_old_output(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv", "seq"]
 
 
-def _run_cli(args: list[str], shell: str = "{cmd}") -> subprocess.CompletedProcess:
+def _start_cli(args: list[str], shell: str) -> subprocess.Popen:
+    """``mistool ARGS`` (this checkout's code) in bash, with ``shell`` around it."""
     import shlex
 
     cmd = shlex.join(
-        [sys.executable, "-c", "import sys; from mistool.cli import main; sys.exit(main())"] + args
+        [sys.executable, "-P", "-c", "import sys; from mistool.cli import main; sys.exit(main())"]
+        + args
     )
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     env.pop("MISTOOL_DEBUG", None)
-    return subprocess.run(
+    return subprocess.Popen(
         ["bash", "-c", shell.replace("{cmd}", cmd)],
-        capture_output=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
         text=True,
         env=env,
-        timeout=120,
     )
 
 
 def test_dash_output_into_a_closed_pipe_or_closed_stdout_is_one_line(tmp_path: Path) -> None:
+    """Real processes (both at once): the reader of the pipe exits before the table is
+    written, and stdout closed from the start (checked before tracking)."""
     seq = _seq(tmp_path)
-    piped = _run_cli(["track", str(seq), "-o", "-", "-q"], "{cmd} | true; exit ${PIPESTATUS[0]}")
-    closed = _run_cli(["track", str(seq), "-o", "-", "-q"], "{cmd} >&-")
-    for run, what in ((piped, "closed the pipe"), (closed, "standard output is closed")):
-        lines = run.stderr.splitlines()
-        assert run.returncode == 1, run.stderr
-        assert len(lines) == 1 and lines[0].startswith("mistool: error: "), run.stderr
+    args = ["track", str(seq), "-o", "-", "-q"]
+    piped = _start_cli(args, "{cmd} | true; exit ${PIPESTATUS[0]}")
+    closed = _start_cli(args, "{cmd} >&-")
+    for proc, what in ((piped, "closed the pipe"), (closed, "standard output is closed")):
+        _, err = proc.communicate(timeout=300)
+        lines = err.splitlines()
+        assert proc.returncode == 1, err
+        assert len(lines) == 1 and lines[0].startswith("mistool: error: "), err
         assert what in lines[0]
-    ok = _run_cli(["track", str(seq), "-o", "-", "-q"])
-    assert ok.returncode == 0 and ok.stdout.startswith("frame,") and ok.stderr == ""
+
+
+def test_dash_output_writes_the_table_to_stdout(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    seq = _seq(tmp_path)
+    assert main(["track", str(seq), "-o", "-", "-q"]) == 0
+    out, err = capsys.readouterr()
+    assert out.startswith("frame,") and out.count("\n") == 7 and err == ""
 
 
 # --- resources ---------------------------------------------------------------------------
@@ -513,16 +526,20 @@ def test_codec_log_lines_are_filtered_at_the_file_descriptor(
     assert capfd.readouterr().err == "mistool: warning: kept\n"
 
 
-def test_corrupt_png_prints_only_mistool_s_line(tmp_path: Path) -> None:
-    """A real process: libpng's own 'libpng error' lines do not reach the terminal."""
+def test_corrupt_png_prints_only_mistool_s_line(
+    tmp_path: Path, capfd: pytest.CaptureFixture
+) -> None:
+    """libpng's own 'libpng error' lines (written by C code to file descriptor 2) do not
+    reach the terminal; mistool's line does. With --debug they are shown."""
     seq = _seq(tmp_path)
-    (seq / "000001.png").write_bytes(_png(64, 48, b"\x07" * 10))  # bad filter bytes
-    run = _run_cli(["track", str(seq), "-o", str(tmp_path / "o.csv"), "-q"])
-    assert run.returncode == 1
-    assert run.stderr.splitlines() == [
+    (seq / "000001.png").write_bytes(_png(W, H, b"\x07" * 10))  # bad filter bytes
+    assert main(["track", str(seq), "-o", str(tmp_path / "o.csv"), "-q", "--workers", "1"]) == 1
+    assert capfd.readouterr().err.splitlines() == [
         f"mistool: error: {seq / '000001.png'}: cannot decode as an image "
         "(corrupt, truncated or not an image file)"
     ]
+    main(["track", str(seq), "-o", str(tmp_path / "o.csv"), "-q", "--debug", "--workers", "1"])
+    assert "libpng error" in capfd.readouterr().err
 
 
 # --- say what is odd -----------------------------------------------------------------
