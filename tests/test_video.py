@@ -101,3 +101,12 @@ def test_bad_input_leaves_nothing(sequence: Path, tmp_path: Path, capsys) -> Non
         == 1
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv"]
+
+
+def test_never_writes_over_an_input(sequence: Path, tmp_path: Path, capsys) -> None:
+    first = sorted(sequence.glob("*.png"))[0]
+    before = first.read_bytes()
+    poses = ["--poses", str(sequence / "truth.csv"), "-q"]
+    assert main(["export-video", str(sequence), "-o", str(first), *poses]) == 1
+    assert capsys.readouterr().err.startswith("mistool: error: ")
+    assert first.read_bytes() == before

@@ -53,9 +53,12 @@ def run(args: argparse.Namespace) -> int:
     from mistool.annotations import default_path, load_annotations
     from mistool.cli._recording import open_recording
     from mistool.errors import InputPathError
-    from mistool.sequence import open_sequence
+    from mistool.export import check_output
+    from mistool.sequence import inputs_of, open_sequence
     from mistool.video import export_video
 
+    # before the work: the video never replaces an input
+    check_output(args.output, [*inputs_of(args.sequence), args.poses, args.annotations])
     rec = open_recording(args.sequence, poses=args.poses, progress=not args.quiet)
     if rec.sequence is None or rec.config is None:
         raise InputPathError(
