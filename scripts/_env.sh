@@ -1,6 +1,6 @@
 # Shared set-up for scripts/serve.sh and scripts/test.sh (sourced, not run).
 # Creates .venv in the repository (once) and installs mistool into it, editable, with the
-# extras named by $1 ("" or "[test]"); skipped when pyproject.toml/setup.py are unchanged.
+# extras named by $1 ("" or "[test]"); skipped when pyproject.toml is unchanged.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -11,7 +11,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 VPY="$ROOT/.venv/bin/python"
 STAMP=".venv/.mistool-installed$1"
-WANT="$(cat pyproject.toml setup.py | sha256sum | cut -d' ' -f1)"
+WANT="$(sha256sum < pyproject.toml | cut -d' ' -f1)"
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ]; then
   LOG=".venv/install.log"
   if ! { "$VPY" -m pip install -q --upgrade pip && "$VPY" -m pip install -q -e ".$1"; } \
