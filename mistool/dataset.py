@@ -37,7 +37,7 @@ from mistool.config import CONFIG_NAME, Config, config_from_dict, load_config, t
 from mistool.errors import ConfigError, InputPathError, MistoolError
 from mistool.export import atomic_write, format_value
 from mistool.model import TrackTable
-from mistool.sequence import VIDEO_EXTENSIONS, list_frames, natural_key
+from mistool.sequence import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS, list_frames, natural_key
 
 #: The summary table's file name in the output folder.
 SUMMARY_NAME = "summary.csv"
@@ -88,8 +88,15 @@ class Options:
 def is_dataset(path: Path) -> bool:
     """Whether ``path`` is a dataset folder: no label images of its own, but sequence
     folders or mask videos inside."""
-    if not path.is_dir() or list_frames(path):
+    if not path.is_dir():
         return False
+    try:
+        with os.scandir(path) as entries:  # no sort, no stat: a sequence of 100k frames
+            for e in entries:  # answers at its first image
+                if Path(e.name).suffix.lower() in IMAGE_EXTENSIONS and not e.is_dir():
+                    return False
+    except OSError as exc:
+        raise InputPathError(f"{path}: cannot list folder: {exc.strerror or exc}") from None
     return bool(discover(path))
 
 

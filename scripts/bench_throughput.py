@@ -62,9 +62,18 @@ def synth(folder: Path, frames: int, instruments: int, seed: int) -> Path:
 
 
 def timed(fn: Callable[[], object]) -> float:
+    """Wall-clock seconds of one call."""
     start = time.perf_counter()
     fn()
     return time.perf_counter() - start
+
+
+def timed_cpu(fn: Callable[[], object]) -> tuple[float, float]:
+    """(wall-clock seconds, CPU seconds of this process) of one call: with workers, this
+    process's CPU time is the sequential part (identity, rows, refinement, writing)."""
+    start, cpu = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - start, time.process_time() - cpu
 
 
 def decode_all(files: list[str]) -> None:
@@ -90,7 +99,7 @@ def stages(seq: Path, out: Path) -> dict[str, float]:
 
     seqo = open_sequence(seq)
     cfg = seqo.config
-    pose = parallel.pose_module(True, cfg)
+    metric = parallel.metric_pose(True, cfg)
     tracker = tracking.IdentityTracker(cfg)
     rows = RowBuilder(cfg.fps)
     t = dict.fromkeys(("decode", "instances", "metric pose", "identity", "rows"), 0.0)
@@ -103,10 +112,10 @@ def stages(seq: Path, out: Path) -> dict[str, float]:
         found = tracking.observe_frame(labels, cfg)
         t2 = clock()
         shape = (labels.shape[0], labels.shape[1])
-        metrics = [parallel.measure(inst, shape, cfg, pose) for inst in found]
+        metrics = [parallel.measure(inst, shape, cfg, metric) for inst in found]
         t3 = clock()
         result = parallel.FrameResult(found, metrics, parallel.unknown_values(labels, cfg), shape)
-        names, result = api._identify(tracker, i, result, cfg, pose)
+        names, result = api._identify(tracker, i, result, cfg, metric)
         t4 = clock()
         rows.add_frame(i, names, result.instances, result.metrics)
         t5 = clock()
@@ -140,23 +149,34 @@ def bench_case(name: str, seq: Path, tmp: Path, workers: list[int], runs: int) -
             out = tmp / f"{name}_{w}_{metric}.csv"
             configs[key] = lambda w=w, metric=metric, out=out: track_cli(seq, out, w, metric)
     times: dict[str, list[float]] = {k: [] for k in configs}
+    cpus: dict[str, list[float]] = {k: [] for k in configs}
     for _ in range(runs):
         for key, fn in configs.items():
-            times[key].append(timed(fn))
-    return {k: statistics.median(v) for k, v in times.items()}
+            wall, cpu = timed_cpu(fn)
+            times[key].append(wall)
+            cpus[key].append(cpu)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    med.update({f"cpu {k}": statistics.median(v) for k, v in cpus.items()})
+    return med
 
 
 def print_case(name: str, n: int, med: dict[str, float], load: tuple[float, ...]) -> None:
     dec = n / med["decode"]
     print(f"\n{name}: {n} frames, load average {load[0]:.1f}")
-    print(f"  {'decode (cv2.imread UNCHANGED, 1 process)':44s} {dec:8.1f} frames/s")
+    print(
+        f"  {'decode (cv2.imread UNCHANGED, 1 process)':44s} {dec:8.1f} frames/s   "
+        f"CPU {1e3 * med['cpu decode'] / n:5.2f} ms/frame"
+    )
     for key, secs in med.items():
-        if key == "decode":
+        if key == "decode" or key.startswith("cpu "):
             continue
         fps = n / secs
-        print(f"  {key:44s} {fps:8.1f} frames/s   ratio to decode {fps / dec:5.2f}")
+        print(
+            f"  {key:44s} {fps:8.1f} frames/s   ratio to decode {fps / dec:5.2f}   "
+            f"CPU of the calling process {1e3 * med['cpu ' + key] / n:5.2f} ms/frame"
+        )
     for w in sorted({int(k.rsplit("w", 1)[1]) for k in med if k.startswith("track")}):
-        on, off = med[f"track metric w{w}"], med[f"track no-metric w{w}"]
+        on, off = med[f"track metric w{w}"], med[f"track no-metric w{w}"]  # wall-clock
         print(f"  metric / no-metric time, w{w}: {on / off:.2f}")
 
 
