@@ -478,7 +478,6 @@ class Tracker:
         self._last: dict[tuple[str, str], tuple[TrackTable, ...]] = {}
         self._shape: tuple[int, int] | None = None
         self._unknown: set[int] = set()
-        self._warned = False
 
     @property
     def num_frames(self) -> int:

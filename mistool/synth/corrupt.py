@@ -116,10 +116,6 @@ class Corruptor:
                 idx = np.flatnonzero(self._hidden[i])
                 self._hidden[i, idx[target:]] = False  # trim the overshoot
 
-    def hidden_clasper(self, instrument: int, frame: int) -> bool:
-        """Whether instrument ``instrument``'s clasper is hidden in ``frame``."""
-        return bool(self._hidden[instrument, frame])
-
     def apply(
         self,
         labels: np.ndarray,

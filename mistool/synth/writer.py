@@ -63,16 +63,6 @@ from mistool.synth.scene import (
 #: Lossy codecs this OpenCV build can write into ``masks.avi`` (checked with OpenCV 5.0).
 VIDEO_CODECS: dict[str, str] = {"mjpg": "MJPG", "xvid": "XVID", "mp4v": "mp4v"}
 
-#: Extra truth columns (after the known ones): the true joint angles and insertion.
-TRUTH_EXTRAS: tuple[str, ...] = (
-    "visible_frac",
-    "roll_deg",
-    "wrist_deg",
-    "jaw_yaw_deg",
-    "jaw_open_deg",
-    "insertion_mm",
-)
-
 
 @dataclass(frozen=True)
 class SceneOptions:

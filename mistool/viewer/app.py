@@ -60,13 +60,6 @@ class LoadedSequence:
     """Where more frames come from while the replay is shown (None: complete)."""
 
 
-def cache_dir() -> Path:
-    """Where tracked tables are cached (see :mod:`mistool.cache`)."""
-    from mistool.cache import cache_root
-
-    return cache_root()
-
-
 #: Tracking options of ``mistool serve`` (part of the cache key).
 SERVE_TRACKING = {"metric": True, "smoothing": "offline"}
 

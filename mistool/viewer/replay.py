@@ -795,15 +795,6 @@ def _distal_point(end_w: np.ndarray, visible: np.ndarray) -> np.ndarray:
     return out
 
 
-def default_camera_target(replay: Replay, mode: str) -> np.ndarray:
-    """A robust centre (world) of the instruments' cylinders in ``mode``: (3,)."""
-    g = replay.modes[mode]
-    pts = g.centre[g.visible]
-    if len(pts) == 0:
-        return np.array([0.0, g.image_distance, 0.0])
-    return np.median(pts, axis=0)
-
-
 def scene_extent(replay: Replay, mode: str) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) world corners of the 2nd..98th percentiles of the cylinders' ends,
     including the endoscope at the origin."""
