@@ -410,6 +410,91 @@ def identity_coverage(
     )
 
 
+#: Frame offset between stacked runs in :func:`tag_run` (longer runs would collide).
+RUN_FRAME_STRIDE = 100_000
+
+
+def tag_run(table: TrackTable, run: int, frame_stride: int = RUN_FRAME_STRIDE) -> TrackTable:
+    """One run's rows made distinct, so that several runs (e.g. seeds) stack into one table
+    for :func:`evaluate`: frames offset by ``run * frame_stride``, instrument names prefixed
+    with ``"<run>:"``.
+
+    Raises:
+        ValueError: a frame index at or beyond ``frame_stride``.
+    """
+    frames = np.asarray(table["frame"])
+    if len(frames) and int(frames.max()) >= frame_stride:
+        raise ValueError(f"frame {int(frames.max())} >= frame_stride {frame_stride}")
+    return table.with_columns(
+        frame=frames + run * frame_stride,
+        instrument=np.array([f"{run}:{i}" for i in table["instrument"]], dtype=object),
+    )
+
+
+def paper_3d_oracle(
+    pred: TrackTable, truth: TrackTable, fx: float, fy: float, cx: float, cy: float
+) -> TrackTable:
+    """The paper's per-frame output turned into a *generous* 3D estimate, with oracle help
+    from the truth: a baseline for the metric pose (the paper's z has no unit).
+
+    Depth ``Z = k * paper_z``, with ``k`` the least-squares scale to the true depth per part
+    over the table (an oracle); the end point the box centre back-projected at ``Z``; the
+    axis the box's long side in the image plane, with the sign of the truth's axis (another
+    oracle). Instruments are matched to the truth as :func:`evaluate` matches them.
+
+    Args:
+        pred: a motion table with the paper columns (``paper_z``, ``paper_x_px``,
+            ``paper_y_px``) and the boxes (``angle_deg``).
+        truth: the ground truth (``truth.csv`` of ``mistool synth``).
+        fx, fy, cx, cy: the camera intrinsics (px).
+
+    Returns:
+        ``pred`` with ``end_*_mm`` (mm) and ``axis_*`` (unit) filled as above; NaN where the
+        row has no matching truth row or no paper depth.
+    """
+    key = {
+        (int(f), str(i), str(p)): k
+        for k, (f, i, p) in enumerate(
+            zip(truth["frame"], truth["instrument"], truth["part"], strict=True)
+        )
+    }
+    n = pred.num_rows
+    tz = np.full(n, np.nan)
+    ta = np.full((n, 3), np.nan)
+    mapping = match_instruments(pred, truth)
+    for r in range(n):
+        k = key.get(
+            (
+                int(pred["frame"][r]),
+                mapping.get(str(pred["instrument"][r]), ""),
+                str(pred["part"][r]),
+            )
+        )
+        if k is not None:
+            tz[r] = truth["end_z_mm"][k]
+            ta[r] = [truth["axis_x"][k], truth["axis_y"][k], truth["axis_z"][k]]
+    z = np.full(n, np.nan)
+    pz = pred["paper_z"]
+    for part in set(pred["part"]):
+        sel = (pred["part"] == part) & np.isfinite(pz) & np.isfinite(tz)
+        if sel.any():
+            scale = float(np.sum(pz[sel] * tz[sel]) / np.sum(pz[sel] ** 2))
+            z[pred["part"] == part] = scale * pz[pred["part"] == part]
+    px, py = pred["paper_x_px"], pred["paper_y_px"]
+    theta = np.radians(pred["angle_deg"])
+    axis = np.stack([np.cos(theta), np.sin(theta), np.zeros(n)], axis=1)
+    flip = np.sum(axis * np.nan_to_num(ta), axis=1) < 0
+    axis[flip] *= -1
+    return pred.with_columns(
+        end_x_mm=(px - cx) / fx * z,
+        end_y_mm=(py - cy) / fy * z,
+        end_z_mm=z,
+        axis_x=axis[:, 0],
+        axis_y=axis[:, 1],
+        axis_z=axis[:, 2],
+    )
+
+
 def _pm(s: dict[str, float], digits: int = 2) -> str:
     if not s["n"]:
         return "-"

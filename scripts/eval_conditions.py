@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from mistool.api import track
-from mistool.evaluation import evaluate
+from mistool.evaluation import evaluate, paper_3d_oracle
 from mistool.model import TrackTable
 from mistool.synth import Corruptions, synthesize
 
@@ -45,57 +45,6 @@ CONDITIONS: dict[str, tuple[Corruptions, str | None]] = {
     "clasper hidden 30%": (Corruptions(hide_clasper=0.3), None),
     "xvid video": (Corruptions(), "xvid"),
 }
-
-
-def paper_3d_oracle(
-    pred: TrackTable, truth: TrackTable, fx: float, fy: float, cx: float, cy: float
-) -> TrackTable:
-    """The paper's per-frame output turned into a 3D estimate with oracle help (see the
-    module docstring): fills end_*_mm and axis_* of ``pred``."""
-    key = {
-        (int(f), str(i), str(p)): k
-        for k, (f, i, p) in enumerate(
-            zip(truth["frame"], truth["instrument"], truth["part"], strict=True)
-        )
-    }
-    n = pred.num_rows
-    tz = np.full(n, np.nan)
-    ta = np.full((n, 3), np.nan)
-    # instruments are matched as the evaluation does
-    from mistool.evaluation import match_instruments
-
-    mapping = match_instruments(pred, truth)
-    for r in range(n):
-        k = key.get(
-            (
-                int(pred["frame"][r]),
-                mapping.get(str(pred["instrument"][r]), ""),
-                str(pred["part"][r]),
-            )
-        )
-        if k is not None:
-            tz[r] = truth["end_z_mm"][k]
-            ta[r] = [truth["axis_x"][k], truth["axis_y"][k], truth["axis_z"][k]]
-    z = np.full(n, np.nan)
-    pz = pred["paper_z"]
-    for part in set(pred["part"]):
-        sel = (pred["part"] == part) & np.isfinite(pz) & np.isfinite(tz)
-        if sel.any():
-            scale = float(np.sum(pz[sel] * tz[sel]) / np.sum(pz[sel] ** 2))
-            z[pred["part"] == part] = scale * pz[pred["part"] == part]
-    px, py = pred["paper_x_px"], pred["paper_y_px"]
-    theta = np.radians(pred["angle_deg"])
-    axis = np.stack([np.cos(theta), np.sin(theta), np.zeros(n)], axis=1)
-    flip = np.sum(axis * np.nan_to_num(ta), axis=1) < 0
-    axis[flip] *= -1
-    return pred.with_columns(
-        end_x_mm=(px - cx) / fx * z,
-        end_y_mm=(py - cy) / fy * z,
-        end_z_mm=z,
-        axis_x=axis[:, 0],
-        axis_y=axis[:, 1],
-        axis_z=axis[:, 2],
-    )
 
 
 def _pm(s: dict) -> str:

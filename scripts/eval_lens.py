@@ -32,7 +32,7 @@ import numpy as np
 
 from mistool.api import track
 from mistool.config import load_config
-from mistool.evaluation import evaluate
+from mistool.evaluation import evaluate, tag_run
 from mistool.lens import undistort_points
 from mistool.model import TrackTable
 from mistool.synth import Corruptions, SceneOptions, synthesize
@@ -59,13 +59,6 @@ def corner_barrel(scene: SceneOptions) -> float:
     return 1.0 - float(np.linalg.norm(corner[0] - c) / np.linalg.norm(ideal - c))
 
 
-def _tag(table: TrackTable, seed: int) -> TrackTable:
-    return table.with_columns(
-        frame=table["frame"] + seed * 100000,
-        instrument=np.array([f"{seed}:{i}" for i in table["instrument"]], dtype=object),
-    )
-
-
 def run_lens(
     scene: SceneOptions, frames: int, seeds: list[int], instruments: int, tmp: Path
 ) -> dict[str, dict]:
@@ -82,12 +75,12 @@ def run_lens(
             scene=scene,
             force=True,
         )
-        truths.append(_tag(res.truth, seed))
+        truths.append(tag_run(res.truth, seed))
         cfg = load_config(out / "mistool.toml")
         assert cfg.camera is not None
         pinhole = replace(cfg, camera=replace(cfg.camera, distortion=(), model="pinhole"))
-        preds["lens model"].append(_tag(track(out, cfg), seed))
-        preds["pinhole assumed"].append(_tag(track(out, pinhole), seed))
+        preds["lens model"].append(tag_run(track(out, cfg), seed))
+        preds["pinhole assumed"].append(tag_run(track(out, pinhole), seed))
     rep = evaluate({k: TrackTable.concat(v) for k, v in preds.items()}, TrackTable.concat(truths))
     return {m.name: m.parts for m in rep.methods}
 

@@ -5,7 +5,7 @@ For each condition, ``mistool.synth.synthesize`` renders the same seeded motion 
 labels, 720x576, f = 600 px, 8 mm shafts at 50-150 mm) with one kind of mask corruption,
 ``mistool.track`` tracks it with each temporal filter (``offline``, ``online``, ``none``),
 and ``mistool.evaluation.evaluate`` scores it against ``truth.csv``. Beside it, the paper
-method's generous "3D" (``paper_3d_oracle`` of ``scripts/eval_conditions.py``: its unitless
+method's generous "3D" (``mistool.evaluation.paper_3d_oracle``: its unitless
 z scaled to the true depth by an oracle least-squares factor, the axis signed by the truth).
 
 Reported per condition and method: metric coverage (rows with a finite ``end_*_mm`` among
@@ -25,17 +25,14 @@ Usage: /work/venv/bin/python scripts/eval_metric.py [--frames 100] [--seeds 0 1]
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 from mistool.api import track
-from mistool.evaluation import evaluate
+from mistool.evaluation import evaluate, paper_3d_oracle, tag_run
 from mistool.model import TrackTable
 from mistool.synth import Corruptions, synthesize
 
@@ -53,26 +50,9 @@ CONDITIONS: dict[str, Corruptions] = {
 METHODS = ("metric offline", "metric online", "metric none", "paper-3D (oracle)")
 
 
-def _paper_oracle():
-    path = Path(__file__).with_name("eval_conditions.py")
-    spec = importlib.util.spec_from_file_location("eval_conditions", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)  # type: ignore[union-attr]
-    return mod.paper_3d_oracle
-
-
-def _tag(table: TrackTable, seed: int) -> TrackTable:
-    """Offset frames and prefix instrument names so that seeds stack into one table."""
-    return table.with_columns(
-        frame=table["frame"] + seed * 100000,
-        instrument=np.array([f"{seed}:{i}" for i in table["instrument"]], dtype=object),
-    )
-
-
 def run_condition(
     corr: Corruptions, frames: int, seeds: list[int], instruments: int, tmp: Path
 ) -> dict[str, dict]:
-    oracle = _paper_oracle()
     preds: dict[str, list[TrackTable]] = {m: [] for m in METHODS}
     truths = []
     for seed in seeds:
@@ -80,15 +60,15 @@ def run_condition(
         res = synthesize(
             out, frames=frames, instruments=instruments, seed=seed, corruptions=corr, force=True
         )
-        truth = _tag(res.truth, seed)
+        truth = tag_run(res.truth, seed)
         truths.append(truth)
         for mode in ("offline", "online", "none"):
-            table = _tag(track(out, smoothing=mode), seed)
+            table = tag_run(track(out, smoothing=mode), seed)
             preds[f"metric {mode}"].append(table)
             if mode == "none":
                 cam = res.config.camera
                 preds["paper-3D (oracle)"].append(
-                    oracle(table, truth, cam.fx, cam.fy, cam.cx, cam.cy)
+                    paper_3d_oracle(table, truth, cam.fx, cam.fy, cam.cx, cam.cy)
                 )
     rep = evaluate({k: TrackTable.concat(v) for k, v in preds.items()}, TrackTable.concat(truths))
     return {m.name: m.parts for m in rep.methods}

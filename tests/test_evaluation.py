@@ -275,3 +275,69 @@ def test_identity_coverage_of_nothing_found():
     t = _truth(4)
     got = identity_coverage(t[t["frame"] < 0], t)
     assert got.coverage == 0.0 and got.names == 0 and got.parts["shaft"] == 0.0
+
+
+def test_tag_run_stacks_runs_without_collisions() -> None:
+    from mistool.evaluation import RUN_FRAME_STRIDE, tag_run
+
+    t = TrackTable(
+        {
+            "frame": np.array([0, 3]),
+            "instrument": np.array(["1", "2"], dtype=object),
+            "part": np.array(["shaft", "shaft"], dtype=object),
+        }
+    )
+    a, b = tag_run(t, 0), tag_run(t, 7)
+    assert list(a["frame"]) == [0, 3] and list(a["instrument"]) == ["0:1", "0:2"]
+    assert list(b["frame"]) == [7 * RUN_FRAME_STRIDE, 7 * RUN_FRAME_STRIDE + 3]
+    assert list(b["instrument"]) == ["7:1", "7:2"]
+    both = TrackTable.concat([a, b])
+    keys = set(zip(both["frame"], both["instrument"], strict=True))
+    assert len(keys) == 4
+    with pytest.raises(ValueError, match="frame_stride"):
+        tag_run(t, 1, frame_stride=3)
+
+
+def test_paper_3d_oracle_back_projects_a_depth_proportional_to_paper_z() -> None:
+    from mistool.evaluation import paper_3d_oracle
+
+    fx, fy, cx, cy = 500.0, 400.0, 320.0, 240.0
+    end = np.array([[10.0, 5.0, 100.0], [-20.0, 3.0, 80.0], [4.0, -6.0, 120.0]])
+    axis = np.array([[-1.0, 0.0, 0.0], [0.6, 0.8, 0.0], [0.0, 0.0, 1.0]])
+    n = len(end)
+    common = {
+        "frame": np.arange(n),
+        "instrument": np.array(["a"] * n, dtype=object),
+        "part": np.array(["shaft"] * n, dtype=object),
+        "cx_px": fx * end[:, 0] / end[:, 2] + cx,
+        "cy_px": fy * end[:, 1] / end[:, 2] + cy,
+    }
+    truth = TrackTable(
+        {
+            **common,
+            "end_x_mm": end[:, 0],
+            "end_y_mm": end[:, 1],
+            "end_z_mm": end[:, 2],
+            "axis_x": axis[:, 0],
+            "axis_y": axis[:, 1],
+            "axis_z": axis[:, 2],
+        }
+    )
+    pred = TrackTable(
+        {
+            **common,
+            "instrument": np.array(["7"] * n, dtype=object),
+            "paper_z": 0.25 * end[:, 2],  # proportional to depth: the oracle's scale is exact
+            "paper_x_px": common["cx_px"],
+            "paper_y_px": common["cy_px"],
+            "angle_deg": np.array([30.0, 45.0, 120.0]),
+        }
+    )
+    out = paper_3d_oracle(pred, truth, fx, fy, cx, cy)
+    got = np.stack([out["end_x_mm"], out["end_y_mm"], out["end_z_mm"]], axis=1)
+    np.testing.assert_allclose(got, end, rtol=1e-12)
+    ax = np.stack([out["axis_x"], out["axis_y"], out["axis_z"]], axis=1)
+    np.testing.assert_allclose(np.linalg.norm(ax, axis=1), 1.0)
+    assert np.all(ax[:, 2] == 0)  # the box's long side, in the image plane
+    assert np.all(np.sum(ax * axis, axis=1) >= 0)  # the truth's sign (the oracle)
+    np.testing.assert_allclose(np.abs(ax[0]), [math.cos(math.radians(30)), 0.5, 0], atol=1e-12)
