@@ -800,9 +800,11 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
         )
     colour = config.colour_masks
     stem = path.stem
+    widened = widen_for_video(config)
 
     def frames() -> Iterator[Frame]:
         vc = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+        check = _VideoCheck(path, widened, count)
         try:
             index = 0
             while True:
@@ -816,29 +818,73 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
                     labels = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
                 else:
                     labels = to_labels(img, where, colour=False)
+                check.see(index, labels)
                 yield Frame(index, f"{path.name}#{index}", _constant(labels))
                 index += 1
             if index == 0:
                 raise MaskFormatError(f"{path}: the video has no readable frame")
-            if count > index:
-                warnings.warn(
-                    f"{path}: the video ended after {index} of the {count} frames its "
-                    "header announces (truncated or corrupt file); the rest is not tracked",
-                    InputWarning,
-                    stacklevel=2,
-                )
+            check.finish(index)
         finally:
             vc.release()
 
     return MaskSequence(
         "video",
         stem,
-        widen_for_video(config),
+        widened,
         frames,
         count if count > 0 else None,
         path,
         lossy=True,
     )
+
+
+#: A mask video frame with more than this fraction of its pixels neither background nor
+#: in a (widened) part range looks like decoded garbage (real smear is a thin edge).
+GARBAGE_FRACTION: float = 0.2
+
+
+class _VideoCheck:
+    """Says what is odd about a mask video once it has been read: fewer frames than its
+    header announces, frames that look like decoded garbage."""
+
+    def __init__(self, path: Path, config: Config, count: int) -> None:
+        self.path, self.count = path, count
+        self.garbage: list[int] = []
+        self.lut: np.ndarray | None = None
+        if not config.colour_masks:
+            known = np.zeros(256, np.uint8)
+            known[: VIDEO_TOLERANCE + 1] = 1  # background and its smear
+            for lo, hi in _all_ranges(config):
+                known[max(lo, 0) : min(hi, 255) + 1] = 1
+            self.lut = known
+
+    def see(self, index: int, labels: np.ndarray) -> None:
+        """Check one decoded 8-bit grey frame."""
+        if self.lut is None or labels.dtype != np.uint8 or labels.ndim != 2:
+            return
+        unknown = labels.size - cv2.countNonZero(cv2.LUT(labels, self.lut))
+        if unknown > GARBAGE_FRACTION * labels.size:
+            self.garbage.append(index)
+
+    def finish(self, frames: int) -> None:
+        """Warn (:class:`InputWarning`) about what was seen, after the last frame."""
+        if self.count > frames:
+            warnings.warn(
+                f"{self.path}: the video ended after {frames} of the {self.count} frames its "
+                "header announces (truncated or corrupt file); the rest is not tracked",
+                InputWarning,
+                stacklevel=3,
+            )
+        if self.garbage:
+            shown = ", ".join(f"#{i}" for i in self.garbage[:5])
+            more = ", ..." if len(self.garbage) > 5 else ""
+            warnings.warn(
+                f"{self.path}: {len(self.garbage)} frame(s) look corrupt ({shown}{more}: more "
+                f"than {GARBAGE_FRACTION:.0%} of their pixels are no label value of "
+                "mistool.toml); their instruments may be spurious",
+                InputWarning,
+                stacklevel=3,
+            )
 
 
 def _video_count(cap: Any) -> int:

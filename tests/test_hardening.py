@@ -562,6 +562,20 @@ def test_a_truncated_mask_video_warns(tmp_path: Path, capsys: pytest.CaptureFixt
     assert re.search(r"mistool: warning: .*masks\.avi: the video ended after \d+ of the 30", err)
 
 
+def test_a_mask_video_with_garbage_frames_warns(tmp_path: Path) -> None:
+    """A frame decoded as noise (most pixels no label value) is named; clean frames of
+    the same video (with their codec smear) are not."""
+    path = tmp_path / "masks.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25, (W, H), False)
+    noise = np.random.default_rng(0).integers(0, 256, (H, W), dtype=np.uint8)
+    for i in range(8):
+        writer.write(noise if i == 5 else _frame(i))
+    writer.release()
+    with pytest.warns(InputWarning, match=r"1 frame\(s\) look corrupt \(#5:"):
+        frames = list(seqmod.open_sequence(path))
+    assert len(frames) == 8
+
+
 def test_source_that_disagrees_with_the_masks_warns(tmp_path: Path) -> None:
     _video(tmp_path / "short.avi", 2)
     _video(tmp_path / "small.avi", 3, size=(64, 48))
