@@ -9,8 +9,8 @@ import threading
 from typing import Any
 
 DESCRIPTION = """\
-Replay a recorded procedure in 3D in the browser: every instrument's shaft and clasper as
-two linked cylinders following the tracked motion, the endoscope as a frustum showing the
+Replay a recorded procedure in 3D in the browser: every instrument (shaft with its round
+end, wrist, two jaws) following the tracked motion, the endoscope as a frustum showing the
 current mask, a ground grid, a timeline (slider, play/pause, speed 0.25x-4x, step, loop),
 the 2D overlay (mask blended over the procedure's own video when mistool.toml gives
 'source', with each part's rotated box), camera presets (Endoscope, Side, Top, Reset),
