@@ -84,8 +84,9 @@ def seq(d: Path, n: int = 4, toml: str | None = None, name: str = "seq") -> Path
     s.mkdir()
     for i, f in enumerate(sorted(SAMPLE.glob("*.png"))[FIRST : FIRST + n]):
         shutil.copy(f, s / f"{i:06d}.png")
-    if toml is None:
-        shutil.copy(SAMPLE / "mistool.toml", s / "mistool.toml")
+    if toml is None:  # the sample's config without its source video
+        text = (SAMPLE / "mistool.toml").read_text()
+        (s / "mistool.toml").write_text(re.sub(r"(?m)^source\s*=.*\n", "", text))
     else:
         (s / "mistool.toml").write_text(toml)
     return s
@@ -547,12 +548,14 @@ def _table_command_out(d: Path, command: str) -> list[str]:
 
 
 def _export_missing_folder(d: Path) -> list[str]:
-    s = seq(d, n=30)
+    s = seq(d)
+    (s / "000003.png").write_bytes(b"not a png")  # tracking would fail on this frame
     return ["export-html", str(s), "--no-cache", "-o", str(d / "nope" / "r.html"), "-q"]
 
 
 def _export_missing_check(d: Path, r: Run) -> bool:
-    return r.seconds < 8.0  # refused before tracking 30 frames (tracking alone takes longer)
+    """The output folder is reported, not the corrupt frame: checked before the work."""
+    return "nope" in r.stderr and "000003.png" not in r.stderr
 
 
 def _symlink_loop_frames(d: Path) -> list[str]:
