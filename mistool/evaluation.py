@@ -344,6 +344,11 @@ class IdentityCoverage:
     """Distinct instrument names the prediction handed out."""
     true_names: int
     """Distinct instruments of the truth."""
+    detected: float = math.nan
+    """The same share among the *detected* truth rows only: those for which the
+    prediction has some row of that part in that frame nearer to this instrument than
+    to any other (under any name). A part hidden in the masks themselves (an occluder
+    over a head: the truth comes from the clean render) is then no identity error."""
 
 
 def identity_coverage(
@@ -390,23 +395,31 @@ def identity_coverage(
     by_frame_part: dict[tuple[int, str], list[tuple[str, float, float]]] = {}
     for f, i, p, x, y in t_rows:
         by_frame_part.setdefault((f, p), []).append((i, x, y))
+
+    def nearest(f: int, p: str, xy: tuple[float, float]) -> str:
+        rows = by_frame_part[(f, p)]
+        return min(rows, key=lambda r: math.hypot(r[1] - xy[0], r[2] - xy[1]))[0]
+
+    detected: set[tuple[int, str, str]] = set()  # (frame, truth instrument, part)
+    for (f, _, p), xy in p_xy.items():
+        if (f, p) in by_frame_part:
+            detected.add((f, nearest(f, p, xy), p))
     hits: dict[str, list[bool]] = {}
+    n_det = n_det_hit = 0
     for f, i, p, _, _ in t_rows:
         got = p_xy.get((f, name_of.get(i, ""), p))
-        ok = (
-            got is not None
-            and min(by_frame_part[(f, p)], key=lambda r: math.hypot(r[1] - got[0], r[2] - got[1]))[
-                0
-            ]
-            == i
-        )
+        ok = got is not None and nearest(f, p, got) == i
         hits.setdefault(p, []).append(ok)
+        if (f, i, p) in detected:
+            n_det += 1
+            n_det_hit += ok
     every = [h for p in hits for h in hits[p]]
     return IdentityCoverage(
         coverage=sum(every) / len(every) if every else math.nan,
         parts={p: sum(hits[p]) / len(hits[p]) for p in PARTS if p in hits},
         names=len({str(x) for x in pred["instrument"]}),
         true_names=len({str(x) for x in truth["instrument"]}),
+        detected=n_det_hit / n_det if n_det else math.nan,
     )
 
 

@@ -341,3 +341,17 @@ def test_paper_3d_oracle_back_projects_a_depth_proportional_to_paper_z() -> None
     assert np.all(ax[:, 2] == 0)  # the box's long side, in the image plane
     assert np.all(np.sum(ax * axis, axis=1) >= 0)  # the truth's sign (the oracle)
     np.testing.assert_allclose(np.abs(ax[0]), [math.cos(math.radians(30)), 0.5, 0], atol=1e-12)
+
+
+def test_identity_coverage_among_detected_rows():
+    t = _truth(10)
+    hidden = (t["instrument"] == "2") & (t["part"] == "clasper") & (t["frame"] >= 5)
+    pred = t[~hidden]  # tool 2's clasper hidden in the masks for 5 frames: not detected
+    got = identity_coverage(pred, t)
+    assert got.coverage == pytest.approx(35 / 40) and got.detected == 1.0
+    inst = pred["instrument"].copy()
+    late = pred["frame"] >= 8
+    inst[late] = np.where(inst[late] == "1", "2", "1")  # names swap in the last 2 frames
+    got = identity_coverage(pred.with_columns(instrument=inst), t)
+    # 35 rows detected (the swapped rows are still near a tool), 35 - 2 x 3 right
+    assert got.detected == pytest.approx(29 / 35)

@@ -113,10 +113,12 @@ def test_cost_is_pure_and_weighted():
 def test_reach_rules_table():
     names = [r.name for r in REACH_RULES]
     assert len(names) == len(set(names)) >= 4
-    head = next(r for r in REACH_RULES if r.piece == "head" and r.target == "shaft")
+    head = next(r for r in REACH_RULES if r.name == "head of a shaft")
     assert head.reach(100.0, 40000.0) == pytest.approx(max(head.base_px, head.frac * 200.0))
-    inner = next(r for r in REACH_RULES if r.piece == "inner head")
+    inner = next(r for r in REACH_RULES if r.name == "head cut off")
     assert inner.reach(1e8, 1.0) == inner.cap_px  # scaled by the piece, capped
+    border = next(r for r in REACH_RULES if r.name == "head at the border")
+    assert border.piece == "border head" and border.reach(1.0, 1e8) == border.base_px
 
 
 def _imports(path: Path) -> set[str]:

@@ -52,7 +52,14 @@ from mistool.tracking.split import (
     split_pieces,
 )
 
-__all__ = ["CostWeights", "IdentityTracker", "Track", "TrackState", "track_cost"]
+__all__ = [
+    "CostWeights",
+    "IdentityTracker",
+    "Track",
+    "TrackState",
+    "shaft_entry",
+    "track_cost",
+]
 
 #: A track unseen for more than this many frames is lost: it is looked for near where
 #: it was last seen (its prediction goes no further than this many frames).
@@ -113,9 +120,12 @@ class CostWeights:
     """... starting from at most this fraction of the image diagonal (an instrument comes
     back near where it left, through its trocar; a large one is no wider gate)."""
     entry_scale_frac: float = 0.1
-    """Splitting a blob on its shafts' entries: a track takes the piece entering the view
-    nearest to where its own shaft last entered, at a cost of one per this fraction of
-    the image diagonal."""
+    """Where shafts enter the view: a track takes an instance whose shaft enters the view
+    far from where its own last entered at a cost of :attr:`entry` (and, splitting a
+    blob on its shafts' entries, of one) per this fraction of the image diagonal (a
+    shaft pivots about its trocar: its entry point moves slowly)."""
+    entry: float = 0.5
+    """Weight of that entry-point distance in :func:`track_cost`."""
 
 
 @dataclass
@@ -167,15 +177,29 @@ def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
     return box.angle_deg, (box.length - box.width) / box.length
 
 
+def shaft_entry(inst: InstanceObservation) -> np.ndarray | None:
+    """(2,) px where the instance's one shaft enters the view, or None (no shaft at the
+    border, or several: a blob)."""
+    runs = border_runs(inst)
+    return runs[0][0][1] if len(runs) == 1 else None
+
+
 def track_cost(
-    t: Track, inst: InstanceObservation, frame: int, weights: CostWeights, fps: float
+    t: Track,
+    inst: InstanceObservation,
+    frame: int,
+    weights: CostWeights,
+    fps: float,
+    entry: np.ndarray | None = None,
 ) -> float:
     """Cost of giving instance ``inst`` the name of track ``t`` at ``frame`` (pure).
 
     Distance from the track's prediction in units of its size (a lost track's size
     bounded by :attr:`CostWeights.lost_scale_frac` of the image diagonal and growing
     with time unseen), plus direction and area terms, a per-frame-unseen term, and a
-    penalty for a track hidden in another's blob.
+    penalty for a track hidden in another's blob, and the distance between where the
+    instance's shaft enters the view (``entry``, :func:`shaft_entry`) and where the
+    track's last did.
     """
     gap = frame - t.last_frame
     lost = t.state is TrackState.LOST
@@ -197,6 +221,10 @@ def track_cost(
     cost += weights.gap * (gap - 1)
     if t.state is TrackState.HIDDEN:  # a shared blob keeps its name: no flapping
         cost += weights.hidden_penalty
+    if entry is not None and t.entry is not None and inst.image_shape is not None:
+        diag = math.hypot(*inst.image_shape)
+        dist = float(np.hypot(*(entry - t.entry)))
+        cost += weights.entry * dist / (weights.entry_scale_frac * diag)
     return cost
 
 
@@ -319,15 +347,18 @@ class IdentityTracker:
                 t.state = TrackState.LOST
         return live
 
-    def _cost(self, t: Track, inst: InstanceObservation, frame: int) -> float:
-        return track_cost(t, inst, frame, self._weights, self._config.fps)
+    def _cost(
+        self, t: Track, inst: InstanceObservation, frame: int, entry: np.ndarray | None = None
+    ) -> float:
+        return track_cost(t, inst, frame, self._weights, self._config.fps, entry)
 
     def _match(self, fr: _Frame) -> None:
         """One gated assignment of live tracks to instances."""
         cost = np.full((len(fr.live), len(fr.instances)), np.inf)
+        entries = [shaft_entry(inst) for inst in fr.instances]
         for a, t in enumerate(fr.live):
             for b, inst in enumerate(fr.instances):
-                cost[a, b] = self._cost(t, inst, fr.index)
+                cost[a, b] = self._cost(t, inst, fr.index, entries[b])
         fr.owner = {b: a for a, b in gated_assignment(cost, self._weights.max_cost)}
 
     def _find_hidden(self, fr: _Frame) -> None:
@@ -397,14 +428,13 @@ class IdentityTracker:
         # tracks believed hidden in a blob that was not split may be found elsewhere
         spare = [a for a in range(len(fr.live)) if a not in used]
         for b, inst in enumerate(fr.instances):
-            if b in fr.pieces:
-                continue
             group = ([fr.owner[b]] + fr.blob_of.get(b, [])) if b in fr.owner else []
             entries = border_entries(inst)
             if len(entries) < max(2, len(group)):
                 continue
-            if len(entries) == len(group) and b not in fr.blob_of:
+            if len(entries) == len(group) and (b not in fr.blob_of or b in fr.pieces):
                 continue  # as many shafts as instruments known: nothing new
+            # (a blob the crossing handler split, holding one more tool entering: redone)
             got = split_on_entries(inst, entries, max(self._config.min_area_px, 1))
             if got is None:
                 continue

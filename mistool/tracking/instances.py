@@ -61,8 +61,9 @@ class ReachRule:
     name: str
     """What the rule is for (documentation)."""
     piece: str
-    """``"shaft"``, ``"head"``, or ``"inner head"`` (a head not touching the image
-    border: its shaft cannot be beyond the border, so an occluder hides it)."""
+    """``"shaft"``, ``"head"``, ``"inner head"`` (a head not touching the image border:
+    its shaft cannot be beyond the border, so an occluder hides it) or ``"border head"``
+    (a head touching the border: maybe a tool entering head first)."""
     target: str
     """``"shaft"`` or ``"head"``."""
     base_px: float
@@ -88,7 +89,10 @@ REACH_RULES: tuple[ReachRule, ...] = (
     # a small shaft piece next to a much larger one (a shaft cut by a hole or jitter)
     ReachRule("shaft fragment", "shaft", "shaft", base_px=30.0, max_area_ratio=0.25),
     # open jaws, a clasper cut in pieces: not new instruments
-    ReachRule("head of a shaft", "head", "shaft", base_px=30.0, frac=0.8),
+    ReachRule("head of a shaft", "inner head", "shaft", base_px=30.0, frac=0.8),
+    # a head at the image border may be a tool entering head first (its shaft beyond
+    # the border): it joins a shaft only from near
+    ReachRule("head at the border", "border head", "shaft", base_px=30.0),
     # a head inside the view whose shaft an occluder hides (a speck reaches little)
     ReachRule("head cut off", "inner head", "shaft", 0.0, 2.5, "piece", cap_px=100.0),
     # the two jaws of an open clasper entering the view head first: larger heads first
@@ -398,7 +402,7 @@ def group_components(
 def _kind(root: int, has_shaft: dict[int, bool], border: np.ndarray) -> set[str]:
     if has_shaft[root]:
         return {"shaft"}
-    return {"head"} if border[root] else {"head", "inner head"}
+    return {"head", "border head"} if border[root] else {"head", "inner head"}
 
 
 def _nearest_pair(
