@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from test_pose import CAM, SHAPE, R, observe, render
@@ -115,3 +116,40 @@ def test_track_without_camera_or_metric_says_so():
     tracker = Tracker(Config(camera=CAM))
     rows = tracker.update(frames[0])
     assert rows["pose_status"].tolist() == ["ok", "ok"]
+
+
+def test_a_shaft_cut_across_is_measured_as_one_shaft():
+    """A thin background band across the shaft (a specular streak, a segmentation gap)
+    leaves two collinear pieces: they are one shaft (joint and tip measured), not two
+    tools touching ("merged")."""
+    J, a = np.array([5.0, 0.0, 100.0]), np.array([1.0, 0.2, 0.3]) / np.linalg.norm([1, 0.2, 0.3])
+    labels, tip = render(J, a)
+    clean = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 10.0)
+    cut = labels.copy()
+    ys, xs = np.nonzero(cut == 160)
+    p = np.array([np.percentile(xs, 40), 0.0])
+    p[1] = ys[np.argmin(np.abs(xs - p[0]))]
+    # a line across the shaft's image direction, 3 px wide, through a point 40% along it
+    d = np.array([-(ys.max() - ys.min()), xs.max() - xs.min()], dtype=float)
+    d = 300.0 * d / np.linalg.norm(d)
+    cv2.line(cut, tuple((p - d).astype(int)), tuple((p + d).astype(int)), 0, 3)
+    n, _ = cv2.connectedComponents((cut == 160).astype(np.uint8))
+    assert n - 1 == 2  # the shaft is in two pieces
+    out = measure_instance(observe(cut), SHAPE, CAM, 2 * R, 10.0)
+    assert math.isnan(out["shaft"][AUX_STATUS]) and math.isnan(out["clasper"][AUX_STATUS])
+    got = np.array([out["shaft"][k] for k in ("end_x_mm", "end_y_mm", "end_z_mm")])
+    assert np.linalg.norm(got - J) < 1.0
+    ref = np.array([clean["clasper"][k] for k in ("end_x_mm", "end_y_mm", "end_z_mm")])
+    tip_cut = np.array([out["clasper"][k] for k in ("end_x_mm", "end_y_mm", "end_z_mm")])
+    assert np.linalg.norm(tip_cut - ref) < 1.0
+
+
+def test_two_shafts_side_by_side_stay_merged():
+    """Two parallel shafts next to each other in one instance are two tools: the larger
+    is measured, the clasper left empty ("merged")."""
+    a = np.array([1.0, 0.1, 0.3]) / np.linalg.norm([1, 0.1, 0.3])
+    one, _ = render(np.array([0.0, -8.0, 100.0]), a)
+    two, _ = render(np.array([-10.0, 14.0, 110.0]), a, clasper=False)
+    labels = np.maximum(one, np.where(two == 160, 160, 0).astype(one.dtype))
+    out = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 10.0)
+    assert out["clasper"][AUX_STATUS] == reason_code("merged")

@@ -174,6 +174,33 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fraction of frames with the clasper hidden",
     )
     c.add_argument(
+        "--fragments", type=float, default=0.0, metavar="N", help="thin cuts across tools per frame"
+    )
+    c.add_argument(
+        "--rough", type=float, default=0.0, metavar="PX", help="network-like boundary noise (px)"
+    )
+    c.add_argument("--missed", type=float, default=0.0, metavar="N", help="missed blobs per frame")
+    c.add_argument(
+        "--spurious", type=float, default=0.0, metavar="N", help="spurious blobs per frame"
+    )
+    c.add_argument(
+        "--vignette",
+        type=float,
+        default=0.0,
+        metavar="V",
+        help="dark corners: tools lost outside an ellipse (1 + V) x the half image",
+    )
+    c.add_argument(
+        "--real",
+        type=float,
+        nargs="?",
+        const=1.0,
+        metavar="SCALE",
+        help="real-looking masks: jitter, holes, specks, fragments, network-like noise, "
+        "missed and spurious blobs, dark corners at a typical strength (x SCALE, default 1); "
+        "other corruption options add to it",
+    )
+    c.add_argument(
         "--video",
         choices=("mjpg", "xvid", "mp4v"),
         metavar="CODEC",
@@ -209,13 +236,19 @@ def run(args: argparse.Namespace) -> int:
 
     w, h = _size(args.size)
     try:
+        base = Corruptions.real(args.real) if args.real is not None else Corruptions()
         corr = Corruptions(
-            jitter_px=args.jitter,
+            jitter_px=base.jitter_px + args.jitter,
             bias_px=args.bias,
-            holes=args.holes,
-            speckle=args.speckle,
+            holes=base.holes + args.holes,
+            speckle=base.speckle + args.speckle,
             occluders=args.occluders,
             hide_clasper=args.hide_clasper,
+            fragments=base.fragments + args.fragments,
+            rough_px=base.rough_px + args.rough,
+            missed=base.missed + args.missed,
+            spurious=base.spurious + args.spurious,
+            vignette=max(base.vignette, args.vignette),
         )
     except ValueError as exc:
         raise ConfigError(f"corruption option: {exc}") from None

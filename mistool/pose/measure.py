@@ -455,6 +455,47 @@ class _ShaftSolution:
     """Why there is no joint (:mod:`mistool.pose.status`); empty when there is one."""
 
 
+#: Shaft pieces are one shaft cut across when their directions agree within this (deg)
+#: and each piece's centroid is within this fraction of the larger piece's width of
+#: its axis line.
+_CUT_ANGLE_DEG = 8.0
+_CUT_OFFSET_FRAC = 0.35
+
+
+def _one_cut_shaft(contours: Sequence[np.ndarray], areas: np.ndarray, big: int) -> bool:
+    """Whether the large shaft pieces (area >= 25% of the largest) are one shaft cut
+    across: each piece's centroid on the pieces' common axis (within
+    :data:`_CUT_OFFSET_FRAC` of its own width across it) and each elongated piece along
+    it (:data:`_CUT_ANGLE_DEG`); two tools side by side are half a width off it."""
+    pieces = [c for c, a in zip(contours, areas, strict=True) if a >= 0.25 * areas[big]]
+    pts = np.concatenate([c.reshape(-1, 2) for c in pieces])
+    x0, y0 = pts.min(axis=0)
+    union = np.zeros((int(pts[:, 1].max() - y0) + 1, int(pts[:, 0].max() - x0) + 1), np.uint8)
+    cv2.drawContours(union, [c - np.array([x0, y0]) for c in pieces], -1, 1, thickness=-1)
+    m = cv2.moments(union, binaryImage=True)
+    if m["m00"] <= 0:
+        return False
+    theta = 0.5 * math.atan2(2.0 * m["mu11"], m["mu20"] - m["mu02"])
+    e = np.array([math.cos(theta), math.sin(theta)])
+    n = np.array([-e[1], e[0]])
+    c0 = np.array([m["m10"] / m["m00"] + x0, m["m01"] / m["m00"] + y0])
+    for c in pieces:
+        p = c.reshape(-1, 2).astype(np.float64)
+        across = float(np.ptp(p @ n))
+        along = float(np.ptp(p @ e))
+        mk = cv2.moments(c)
+        if mk["m00"] <= 0:
+            return False
+        ck = np.array([mk["m10"], mk["m01"]]) / mk["m00"]
+        if abs(float((ck - c0) @ n)) > _CUT_OFFSET_FRAC * across:
+            return False
+        if along >= 1.5 * across:  # elongated: its own direction must agree
+            tk = 0.5 * math.atan2(2.0 * mk["mu11"], mk["mu20"] - mk["mu02"])
+            if abs((math.degrees(tk - theta) + 90.0) % 180.0 - 90.0) > _CUT_ANGLE_DEG:
+                return False
+    return True
+
+
 def _shaft_points(
     parts: Mapping[str, PartObservation], image_shape: tuple[int, int], camera: Camera
 ) -> _ShaftPoints | None:
@@ -463,7 +504,8 @@ def _shaft_points(
 
     Two shafts in one instance (two tools touching in a merged mask): only the larger
     shaft is kept (and ``merged`` set: the clasper, whose jaws may be either tool's, is
-    then left empty).
+    then left empty). Pieces of one shaft cut across (a specular streak, a thread, a
+    segmentation gap: :func:`_one_cut_shaft`) are kept together: they share its limb lines.
     """
     shaft = parts["shaft"]
     smask = _as_u8(shaft.mask)
@@ -473,7 +515,9 @@ def _shaft_points(
     if len(contours) > 1:
         areas = np.array([cv2.contourArea(c) for c in contours])
         big = int(np.argmax(areas))
-        if np.count_nonzero(areas >= 0.25 * areas[big]) > 1:
+        if np.count_nonzero(areas >= 0.25 * areas[big]) > 1 and not _one_cut_shaft(
+            contours, areas, big
+        ):
             merged = True
             keep_u8 = np.zeros_like(smask)
             cv2.drawContours(keep_u8, contours, big, 1, thickness=-1)

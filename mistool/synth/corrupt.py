@@ -23,6 +23,22 @@ never the ground truth (``truth.csv`` always describes the clean, exact projecti
   (in runs of about a second, per instrument);
 - lossy video encoding is done by the writer (``video`` codec) on the corrupted frames.
 
+Real-looking masks (a segmentation network's typical failures; ``mistool synth --real``
+turns them all on at a typical strength):
+
+- ``fragments``: mean number of cuts per frame: a thin band of background (1-4 px) across
+  an instrument, at its shaft-wrist/clasper junction (the jaws or wrist come out as
+  separate components) or across its shaft (a specular streak or a thread cutting it);
+- ``rough_px``: network-like boundary noise: a fine-grained random displacement of the
+  outline (coherent over ~10 px, up to this amplitude), with small bites and bumps;
+- ``missed``: mean number of missed blobs per frame (8-24 px ellipses of background on an
+  instrument's outline or inside it: false negatives larger than specular holes);
+- ``spurious``: mean number of spurious blobs per frame (5-15 px ellipses of a part value
+  anywhere: false positives larger than specks, so ``min_area_px`` does not remove them);
+- ``vignette``: the endoscope's dark corners: instrument pixels outside an ellipse of
+  semi-axes ``(1 + vignette) x`` half the image size are lost, so a shaft entering at a
+  corner is cut by a curved edge inside the image rather than by the image border.
+
 The random stream of each corruption depends only on ``(seed, corruption, frame)``, so
 turning one corruption on or off does not change the others.
 """
@@ -52,6 +68,33 @@ class Corruptions:
     """Number of tissue blobs drifting over the scene."""
     hide_clasper: float = 0.0
     """Fraction of frames in which each tool's clasper is hidden, in [0, 1]."""
+    fragments: float = 0.0
+    """Mean number of thin background cuts across instruments per frame."""
+    rough_px: float = 0.0
+    """Network-like (fine-grained) boundary noise amplitude (px)."""
+    missed: float = 0.0
+    """Mean number of missed (false negative) blobs per frame."""
+    spurious: float = 0.0
+    """Mean number of spurious (false positive) blobs per frame."""
+    vignette: float = 0.0
+    """Dark corners: instrument pixels outside the ellipse of semi-axes (1 + vignette) x
+    half the image size are lost; 0 = off."""
+
+    @staticmethod
+    def real(scale: float = 1.0) -> Corruptions:
+        """Real-looking masks at a typical strength (``scale`` x): fragments, network-like
+        boundary noise, missed and spurious blobs, dark corners, plus mild jitter, specular
+        holes and specks."""
+        return Corruptions(
+            jitter_px=1.0 * scale,
+            holes=3.0 * scale,
+            speckle=10.0 * scale,
+            fragments=1.5 * scale,
+            rough_px=1.0 * scale,
+            missed=1.0 * scale,
+            spurious=1.0 * scale,
+            vignette=0.12,
+        )
 
     def any(self) -> bool:
         """True if any corruption is on."""
@@ -67,6 +110,7 @@ class Corruptions:
 
 
 _JITTER, _BIAS, _HOLES, _SPECKLE, _OCCLUDE, _HIDE = range(1, 7)
+_FRAGMENT, _ROUGH, _MISSED, _SPURIOUS = range(7, 11)
 
 
 def _rng(seed: int, which: int, frame: int = -1) -> np.random.Generator:
@@ -102,6 +146,12 @@ class Corruptor:
             ]
             self._blobs.append((k % max(1, instruments), amp, freq, phase, lobes))
         self.fps = fps
+        self._vignette: np.ndarray | None = None
+        if corruptions.vignette > 0:  # True outside the endoscope's visible ellipse
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+            a, b = (1 + corruptions.vignette) * w / 2.0, (1 + corruptions.vignette) * h / 2.0
+            ex, ey = (xx - (w - 1) / 2.0) / a, (yy - (h - 1) / 2.0) / b
+            self._vignette = ex * ex + ey * ey > 1.0
         # hidden clasper: per instrument, runs of ~1 s covering the requested fraction
         self._hidden = np.zeros((instruments, frames), dtype=bool)
         if corruptions.hide_clasper > 0 and frames:
@@ -156,7 +206,82 @@ class Corruptor:
             out[self._occluder_mask(instance, part, frame) > 0] = 0
         if c.speckle > 0:
             self._speckle(out, frame, values)
+        return self._real_looking(out, instance, part, frame, values)
+
+    def _real_looking(
+        self,
+        out: np.ndarray,
+        instance: np.ndarray,
+        part: np.ndarray,
+        frame: int,
+        values: list[int],
+    ) -> np.ndarray:
+        """The real-looking corruptions (module docstring), after the others."""
+        c = self.c
+        if c.rough_px > 0:
+            out = _displace(out, _rng(self.seed, _ROUGH, frame), c.rough_px, cell_px=10)
+        if c.fragments > 0:
+            self._fragments(out, instance, part, frame)
+        if c.missed > 0:
+            self._blobs_of(out, frame, _MISSED, c.missed, None)
+        if self._vignette is not None:
+            out[self._vignette] = 0
+        if c.spurious > 0:
+            self._blobs_of(out, frame, _SPURIOUS, c.spurious, values)
         return out
+
+    def _fragments(
+        self, out: np.ndarray, instance: np.ndarray, part: np.ndarray, frame: int
+    ) -> None:
+        """Thin background cuts across instruments (Poisson count); in place."""
+        rng = _rng(self.seed, _FRAGMENT, frame)
+        n = rng.poisson(self.c.fragments)
+        present = [i for i in range(1, int(instance.max()) + 1) if np.any(instance == i)]
+        for _ in range(n if present else 0):
+            inst = instance == present[int(rng.integers(0, len(present)))]
+            shaft = inst & (part == 1) & (out != 0)
+            head = (inst & (part >= 2)).astype(np.uint8)
+            width = int(rng.integers(1, 5))
+            ys, xs = np.nonzero(shaft)
+            if len(xs) < 10:
+                continue
+            if rng.random() < 0.5 and head.any():  # at the junction: the head comes apart
+                k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * width + 1,) * 2)
+                out[(cv2.dilate(head, k) > 0) & shaft] = 0
+                continue
+            pts = np.stack([xs, ys], axis=1).astype(np.float64)
+            centre = pts.mean(axis=0)
+            cov = np.cov((pts - centre).T)
+            axis = np.linalg.eigh(cov)[1][:, -1]  # the shaft's image direction
+            p = pts[int(rng.integers(0, len(pts)))]
+            across = np.array([-axis[1], axis[0]]) * 400.0
+            band = np.zeros(out.shape, np.uint8)
+            a, b = (p - across).round().astype(int), (p + across).round().astype(int)
+            cv2.line(band, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 1, width)
+            out[(band > 0) & inst] = 0
+
+    def _blobs_of(
+        self, out: np.ndarray, frame: int, which: int, mean: float, values: list[int] | None
+    ) -> None:
+        """Missed blobs (``values`` None: background ellipses on instrument pixels) or
+        spurious ones (ellipses of a random part value anywhere); in place."""
+        h, w = self.shape
+        rng = _rng(self.seed, which, frame)
+        n = rng.poisson(mean)
+        ys, xs = np.nonzero(out)
+        for _ in range(n):
+            if values is None:
+                if not len(xs):
+                    return
+                k = int(rng.integers(0, len(xs)))
+                centre = (int(xs[k]), int(ys[k]))
+                axes = (int(rng.integers(8, 25)), int(rng.integers(4, 13)))
+                value = 0
+            else:
+                centre = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+                axes = (int(rng.integers(5, 16)), int(rng.integers(3, 9)))
+                value = int(values[int(rng.integers(0, len(values)))])
+            cv2.ellipse(out, centre, axes, float(rng.uniform(0, 180)), 0, 360, value, -1)
 
     def _jitter(self, out: np.ndarray, frame: int) -> np.ndarray:
         """Smooth random displacement field (up to ``jitter_px``), nearest-neighbour remap."""
@@ -249,3 +374,20 @@ def _bias(labels: np.ndarray, px: int) -> np.ndarray:
         grown = cv2.dilate((labels == v).astype(np.uint8), kernel) > 0
         out[grown & (out == 0)] = v
     return out
+
+
+def _displace(labels: np.ndarray, rng: np.random.Generator, amp: float, cell_px: int) -> np.ndarray:
+    """A random displacement field (up to ``amp`` px, coherent over ``cell_px``), applied by
+    nearest-neighbour remap (labels stay labels)."""
+    h, w = labels.shape
+    gh, gw = max(2, h // cell_px), max(2, w // cell_px)
+    dx = cv2.resize(
+        rng.uniform(-amp, amp, (gh, gw)).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC
+    )
+    dy = cv2.resize(
+        rng.uniform(-amp, amp, (gh, gw)).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC
+    )
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    return cv2.remap(
+        labels, gx + dx, gy + dy, interpolation=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE
+    )

@@ -31,7 +31,7 @@ import numpy as np
 from mistool.config import Config
 from mistool.errors import MaskFormatError
 from mistool.geometry import as_cv_labels, fit_part, range_mask
-from mistool.model import PARTS, InstanceObservation, PartObservation
+from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
 
 __all__ = [
     "REACH_RULES",
@@ -492,7 +492,38 @@ def _shaft_host(piece: InstanceObservation, found: list[InstanceObservation], k:
         off = abs((q.cx - ref.cx) * u[1] - (q.cy - ref.cy) * u[0])  # to ref's axis
         if off <= 0.5 * max(ref.width, min(q.width, q.length)):
             return j
+        if ref.length < 2.0 * ref.width and _end_to_end(ref, q):
+            return j
     return None
+
+
+#: Shaft stubs cut apart by a thin band (a specular streak, a thread, a segmentation gap)
+#: are at most this far apart (px) along the shaft.
+CUT_GAP_PX = 6.0
+
+
+def _extent(box: RotatedBox, axis_deg: float) -> float:
+    """The box's extent (px) along the direction ``axis_deg``."""
+    t = math.radians(box.angle_deg - axis_deg)
+    return abs(box.length * math.cos(t)) + abs(box.width * math.sin(t))
+
+
+def _end_to_end(ref: RotatedBox, q: RotatedBox) -> bool:
+    """Whether a stub ``ref`` (as wide as long: its box may lie across the shaft) and a
+    piece ``q`` lie end to end along one of ``ref``'s box axes, at most
+    :data:`CUT_GAP_PX` apart, with the same width across it (one shaft cut across)."""
+    for axis in (ref.angle_deg, ref.angle_deg + 90.0):
+        u = unit_vector(axis)
+        along = abs((q.cx - ref.cx) * u[0] + (q.cy - ref.cy) * u[1])
+        off = abs((q.cx - ref.cx) * u[1] - (q.cy - ref.cy) * u[0])
+        across_ref, across_q = _extent(ref, axis + 90.0), _extent(q, axis + 90.0)
+        if (
+            off <= 0.25 * across_ref
+            and abs(across_q - across_ref) <= 0.25 * across_ref
+            and along <= 0.5 * (_extent(ref, axis) + _extent(q, axis)) + CUT_GAP_PX
+        ):
+            return True
+    return False
 
 
 def _head_host(
