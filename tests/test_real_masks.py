@@ -59,9 +59,12 @@ def test_fragmented_instrument_is_observed_as_one(fragmented):
         len(observe_frame(cv2.imread(str(f), 0), cfg)) for f in sorted(frag.path.glob("*.png"))
     ]
     assert max(counts) == 1 and sum(counts) >= 15
-    table = track(frag.path)
+    # per-frame poses (smoothing="none"): the subject is the fragments, and the offline
+    # smoother lags this tool's fast entry (frames 6-8: 0.0-0.4 mm per frame, 4-7 mm
+    # smoothed)
+    table = track(frag.path, smoothing="none")
     names = collections.Counter(table["instrument"].tolist())
-    assert names["1"] >= 0.9 * table.num_rows, names
+    assert max(names.values()) >= 0.9 * table.num_rows, names
     parts = evaluate({"m": table}, frag.truth).methods[0].parts
     # measured 78% (14 of 18 frames): the rest are honest reasons (a cut at the joint
     # reads as an occluder's cut: "occluded"; the tracker's blob split in one frame), and
