@@ -20,6 +20,7 @@ Conventions: pixels x right, y down, pixel centres at integer coordinates; point
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 
 import cv2
@@ -35,6 +36,7 @@ __all__ = [
     "ideal_bounds",
     "undistort_image",
     "undistort_maps",
+    "undistort_view",
     "undistort_points",
 ]
 
@@ -189,3 +191,19 @@ def undistort_image(image: np.ndarray, camera: Camera | None) -> np.ndarray:
     h, w = image.shape[:2]
     m1, m2 = undistort_maps(camera, (w, h))
     return cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+def undistort_view(
+    image: np.ndarray, camera: Camera | None, camera_wh: tuple[int, int]
+) -> np.ndarray:
+    """:func:`undistort_image` for a display copy of the camera's image: ``image`` may be
+    the ``camera_wh`` (width, height) image scaled (e.g. a viewer's smaller overlay); the
+    intrinsics are scaled to it (:func:`fit_camera`), the maps computed once per size. The
+    image itself when the camera is None or does not distort."""
+    if camera is None or not camera.distorted:
+        return image
+    h, w = image.shape[:2]
+    wh = (int(camera_wh[0]), int(camera_wh[1]))
+    cam = camera if camera.image_wh is not None else replace(camera, image_wh=wh)
+    scaled, _ = fit_camera(cam, (w, h))
+    return undistort_image(image, scaled)

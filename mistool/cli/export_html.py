@@ -62,6 +62,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
     p.add_argument(
+        "--calibration",
+        metavar="FILE",
+        help="camera calibration file (OpenCV YAML/XML/JSON or ROS camera_info YAML); "
+        "overrides [camera] of mistool.toml",
+    )
+    p.add_argument(
         "--no-cache",
         action="store_true",
         help="track again even if this unchanged sequence was tracked before",
@@ -80,7 +86,11 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.output, [*input_files(path, config), args.poses])  # before the work
     progress = not args.quiet and sys.stderr.isatty()
     sequence = load_sequence(
-        args.sequence, poses=args.poses, progress=progress, cache=not args.no_cache
+        args.sequence,
+        poses=args.poses,
+        progress=progress,
+        cache=not args.no_cache,
+        calibration=args.calibration,
     )
     summary = export_html(
         sequence,

@@ -91,6 +91,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="accepted for compatibility (tracking progress is shown in the browser)",
     )
     p.add_argument(
+        "--calibration",
+        metavar="FILE",
+        help="camera calibration file (OpenCV YAML/XML/JSON or ROS camera_info YAML); "
+        "overrides [camera] of mistool.toml",
+    )
+    p.add_argument(
         "--no-cache",
         action="store_true",
         help="track again from the start even if this unchanged sequence was tracked "
@@ -120,7 +126,11 @@ def run(
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port}: must be in 0..65535")
     sequence = load_sequence(
-        args.sequence, poses=args.poses, background=args.poses is None, fresh=args.no_cache
+        args.sequence,
+        poses=args.poses,
+        background=args.poses is None,
+        fresh=args.no_cache,
+        calibration=args.calibration,
     )
     stored = sequence.feed.entry.progress() if sequence.feed is not None else None
     if sequence.feed is not None:  # tracking starts while the server starts

@@ -19,7 +19,7 @@ import math
 import socket
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -29,6 +29,7 @@ import viser
 from mistool.cache import CacheEntry
 from mistool.config import Config
 from mistool.errors import ConfigError, InputPathError, MistoolError
+from mistool.lens import undistort_view
 from mistool.model import TrackTable
 from mistool.viewer.feed import CacheFeed
 from mistool.viewer.guard import AccessPolicy, guarded, with_token
@@ -90,6 +91,7 @@ def load_sequence(
     cache: bool = False,
     background: bool = False,
     fresh: bool = False,
+    calibration: str | Path | None = None,
 ) -> LoadedSequence:
     """Open a sequence for the viewer: track it (or load its motion table) and index its
     frames. Every problem with the input is raised here, before any server starts.
@@ -108,15 +110,19 @@ def load_sequence(
             in a background process while the viewer shows it (``mistool serve``).
             Implies ``cache``.
         fresh: forget what the cache holds for this sequence and track it again.
+        calibration: a camera calibration file overriding the config's camera
+            (``--calibration``; :func:`mistool.calibration.with_calibration`).
 
     Raises:
         MistoolError: bad path, masks, ``mistool.toml`` or table (one-line message).
     """
+    from mistool.calibration import with_calibration
     from mistool.export import check_table_limits, read_csv
     from mistool.resources import sample_masks_dir
     from mistool.sequence import check_source, resolve, widen_for_video
 
     seq_path, config = resolve(sample_masks_dir() if path is None else path)
+    config = with_calibration(config, calibration)
     if seq_path.is_file():  # a mask video: its codec smears label values (as tracking does)
         config = widen_for_video(config)
     frames = FrameStore(seq_path, config)
@@ -126,6 +132,8 @@ def load_sequence(
         first = frames.labels(0)
         if first is not None:
             shape = (int(first.shape[0]), int(first.shape[1]))
+    if config.camera is not None and shape is not None:  # a calibration of another size
+        config = _fit_camera(config, shape)
     if table is None and poses is not None:
         table = read_csv(poses)
     if table is not None:
@@ -185,6 +193,23 @@ def _track_now(
     if result.shape is not None:
         shape = result.shape
     return result.table, result.num_frames, result.config, shape
+
+
+def _fit_camera(config: Config, shape: tuple[int, int]) -> Config:
+    """The config with its camera fitted to masks of ``shape`` (H, W): a calibration of
+    another size is scaled when uniform (an :class:`InputWarning` says so), else an error
+    (:func:`mistool.lens.fit_camera`)."""
+    import warnings
+
+    from mistool.errors import InputWarning
+    from mistool.lens import fit_camera
+
+    assert config.camera is not None
+    where = str(config.calibration) if config.calibration is not None else "camera"
+    camera, note = fit_camera(config.camera, (shape[1], shape[0]), where)
+    if note is not None:
+        warnings.warn(note, InputWarning, stacklevel=3)
+    return replace(config, camera=camera)
 
 
 def _background(
@@ -715,9 +740,19 @@ class ReplayViewer:
             self._set_frustum_jpeg(rgb, jpeg)
 
     def _set_frustum_jpeg(self, rgb: np.ndarray, jpeg: bytes) -> None:
-        self.scene.frustum._image = rgb
+        view = self._endoscope_view(rgb)
+        if view is not rgb:  # a distorted lens: the frustum shows the undistorted frame
+            jpeg = cv2.imencode(".jpg", cv2.cvtColor(view, cv2.COLOR_RGB2BGR))[1].tobytes()
+        self.scene.frustum._image = view
         self.scene.frustum._format = "jpeg"
         self.scene.frustum._image_data = jpeg
+
+    def _endoscope_view(self, rgb: np.ndarray) -> np.ndarray:
+        """The frame as the endoscope's ideal pinhole camera sees it: on a distorted lens,
+        undistorted (:func:`mistool.lens.undistort_view`: OpenCV remap, maps computed once),
+        so the 3D model drawn with the pinhole intrinsics lines up with the tools in the
+        frustum and the endoscope view; the 2D overlay panel keeps the original frame."""
+        return undistort_view(rgb, self.replay.config.camera, self.replay.image_wh)
 
     def _redraw(self, trails: bool = False) -> None:
         if trails:
@@ -805,6 +840,7 @@ class ReplayViewer:
         if self._closing:  # the server is stopping: nothing can be delivered
             return
         clients = [only] if only is not None else [c for c, _ in self._endoscope.values()]
+        rgb = self._endoscope_view(rgb)
         intrinsics = self.replay.view_intrinsics(self.scene.mode)
         connected = self.server.get_clients()
         for client in clients:
