@@ -177,3 +177,32 @@ def test_principal_direction_closed_form():
     _, v = np.linalg.eigh(np.cov(q.T))
     assert np.allclose(c, q.mean(0) + [5.0, -2.0])
     assert abs(abs(float(d @ v[:, 1])) - 1.0) < 1e-12
+
+
+def test_rasterised_owner_image_matches_per_pixel_nearest_axis():
+    """The crossing split's shaft owner image equals the per-pixel nearest axis."""
+    from mistool.model import PartObservation, RotatedBox
+    from mistool.tracking.split import _Axes, _owner_image, nearest_axis
+
+    img = frame(((420.0, 300.0), 20.0), ((330.0, 260.0), 160.0), shaft_len=500.0)
+    mask = img == 10  # both shafts, crossing
+    ys, xs = np.nonzero(mask)
+    y0, x0 = int(ys.min()), int(xs.min())
+    crop = mask[y0 : ys.max() + 1, x0 : xs.max() + 1]
+    part = PartObservation("shaft", RotatedBox(0, 0, 1, 1, 0), np.zeros((4, 2)), 1, crop, (x0, y0))
+    t = np.radians([20.0, 160.0])
+    dirs = np.stack([np.cos(t), np.sin(t)], 1)
+    ax = _Axes(
+        ends=np.array([[380.0, 285.0], [370.0, 245.0]]),
+        dirs=dirs,
+        back=np.array([math.inf, 300.0]),
+        radius=np.array([11.0, 11.0]),
+        limit_end=np.zeros((2, 2)),
+        margin=np.zeros(2),
+    )
+    got = _owner_image(part, ax)
+    cy, cx = np.nonzero(crop)
+    p = np.stack([cx + x0, cy + y0], 1).astype(np.float64)
+    want = nearest_axis(p, ax.ends, ax.dirs, ax.back, ax.radius)
+    assert len(set(want.tolist())) == 2
+    assert np.array_equal(got[cy, cx], want)

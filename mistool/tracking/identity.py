@@ -228,6 +228,16 @@ def track_cost(
     return cost
 
 
+def _more_shafts(n_entries: int, n_group: int, known: bool) -> bool:
+    """Whether a blob with ``n_entries`` shafts entering the view and ``n_group`` tracks
+    in it is split on its entries: at least two entries, not fewer than the tracks, and
+    more when the tracks already account for the blob (``known``: no hidden track, or
+    the crossing handler split it)."""
+    if n_entries < max(2, n_group):
+        return False
+    return not (n_entries == n_group and known)
+
+
 def _inside(p: np.ndarray, bbox: tuple[int, int, int, int], margin: float) -> bool:
     x, y, w, h = bbox
     mx, my = margin * w, margin * h
@@ -429,11 +439,12 @@ class IdentityTracker:
         spare = [a for a in range(len(fr.live)) if a not in used]
         for b, inst in enumerate(fr.instances):
             group = ([fr.owner[b]] + fr.blob_of.get(b, [])) if b in fr.owner else []
+            known = b not in fr.blob_of or b in fr.pieces
+            if not _more_shafts(len(border_runs(inst)), len(group), known):
+                continue  # (entries <= runs: the cheap count first)
             entries = border_entries(inst)
-            if len(entries) < max(2, len(group)):
+            if not _more_shafts(len(entries), len(group), known):
                 continue
-            if len(entries) == len(group) and (b not in fr.blob_of or b in fr.pieces):
-                continue  # as many shafts as instruments known: nothing new
             # (a blob the crossing handler split, holding one more tool entering: redone)
             got = split_on_entries(inst, entries, max(self._config.min_area_px, 1))
             if got is None:

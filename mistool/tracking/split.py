@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from mistool.model import InstanceObservation, PartObservation, RotatedBox
@@ -330,12 +331,12 @@ def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous
 def _score(ax: _Axes, pts: np.ndarray) -> float | None:
     """The worst RMS distance of an axis's points to it (half-widths), or None when a
     piece is not shaft-like or two axes are near parallel."""
-    d = ax.distance(pts)
-    lab = d.argmin(1)
+    d2 = segment_d2(pts, ax.ends, ax.dirs, ax.back, ax.radius)
+    lab = d2.argmin(1)
     score = 0.0
     k = len(ax.dirs)
     for j in range(k):  # in units of the half-width: a full rectangle gives 0.58
-        rms = math.sqrt(float((d[lab == j, j] ** 2).mean()))
+        rms = math.sqrt(float(d2[lab == j, j].mean()))
         if rms > 2.0 * SPLIT_MAX_SPREAD + 0.5 / ax.radius[j]:
             return None
         score = max(score, rms)
@@ -362,13 +363,12 @@ def _part_distance(
     return _segment_distance(p, c + h[:, None] * u, u, 2 * h, r)
 
 
-def nearest_axis(
+def segment_d2(
     p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
 ) -> np.ndarray:
-    """(N,) index of the nearest of K segments (the distances of
-    :func:`_segment_distance`, ties to the lower index) for points (N, 2), cheaply:
-    the coordinates along and across every segment are one (N, 2) x (2, 2K) product,
-    and squared distances are compared (no square roots, no (N, K, 2) temporaries)."""
+    """(N, K) squared distances of points (N, 2) to K segments in units of each radius
+    (the square of :func:`_segment_distance`), cheaply: the coordinates along and across
+    every segment are one (N, 2) x (2, 2K) product; no (N, K, 2) temporaries, no roots."""
     k = len(ends)
     nrm = np.stack([-dirs[:, 1], dirs[:, 0]], 1)  # (K, 2) left normals
     frame = np.concatenate([dirs, nrm]).T  # (2, 2K)
@@ -381,9 +381,48 @@ def nearest_axis(
     d2 = perp * perp
     d2 += excess * excess
     d2 *= 1.0 / (radius * radius)
-    if k == 2:
+    return d2
+
+
+def nearest_axis(
+    p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
+) -> np.ndarray:
+    """(N,) index of the nearest of K segments (:func:`segment_d2`; ties to the lower
+    index) for points (N, 2)."""
+    d2 = segment_d2(p, ends, dirs, back, radius)
+    if len(ends) == 2:
         return (d2[:, 1] < d2[:, 0]).astype(np.intp)
     return d2.argmin(1)
+
+
+#: Shaft pixels are given to the nearest axis on a grid of cells this many px wide,
+#: exactly (per pixel) only in cells next to a cell of another axis.
+OWNER_CELL_PX = 8
+
+
+def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
+    """(h, w) index of the nearest axis for every pixel of a part's crop (as
+    :func:`nearest_axis`), rasterised: the nearest axis of each cell's centre, refined
+    per pixel only in the cells that border a cell of another axis (the regions are
+    bounded by bisectors and parabolas, smooth on the scale of a cell)."""
+    h, w = part.mask.shape
+    s = OWNER_CELL_PX
+    x0, y0 = part.offset
+    cx = x0 + np.arange(0, w, s) + 0.5 * (s - 1)
+    cy = y0 + np.arange(0, h, s) + 0.5 * (s - 1)
+    gx, gy = np.meshgrid(cx, cy)
+    centres = np.stack([gx.ravel(), gy.ravel()], 1)
+    coarse = nearest_axis(centres, ax.ends, ax.dirs, ax.back, ax.radius)
+    coarse = coarse.reshape(len(cy), len(cx)).astype(np.uint8)
+    kernel = np.ones((3, 3), np.uint8)
+    mixed = cv2.dilate(coarse, kernel) != cv2.erode(coarse, kernel)
+    owner = np.repeat(np.repeat(coarse, s, 0), s, 1)[:h, :w]
+    near = np.repeat(np.repeat(mixed, s, 0), s, 1)[:h, :w] & part.mask
+    ys, xs = np.nonzero(near)
+    if len(ys):
+        p = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
+        owner[ys, xs] = nearest_axis(p, ax.ends, ax.dirs, ax.back, ax.radius)
+    return owner
 
 
 class BlobPixels:
@@ -392,6 +431,16 @@ class BlobPixels:
     def __init__(self, inst: InstanceObservation) -> None:
         self.inst = inst
         self._cache: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def shaft_points(self) -> np.ndarray:
+        """(N, 2) float64 full-image (x, y) of the shaft's pixels, row by row (as
+        ``np.nonzero``; OpenCV's ``findNonZero`` is faster on large masks)."""
+        if "shaft!" not in self._cache:
+            part = self.inst.parts["shaft"]
+            nz = cv2.findNonZero(part.mask.view(np.uint8))
+            pts = nz.reshape(-1, 2).astype(np.float64) + part.offset
+            self._cache["shaft!"] = (np.empty(0), np.empty(0), pts)
+        return self._cache["shaft!"][2]
 
     def get(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ys, xs) in the part's crop and (N, 2) float64 full-image (x, y) points."""
@@ -436,7 +485,7 @@ def fit_split(
     inst = pixels.inst
     if "shaft" not in inst.parts or len(expected) < 2 or any("shaft" not in e for e in expected):
         return None
-    pts = pixels.get("shaft")[2]
+    pts = pixels.shaft_points()
     step = max(1, len(pts) // SPLIT_FIT_POINTS)  # the fits need no more points than this
     fit_pts = pts[::step]
     ax = _initial_axes(expected, axes)
@@ -455,12 +504,16 @@ def split_pieces(
     k = len(fit.expected)
     pieces: list[dict[str, PartObservation]] = [{} for _ in range(k)]
     for name, part in inst.parts.items():
+        if name == "shaft":  # the large part: whole-crop label image, no pixel lists
+            owner_img = _owner_image(part, fit.axes)
+            for j in range(k):
+                m = np.where(part.mask & (owner_img == j), np.uint8(255), np.uint8(0))
+                obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
+                if obs is not None:
+                    pieces[j][name] = obs
+            continue
         ys, xs, p = pixels.get(name)
-        if name == "shaft":
-            ax = fit.axes
-            owner = nearest_axis(p, ax.ends, ax.dirs, ax.back, ax.radius)
-        else:
-            owner = _part_distance(name, p, fit.axes, fit.expected).argmin(1)
+        owner = _part_distance(name, p, fit.axes, fit.expected).argmin(1)
         for j in range(k):
             sel = owner == j
             if not sel.any():
