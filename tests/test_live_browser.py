@@ -3,8 +3,9 @@
 - A long generated procedure (20,000 frames) is on screen, instruments drawn, while its
   tracking still runs in the background, and the timeline grows as it proceeds.
 - ``mistool.Viewer.add`` fed from a loop: a browser watches the timeline grow and sees the
-  newest frame; after looking through the endoscope and pressing Reset, the frustum shows
-  the frame on screen (not the one from before).
+  newest frame, a browser connecting late gets the whole timeline; after looking through the
+  endoscope and pressing Reset, the frustum shows the frame on screen (not the one from
+  before).
 
 Under CI (env ``CI`` set) these tests must run: a missing chromium or playwright FAILS.
 """
@@ -129,6 +130,11 @@ def test_viewer_add_from_a_loop_while_a_browser_watches(
         assert rv.replay.tracked == total and rv.timeline.num_frames == total
         assert _wait(lambda: _slider_max(page) == total - 1, timeout=10)
         assert rv.timeline.wait_shown(total - 1), "the newest frame is not on screen"
+        late = _open(browser, viewer.url)  # a browser that connects late sees it all
+        try:
+            assert _wait(lambda: _slider_max(late) == total - 1, timeout=20)
+        finally:
+            late.close()
 
         # A frame with both instruments, looked at through the endoscope, then Reset: the
         # frustum shows that frame's overlay, not the one from before entering the view.
