@@ -130,6 +130,8 @@ def test_viewer_add_from_a_loop_while_a_browser_watches(
         assert rv.replay.tracked == total and rv.timeline.num_frames == total
         assert _wait(lambda: _slider_max(page) == total - 1, timeout=10)
         assert rv.timeline.wait_shown(total - 1), "the newest frame is not on screen"
+        assert _wait(lambda: len(rv.server.get_clients()) == 1)
+        client = next(iter(rv.server.get_clients().values()))  # the first page's
         late = _open(browser, viewer.url)  # a browser that connects late sees it all
         try:
             assert _wait(lambda: _slider_max(late) == total - 1, timeout=20)
@@ -143,7 +145,6 @@ def test_viewer_add_from_a_loop_while_a_browser_watches(
         n = len(labels)
         busy = busy[busy % n != (total - 1) % n]  # not the same picture as the last frame
         assert len(busy) >= 2
-        client = list(rv.server.get_clients().values())[-1]
         page.get_by_role("button", name="Endoscope").click()
         assert _wait(lambda: client.client_id in rv._endoscope)
         target = int(busy[len(busy) // 2])
