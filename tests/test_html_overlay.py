@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from mistool.report import tip_plots
 from mistool.viewer.html_overlay import LegendEntry, decorate_replay_html
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -19,20 +18,27 @@ FRAMES, FPS = 30, 10.0
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
+def exported(tmp_path_factory: pytest.TempPathFactory) -> dict[bool, str]:
+    """The same sequence exported by 'mistool export-html', paused and with --autoplay."""
+    from mistool.annotations import Bookmark, save_annotations
+    from mistool.cli import main
     from mistool.synth import synthesize
     from mistool.synth.writer import SceneOptions
-    from mistool.viewer import export_html, load_sequence
 
     folder = tmp_path_factory.mktemp("overlay")
     scene = SceneOptions(width=360, height=288, focal_px=300.0)
     synthesize(folder / "seq", frames=FRAMES, instruments=2, seed=3, fps=FPS, scene=scene)
-    sequence = load_sequence(folder / "seq", poses=folder / "seq" / "truth.csv")
-    export_html(sequence, folder / "replay.html", images=False)
-    from mistool.export import read_csv
-
-    _, plots = tip_plots(read_csv(folder / "seq" / "truth.csv"), fps=FPS, cursor=True)
-    return (folder / "replay.html").read_text(encoding="utf-8"), plots
+    marks = folder / "marks.json"
+    save_annotations(marks, [Bookmark(12, "grasp", "event")])
+    pages = {}
+    for autoplay in (False, True):
+        out = folder / f"replay{int(autoplay)}.html"
+        args = ["export-html", str(folder / "seq"), "-o", str(out), "-q", "--no-images"]
+        args += ["--poses", str(folder / "seq" / "truth.csv"), "--annotations", str(marks)]
+        args += ["--title", "Lab replay"] + (["--autoplay"] if autoplay else [])
+        assert main(args) == 0
+        pages[autoplay] = out.read_text(encoding="utf-8")
+    return pages
 
 
 @pytest.fixture(scope="module")
@@ -67,28 +73,14 @@ def _frames_seen(page, seconds: float) -> set[str]:
     return seen
 
 
-def _decorate(page_text: str, plots: str, autoplay: bool) -> str:
-    legend = [LegendEntry("instrument 1", "#1f77b4"), LegendEntry("instrument 2", "#ff7f0e")]
-    return decorate_replay_html(
-        page_text,
-        title="Lab replay",
-        fps=FPS,
-        num_frames=FRAMES,
-        legend=legend,
-        plots_html=plots,
-        note="camera frame, mm",
-        autoplay=autoplay,
-    )
-
-
 def test_paused_at_zero_without_autoplay(browser, exported, tmp_path: Path) -> None:
-    text, plots = exported
-    page, remote = _open(browser, tmp_path, _decorate(text, plots, autoplay=False))
+    page, remote = _open(browser, tmp_path, exported[False])
     try:
         assert page.title().startswith("Lab replay")
         assert page.locator("#mistool-panel h1").inner_text() == "Lab replay"
         assert "instrument 2" in page.locator("#mistool-legend").inner_text()
         assert page.locator("#mistool-plots svg").count() == 2
+        assert page.locator("#mistool-plots text.marklabel", has_text="grasp").count() == 2
         time.sleep(1.0)
         assert _frames_seen(page, 1.5) == {"0"}
         assert page.locator("#mistool-counter").inner_text().startswith("frame 0 (0–29) · 0.00 s")
@@ -99,8 +91,7 @@ def test_paused_at_zero_without_autoplay(browser, exported, tmp_path: Path) -> N
 
 
 def test_autoplay_when_asked_moves_counter_and_cursor(browser, exported, tmp_path) -> None:
-    text, plots = exported
-    page, _ = _open(browser, tmp_path, _decorate(text, plots, autoplay=True))
+    page, _ = _open(browser, tmp_path, exported[True])
     try:
         cursor = page.locator("#mistool-plots line.cursor").first
         xs: set[str | None] = set()
@@ -113,3 +104,13 @@ def test_autoplay_when_asked_moves_counter_and_cursor(browser, exported, tmp_pat
         assert len(frames) >= 3 and len(xs) >= 3, (frames, xs)
     finally:
         page.close()
+
+
+def test_decorate_escapes_and_keeps_the_page() -> None:
+    page = "<html><head><title>Viser</title></head><body><div id=app></div></body></html>"
+    out = decorate_replay_html(
+        page, title="A <b>", fps=25.0, num_frames=10, legend=[LegendEntry("x<", "#000")]
+    )
+    assert out.startswith("<html><head><title>A &lt;b&gt; – Viser</title>")
+    assert "<div id=app></div>" in out and out.endswith("</body></html>")
+    assert "x&lt;" in out and '"autoplay": false' in out

@@ -129,3 +129,36 @@ def test_without_a_file_bookmarks_stay_in_memory(server) -> None:
     assert "memory only" in panel.status.content
     panel.delete(0)
     assert panel.marks == [] and timeline.slider._marks is None
+
+
+def test_the_viewer_has_the_panel_on_its_timeline(tmp_path: Path) -> None:
+    import argparse
+
+    from mistool.cli.serve import _annotations_path
+    from mistool.synth import synthesize
+    from mistool.synth.writer import SceneOptions
+    from mistool.viewer import ReplayViewer, load_sequence
+
+    seq = tmp_path / "seq"
+    scene = SceneOptions(width=360, height=288, focal_px=300.0)
+    synthesize(seq, frames=20, instruments=1, seed=2, fps=10.0, scene=scene)
+    assert _annotations_path(argparse.Namespace(annotations=None, sequence=str(seq))) == (
+        seq / "annotations.json"
+    )
+    assert _annotations_path(argparse.Namespace(annotations=None, sequence=None)) is None
+    save_annotations(seq / "annotations.json", [Bookmark(15, "end", "phase")])
+    viewer = ReplayViewer(
+        load_sequence(seq, poses=seq / "truth.csv"), port=0, annotations=seq / "annotations.json"
+    )
+    try:
+        panel = viewer.bookmarks
+        assert [b.text for b in panel.marks] == ["end"]
+        assert viewer.timeline.slider._marks[0].label == "end"
+        viewer.timeline.seek(4)
+        assert _wait(lambda: viewer.timeline.frame == 4)
+        panel.add(viewer.timeline.frame, "start", "phase")
+        assert _saved(seq / "annotations.json") == [(4, "start"), (15, "end")]
+        panel.jump(1)
+        assert _wait(lambda: viewer.timeline.frame == 15)
+    finally:
+        viewer.close()

@@ -8,9 +8,13 @@ import sys
 DESCRIPTION = """\
 Write one HTML file that replays a sequence in 3D without a server or network: the
 instruments' cylinders, their trails and the endoscope frustum showing the mask and boxes,
-frame by frame, with viser's own play/pause and time slider. Share it by e-mail or open it
-from a USB stick in a lecture room. (The GUI panel of 'mistool serve' -- plots, mode
-switch, 2D overlay panel -- is not part of the file.)
+frame by frame, with viser's own play/pause and time slider, and around it a title, a
+frame counter with units (frame, seconds, fps), the legend (one colour per instrument)
+and plots of each tip's speed and depth with a cursor at the current time and the
+bookmarks marked (annotations.json of the sequence, or --annotations). It opens paused
+at the first frame (--autoplay: playing). Share it by e-mail or open it from a USB stick
+in a lecture room. (The GUI panel of 'mistool serve' -- mode switch, 2D overlay panel,
+bookmark editing -- is not part of the file.)
 
 The sequence is tracked first unless --poses gives its motion table (tracked tables are
 cached as for 'mistool serve'). The file is written
@@ -61,6 +65,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--no-images", action="store_true", help="no mask images on the frustum (much smaller file)"
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
+    p.add_argument("--title", help="the page's title (default: mistool replay: <name>)")
+    p.add_argument("--autoplay", action="store_true", help="start playing when opened")
+    p.add_argument(
+        "--annotations",
+        metavar="JSON",
+        help="bookmarks to mark on the plots (default: the sequence's annotations.json)",
+    )
     p.add_argument(
         "--calibration",
         metavar="FILE",
@@ -77,6 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export the replay."""
+    from mistool.annotations import default_path, load_annotations
     from mistool.export import check_output
     from mistool.resources import sample_masks_dir
     from mistool.sequence import input_files, resolve
@@ -92,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
         cache=not args.no_cache,
         calibration=args.calibration,
     )
+    marks = load_annotations(args.annotations or default_path(path))
     summary = export_html(
         sequence,
         args.output,
@@ -99,6 +112,9 @@ def run(args: argparse.Namespace) -> int:
         stride=args.stride,
         max_frames=args.max_frames,
         images=not args.no_images,
+        title=args.title,
+        autoplay=args.autoplay,
+        bookmarks=marks,
     )
     if not args.quiet:
         print(

@@ -6,6 +6,7 @@ import argparse
 import signal
 import sys
 import threading
+from pathlib import Path
 from typing import Any
 
 DESCRIPTION = """\
@@ -44,6 +45,7 @@ examples:
   mistool serve masks/ --port 8081
   mistool serve masks/ --poses masks_motion.csv
   mistool serve masks/ --host 0.0.0.0   # reachable from other machines: URL with a token
+  mistool serve masks/ --annotations lesson.json   # bookmarks (Bookmarks panel) in lesson.json
 """
 
 
@@ -103,6 +105,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(or partly tracked) before (tables are cached in ~/.cache/mistool/tables)",
     )
     p.add_argument(
+        "--annotations",
+        metavar="JSON",
+        help="bookmarks file of the Bookmarks panel (default: annotations.json in the "
+        "sequence's folder; the bundled sample keeps bookmarks in memory)",
+    )
+    p.add_argument(
         "--environment-map",
         action="store_true",
         help="light the scene with viser's HDR environment map (off by "
@@ -110,6 +118,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "scripts/bench_viewer.py)",
     )
     p.set_defaults(func=run)
+
+
+def _annotations_path(args: argparse.Namespace) -> Path | None:
+    """The bookmarks file: --annotations, else the sequence's own (none for the sample,
+    which ships inside mistool)."""
+    from mistool.annotations import default_path
+
+    if args.annotations:
+        return Path(args.annotations)
+    return default_path(args.sequence) if args.sequence is not None else None
 
 
 def run(
@@ -143,6 +161,7 @@ def run(
             port=args.port,
             environment_map=args.environment_map,
             access=access,
+            annotations=_annotations_path(args),
         )
     except BaseException:
         if sequence.feed is not None:

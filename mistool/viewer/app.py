@@ -31,6 +31,7 @@ from mistool.config import Config
 from mistool.errors import ConfigError, InputPathError, MistoolError
 from mistool.lens import undistort_view
 from mistool.model import TrackTable
+from mistool.viewer.bookmarks import BookmarkPanel
 from mistool.viewer.feed import CacheFeed
 from mistool.viewer.guard import AccessPolicy, guarded, with_token
 from mistool.viewer.overlay import FrameStore, OverlayCache, OverlayRenderer
@@ -59,6 +60,10 @@ class LoadedSequence:
     """A short name for titles."""
     feed: CacheFeed | None = None
     """Where more frames come from while the replay is shown (None: complete)."""
+    table: TrackTable | None = None
+    """The motion table shown, when complete (None while ``feed`` grows it)."""
+    path: Path | None = None
+    """The sequence folder or mask video (None for arrays)."""
 
 
 #: Tracking options of ``mistool serve`` (part of the cache key).
@@ -141,7 +146,9 @@ def load_sequence(
         check_source(config, num_frames, shape)  # warns when source and masks disagree
         image_wh = (shape[1], shape[0]) if shape is not None else None
         replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
-        return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
+        return LoadedSequence(
+            replay=replay, frames=frames, name=seq_path.name, table=table, path=seq_path
+        )
     if seq_path.is_dir() and not frames.num_mask_frames:
         raise InputPathError(
             f"{seq_path}: no label images in this folder; pass a folder "
@@ -163,7 +170,9 @@ def load_sequence(
     )
     image_wh = (shape[1], shape[0]) if shape is not None else None
     replay = build_replay(table, config, num_frames=num_frames, image_wh=image_wh)
-    return LoadedSequence(replay=replay, frames=frames, name=seq_path.name)
+    return LoadedSequence(
+        replay=replay, frames=frames, name=seq_path.name, table=table, path=seq_path
+    )
 
 
 def _track_now(
@@ -245,7 +254,9 @@ def _background(
         **SERVE_TRACKING,  # type: ignore[arg-type]
     )
     feed = CacheFeed(entry, spec, num_frames)
-    return LoadedSequence(replay=replay, frames=frames, name=seq_path.name, feed=feed)
+    return LoadedSequence(
+        replay=replay, frames=frames, name=seq_path.name, feed=feed, path=seq_path
+    )
 
 
 def check_host(host: str) -> None:
@@ -373,6 +384,7 @@ class ReplayViewer:
         trail_frames: int = 25,
         opacity: float = 0.6,
         access: AccessPolicy | None = None,
+        annotations: str | Path | None = None,
     ) -> None:
         """
         Args:
@@ -386,8 +398,11 @@ class ReplayViewer:
             opacity: initial mask opacity of the overlay, [0, 1].
             access: who may connect (default: this page only, a token beyond loopback;
                 :mod:`mistool.viewer.guard`).
+            annotations: the bookmarks file (``annotations.json``; :mod:`mistool.annotations`)
+                the Bookmarks panel reads and writes; None keeps bookmarks in memory.
         """
         self.sequence = sequence
+        self.annotations = Path(annotations) if annotations is not None else None
         self.replay = sequence.replay
         self.update_seconds: collections.deque[float] = collections.deque(maxlen=2000)
         """Seconds of each frame update (scene, trails, plot cursor, ready overlay)."""
@@ -474,6 +489,7 @@ class ReplayViewer:
             )
         with gui.add_folder("Plots", expand_by_default=False):
             self.plots = PlotPanel(gui, replay, mode)
+        self.bookmarks = BookmarkPanel(server, self.timeline, self.annotations)
         self.mode.on_update(
             lambda _: self._set_mode(next(m for m in replay.modes if labels[m] == self.mode.value))
         )

@@ -18,6 +18,12 @@ import html
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from mistool.annotations import Bookmark
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mistool.viewer.app import LoadedSequence
 
 #: How often the injected script reads the player's time (ms).
 POLL_MS = 100
@@ -158,3 +164,46 @@ def decorate_replay_html(
     if end < 0:
         return page + injected
     return page[:end] + injected + page[end:]
+
+
+def decorate_export(
+    page: str,
+    sequence: LoadedSequence,
+    *,
+    title: str | None = None,
+    start_frame: int = 0,
+    mode: str = "metric",
+    autoplay: bool = False,
+    bookmarks: Sequence[Bookmark] = (),
+) -> str:
+    """:func:`decorate_replay_html` for a sequence exported by
+    :func:`mistool.viewer.export_html`: its instruments' colours as the legend, its tips'
+    speed and depth as plots (when the table has a metric pose), bookmarks on the plots."""
+    from mistool.report import tip_plots
+
+    replay = sequence.replay
+    legend = [
+        LegendEntry(f"instrument {name}", "#{:02x}{:02x}{:02x}".format(*map(int, rgb)))
+        for name, rgb in zip(replay.instruments, replay.colours, strict=True)
+    ]
+    plots = ""
+    if sequence.table is not None and sequence.table.num_rows:
+        _, plots = tip_plots(
+            sequence.table,
+            num_frames=replay.num_frames,
+            fps=replay.fps,
+            bookmarks=bookmarks,
+            cursor=True,
+        )
+    units = "millimetres, endoscope frame" if mode == "metric" else "the paper's pixel units"
+    return decorate_replay_html(
+        page,
+        title=title or f"mistool replay: {sequence.name}",
+        fps=replay.fps,
+        num_frames=replay.num_frames,
+        start_frame=start_frame,
+        legend=legend,
+        plots_html=plots,
+        note=f"3D in {units}; shaft darker, clasper lighter",
+        autoplay=autoplay,
+    )

@@ -13,12 +13,15 @@ from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from mistool.annotations import Bookmark
 from mistool.errors import ConfigError
 from mistool.export import atomic_write
 from mistool.viewer.app import LoadedSequence, quiet_server
+from mistool.viewer.html_overlay import decorate_export
 from mistool.viewer.overlay import OverlayRenderer
 from mistool.viewer.scene import SceneView
 
@@ -52,6 +55,9 @@ def export_html(
     opacity: float = 0.6,
     trail_frames: int = 25,
     jpeg_quality: int = 70,
+    title: str | None = None,
+    autoplay: bool = False,
+    bookmarks: Sequence[Bookmark] = (),
 ) -> ExportSummary:
     """Write a standalone HTML replay of a sequence (opens offline in any browser).
 
@@ -66,6 +72,10 @@ def export_html(
         opacity: mask opacity of the overlay.
         trail_frames: trail length (frames; 0 = off).
         jpeg_quality: JPEG quality of the overlay images.
+        title: the page's title (default: the sequence's name); a frame counter with
+            units, the legend and the tips' plots are added (:mod:`.html_overlay`).
+        autoplay: start playing on open (default: paused at the first frame).
+        bookmarks: marked on the plots.
 
     Raises:
         ConfigError: an invalid option.
@@ -113,6 +123,15 @@ def export_html(
                     scene.set_overlay(renderer.render(k, opacity))
             serializer.insert_sleep(dt)
         html = serializer.as_html()
+        html = decorate_export(
+            html,
+            sequence,
+            title=title,
+            start_frame=frames[0],
+            mode=mode,
+            autoplay=autoplay,
+            bookmarks=bookmarks,
+        )
     finally:
         with contextlib.redirect_stdout(io.StringIO()):  # viser prints "Server stopped"
             server.stop()
