@@ -403,7 +403,7 @@ def test_ten_viewers_playback_and_some_closing(browser, viewer: ReplayViewer) ->
 
 def test_exported_html_replays_offline(browser, sequence, tmp_path: Path) -> None:
     out = tmp_path / "replay.html"
-    export_html(sequence, out, max_frames=30)
+    export_html(sequence, out, max_frames=30, autoplay=True)  # paused by default (issue 11)
     page = browser.new_page(viewport={"width": 1000, "height": 700})
     remote: list[str] = []
     page.on(

@@ -46,6 +46,7 @@ examples:
   mistool serve masks/ --poses masks_motion.csv
   mistool serve masks/ --host 0.0.0.0   # reachable from other machines: URL with a token
   mistool serve masks/ --annotations lesson.json   # bookmarks (Bookmarks panel) in lesson.json
+  mistool serve expert/ trainee/ --offset 2.5      # two recordings side by side, B 2.5 s later
 """
 
 
@@ -63,6 +64,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="?",
         default=None,
         help="folder of label images or mask video (default: bundled sample)",
+    )
+    p.add_argument(
+        "other",
+        metavar="SEQUENCE_B",
+        nargs="?",
+        default=None,
+        help="a second recording shown beside the first (own colours and scene region, "
+        "one timeline, metrics side by side)",
+    )
+    p.add_argument(
+        "--offset",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="with SEQUENCE_B: B starts S seconds after A on the shared timeline "
+        "(negative: before; default 0)",
     )
     p.add_argument(
         "--port", type=int, default=8080, help="first port to try (default 8080; 0 = any free port)"
@@ -120,6 +137,65 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _open(args: argparse.Namespace) -> tuple[Any, Any]:
+    """The sequence to show (and, with SEQUENCE_B, what the metrics panel needs)."""
+    from mistool.viewer import load_sequence
+
+    if args.other is not None:
+        return _load_two(args)
+    background = args.poses is None
+    return (
+        load_sequence(
+            args.sequence,
+            poses=args.poses,
+            background=background,
+            fresh=args.no_cache,
+            calibration=args.calibration,
+        ),
+        None,
+    )
+
+
+def _metrics_panel(viewer: Any, compare: Any, offset_s: float) -> None:
+    from mistool.viewer.compare import add_metrics_panel
+
+    panel, shift, names = compare
+    add_metrics_panel(viewer.server, panel, names=names, offset_s=offset_s, shift_mm=shift)
+
+
+def _load_two(args: argparse.Namespace) -> tuple[Any, Any]:
+    """Both recordings tracked (or read from the cache), B merged into A's replay
+    (:mod:`mistool.viewer.compare`); returns the sequence to show and what the metrics
+    panel needs."""
+    import math
+
+    from mistool.errors import ConfigError
+    from mistool.viewer import load_sequence
+    from mistool.viewer.compare import PREFIXES, combine_tables
+
+    if args.sequence is None:
+        raise ConfigError("serve: give SEQUENCE and SEQUENCE_B to compare two recordings")
+    if not math.isfinite(args.offset):
+        raise ConfigError(f"--offset {args.offset}: must be a number of seconds")
+    a = load_sequence(
+        args.sequence, poses=args.poses, cache=not args.no_cache, calibration=args.calibration
+    )
+    b = load_sequence(args.other, cache=not args.no_cache)  # its own mistool.toml camera
+    if a.table is None or b.table is None:  # pragma: no cover - complete loads keep it
+        raise ConfigError("serve: both recordings must be tracked completely to compare")
+    fa, fb = a.replay.fps, b.replay.fps
+    n = a.replay.num_frames
+    table, shift = combine_tables(
+        a.table, b.table, fps_a=fa, fps_b=fb, offset_s=args.offset, num_frames=n
+    )
+    both = load_sequence(args.sequence, table=table, calibration=args.calibration)
+    panel = [
+        (PREFIXES[0], a.table, fa, n),
+        (PREFIXES[1], b.table, fb, b.replay.num_frames),
+    ]
+    return both, (panel, shift, (a.name, b.name))
+
+
 def _annotations_path(args: argparse.Namespace) -> Path | None:
     """The bookmarks file: --annotations, else the sequence's own (none for the sample,
     which ships inside mistool)."""
@@ -138,18 +214,12 @@ def run(
 ) -> int:
     """Serve until Ctrl+C (or until ``stop`` is set, for in-process tests)."""
     from mistool.errors import ConfigError
-    from mistool.viewer import ReplayViewer, load_sequence  # viser only for this command
+    from mistool.viewer import ReplayViewer  # viser only for this command
     from mistool.viewer.guard import AccessPolicy
 
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port}: must be in 0..65535")
-    sequence = load_sequence(
-        args.sequence,
-        poses=args.poses,
-        background=args.poses is None,
-        fresh=args.no_cache,
-        calibration=args.calibration,
-    )
+    sequence, compare = _open(args)
     stored = sequence.feed.entry.progress() if sequence.feed is not None else None
     if sequence.feed is not None:  # tracking starts while the server starts
         sequence.feed.start()
@@ -163,6 +233,8 @@ def run(
             access=access,
             annotations=_annotations_path(args),
         )
+        if compare is not None:
+            _metrics_panel(viewer, compare, args.offset)
     except BaseException:
         if sequence.feed is not None:
             sequence.feed.stop()
