@@ -80,6 +80,8 @@ def test_paused_at_zero_without_autoplay(browser, exported, tmp_path: Path) -> N
         assert page.locator("#mistool-panel h1").inner_text() == "Lab replay"
         assert "instrument 2" in page.locator("#mistool-legend").inner_text()
         assert page.locator("#mistool-plots svg").count() == 2
+        page.locator("#mistool-plots summary").click()  # closed at first
+        assert page.locator("#mistool-plots svg").first.is_visible()
         assert page.locator("#mistool-plots text.marklabel", has_text="grasp").count() == 2
         time.sleep(1.0)
         assert _frames_seen(page, 1.5) == {"0"}

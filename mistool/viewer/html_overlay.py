@@ -156,7 +156,11 @@ def decorate_replay_html(
         f'<div id="mistool-legend">{items}</div></div>'
     )
     if plots_html:
-        panel += f'<details id="mistool-plots" open><summary>plots</summary>{plots_html}</details>'
+        # closed at first: the 3D view stays clear; one click opens the plots
+        panel += (
+            '<details id="mistool-plots"><summary>plots: tip speed and depth</summary>'
+            f"{plots_html}</details>"
+        )
     script = _SCRIPT % {"config": json.dumps(config), "poll": POLL_MS}
     injected = f"{panel}<script>{script}</script>"
     page = page.replace("<title>", f"<title>{html.escape(title)} – ", 1)
