@@ -82,12 +82,12 @@ def test_status_column_rules():
 
 
 def test_refine_writes_status_and_drops_aux():
-    """A one-line shaft that the trocar constraint fills becomes "ok" after refinement;
-    one it cannot fill keeps its reason."""
+    """refine_sequence (trocar, smoothing) writes pose_status on every row from the final
+    metric columns ("ok" rows have a joint) and drops the aux_* columns."""
     rows = []
     rng = np.random.default_rng(0)
     trocar = np.array([0.0, -60.0, -20.0])
-    for f in range(30):
+    for f in range(12):
         J = np.array([10.0 * math.sin(f / 5), 5.0 * math.cos(f / 7), 100.0 + 3 * f / 10])
         J += rng.normal(0, 0.05, 3)
         labels, _ = render(J, J - trocar)
