@@ -153,3 +153,31 @@ def test_two_shafts_side_by_side_stay_merged():
     labels = np.maximum(one, np.where(two == 160, 160, 0).astype(one.dtype))
     out = measure_instance(observe(labels), SHAPE, CAM, 2 * R, 10.0)
     assert out["clasper"][AUX_STATUS] == reason_code("merged")
+
+
+def test_a_thin_gap_at_the_junction_still_gives_the_joint():
+    """A segmentation that misses the shaft-wrist junction (the shaft cut 3 px short of a
+    wrist as wide as the shaft, so the cut end is concave) still finds the joint there,
+    within about a millimetre (the visible end is short of the junction by the gap);
+    without closing the gap the concave end reads as an occluder's cut ("occluded")."""
+    J, a = np.array([5.0, 0.0, 60.0]), np.array([1.0, 0.2, 0.3]) / np.linalg.norm([1, 0.2, 0.3])
+    labels, _ = render(J, a)
+    jpx = (CAM.K @ J)[:2] / J[2]
+    ahead = J + 1.0 * a
+    d = (CAM.K @ ahead)[:2] / ahead[2] - jpx
+    d /= np.linalg.norm(d)  # the axis' image direction, distal
+    half_width_px = CAM.fx * R / J[2]
+    # a wrist disc as wide as the shaft, starting at J
+    centre = tuple(int(v) for v in np.round(jpx + half_width_px * d))
+    wrist = np.zeros(labels.shape, np.uint8)
+    cv2.circle(wrist, centre, int(half_width_px), 1, -1)
+    gap = labels.copy()
+    gap[(wrist > 0) & (labels != 160)] = 70  # the wrist is drawn as clasper (EndoVis'15)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
+    gap[(cv2.dilate(wrist, k) > 0) & (wrist == 0) & (labels == 160)] = 0  # the 3 px gap
+    gap[(wrist > 0) & (labels == 160)] = 70
+    assert not np.any(cv2.dilate((gap == 70).astype(np.uint8), np.ones((3, 3))) & (gap == 160))
+    out = measure_instance(observe(gap), SHAPE, CAM, 2 * R, 10.0)
+    assert math.isnan(out["shaft"][AUX_STATUS]), REASONS[int(out["shaft"][AUX_STATUS])]
+    got = np.array([out["shaft"][k] for k in ("end_x_mm", "end_y_mm", "end_z_mm")])
+    assert np.linalg.norm(got - J) < 1.5

@@ -43,7 +43,15 @@ from mistool.pose.cylinder import (
     ray_cylinder,
 )
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask
-from mistool.pose.silhouette import Boundary, boundary_points, fit_line_robust, make_canvas
+from mistool.pose.silhouette import (
+    BG,
+    OTHER,
+    Boundary,
+    Canvas,
+    boundary_points,
+    fit_line_robust,
+    make_canvas,
+)
 from mistool.pose.status import AUX_STATUS, reason_code
 
 __all__ = ["AUX_KEYS", "MAX_SIGMA_DEG", "MAX_SIGMA_MM", "POSE_KEYS", "measure_instance"]
@@ -455,6 +463,34 @@ class _ShaftSolution:
     """Why there is no joint (:mod:`mistool.pose.status`); empty when there is one."""
 
 
+#: A shaft separated from its own wrist or clasper by a thin gap (a segmentation that
+#: misses the junction) still meets them there: its outline points within this many px
+#: of them are taken as next to them.
+_JUNCTION_GAP_PX = 5
+
+
+def _across_gap(
+    bnd: Boundary,
+    shaft_mask: np.ndarray,
+    offset: tuple[int, int],
+    others: list[tuple[np.ndarray, tuple[int, int]]],
+    image_shape: tuple[int, int],
+    pix: np.ndarray,
+) -> Boundary:
+    """The boundary points with the instrument's other parts grown by
+    :data:`_JUNCTION_GAP_PX` (a thin gap at the junction closed), when that finds the
+    junction; else ``bnd`` unchanged."""
+    g = _JUNCTION_GAP_PX
+    canvas = make_canvas(shaft_mask, offset, others, image_shape, margin=2 + g)
+    lab = canvas.labels
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * g + 1, 2 * g + 1))
+    near = cv2.dilate((lab == OTHER).astype(np.uint8), k) > 0
+    grown = lab.copy()
+    grown[(lab == BG) & near] = OTHER
+    found = boundary_points(Canvas(grown, canvas.x0, canvas.y0), pix)
+    return found if len(found.other) >= 3 else bnd
+
+
 #: Shaft pieces are one shaft cut across when their directions agree within this (deg)
 #: and each piece's centroid is within this fraction of the larger piece's width of
 #: its axis line.
@@ -530,7 +566,10 @@ def _shaft_points(
     if mom["m00"] <= 0:
         return None
     border = _on_border(pix, image_shape)  # in the camera's image
-    ideal_pix, bnd = ideal_outline(pix, boundary_points(canvas, pix), camera)
+    bnd = boundary_points(canvas, pix)
+    if len(bnd.other) < 3 and others:  # a thin gap between the shaft and its head?
+        bnd = _across_gap(bnd, shaft_mask, shaft.offset, others, image_shape, pix)
+    ideal_pix, bnd = ideal_outline(pix, bnd, camera)
     centre = (mom["m10"] / mom["m00"] + shaft.offset[0], mom["m01"] / mom["m00"] + shaft.offset[1])
     return _ShaftPoints(
         pix=ideal_pix,
