@@ -5,8 +5,8 @@ label values) is pure: :func:`observe_labels` depends only on the frame and the 
 It runs in worker processes on batches of consecutive frames (:func:`observe_batch`);
 the caller consumes the results strictly in frame order (:func:`ordered_results`) and
 does the sequential steps itself (identity across frames, sequence refinement). At most
-``in_flight`` batches are submitted and not yet consumed, so memory does not grow with
-the sequence length.
+``IN_FLIGHT_PER_WORKER`` batches per worker are submitted and not yet consumed, so
+memory does not grow with the sequence length.
 
 Where the work runs is a :class:`FramePool`:
 
