@@ -233,15 +233,24 @@ def test_ctrl_c_on_the_command_line_stops_every_worker(crossing: Path, tmp_path:
     """SIGINT to the whole process group, as a terminal's Ctrl+C: one line, exit 130, no
     output file, and no process of the run left."""
     import os
+    import shutil
     import signal
     import subprocess
     import sys
     import time
 
+    # A long sequence (the 60 frames linked 50 times over), so that the run cannot finish
+    # before the SIGINT lands (the 60 frames alone take ~1.5 s: a race).
+    long_seq = tmp_path / "long"
+    long_seq.mkdir()
+    shutil.copy(crossing / "mistool.toml", long_seq / "mistool.toml")
+    frames = sorted(crossing.glob("*.png"))
+    for k in range(50 * len(frames)):
+        (long_seq / f"{k:06d}.png").symlink_to(frames[k % len(frames)])
     out = tmp_path / "o.csv"
     code = (
         "import sys; from mistool.cli import main; "
-        f"sys.exit(main(['track', {str(crossing)!r}, '-o', {str(out)!r}, '--workers', '2']))"
+        f"sys.exit(main(['track', {str(long_seq)!r}, '-o', {str(out)!r}, '--workers', '2']))"
     )
     child = subprocess.Popen(
         [sys.executable, "-c", code], stderr=subprocess.PIPE, text=True, start_new_session=True
