@@ -212,9 +212,10 @@ def _big_sequence(seq: Path, poses: Path | None, tmp: Path, frames: int) -> tupl
     files = list_frames(seq)
     big = tmp / "big"
     big.mkdir()
-    for name in ("mistool.toml",):
-        if (seq / name).exists():
-            (big / name).write_bytes((seq / name).read_bytes())
+    if (seq / "mistool.toml").exists():  # without 'source': its video is not tiled along
+        lines = (seq / "mistool.toml").read_text().splitlines(keepends=True)
+        kept = [line for line in lines if not line.lstrip().startswith("source")]
+        (big / "mistool.toml").write_text("".join(kept))
     for k in range(frames):
         os.link(files[k % len(files)], big / f"{k:06d}{files[0].suffix}")
     if poses is None:
