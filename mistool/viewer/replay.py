@@ -36,6 +36,7 @@ import numpy as np
 from mistool.config import Config
 from mistool.errors import TableError
 from mistool.model import PARTS, TrackTable
+from mistool.report import PALETTE_RGB
 
 #: Rotation of the camera frame into the z-up world frame (columns: camera x, y, z).
 R_WORLD_CAMERA = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -51,22 +52,9 @@ DEFAULT_SHAFT_LENGTH_MM = 60.0
 #: Radius of the clasper and wrist relative to the shaft's, in metric mode.
 PART_RADIUS_RATIO = {"shaft": 1.0, "wrist": 0.9, "clasper": 0.7}
 
-#: One colour per instrument (RGB), in instrument order; cycled beyond ten.
-PALETTE = np.array(
-    [
-        (31, 119, 180),
-        (255, 127, 14),
-        (44, 160, 44),
-        (214, 39, 40),
-        (148, 103, 189),
-        (140, 86, 75),
-        (227, 119, 194),
-        (127, 127, 127),
-        (188, 189, 34),
-        (23, 190, 207),
-    ],
-    dtype=np.uint8,
-)
+#: One colour per instrument (RGB), in instrument order; cycled beyond ten. The same
+#: colours as the report and the video (one definition: :data:`mistool.report.PALETTE_RGB`).
+PALETTE = np.array(PALETTE_RGB, dtype=np.uint8)
 #: How much of white is mixed into an instrument's colour for each part.
 PART_LIGHTEN = {"shaft": 0.0, "wrist": 0.3, "clasper": 0.55}
 
