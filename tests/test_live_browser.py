@@ -164,3 +164,60 @@ def test_viewer_add_from_a_loop_while_a_browser_watches(
         if page is not None:
             page.close()
         viewer.close()
+
+
+def test_a_browser_connecting_while_the_first_data_arrives_is_fitted_to_it(
+    browser,  # noqa: F811
+    short_seq: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """viser counts a browser as connected only once its first camera message arrives
+    (after the page has loaded its WebGL). The first data coming in between must still
+    move that browser's camera onto the instruments. The window is made wide on purpose:
+    the server holds the page's camera messages until the data is in."""
+    import asyncio
+
+    import viser.infra
+    from viser import _messages
+
+    import mistool
+
+    release = threading.Event()
+    register = viser.infra.WebsockClientConnection.register_handler
+
+    def held_register(self, message_cls, callback):  # type: ignore[no-untyped-def]
+        if message_cls is not _messages.ViewerCameraMessage:
+            return register(self, message_cls, callback)
+
+        async def held(client_id, message):  # type: ignore[no-untyped-def]
+            while not release.is_set():
+                await asyncio.sleep(0.02)
+            await callback(client_id, message)
+
+        return register(self, message_cls, held)
+
+    monkeypatch.setattr(viser.infra.WebsockClientConnection, "register_handler", held_register)
+    labels = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in list_frames(short_seq)]
+    viewer = mistool.Viewer(short_seq / "mistool.toml", port=0)
+    rv = viewer.replay_viewer
+    page = None
+    try:
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.goto(viewer.url)
+        page.wait_for_selector("canvas[data-engine]", timeout=20000)
+        page.wait_for_timeout(1000)  # the page sends its camera: held
+        assert not rv.server.get_clients(), "the page counted as connected"
+        for k in range(10):  # the first data: the view is fitted without this browser
+            viewer.add(labels[k])
+        assert rv._fitted
+        release.set()
+        assert _wait(lambda: len(rv.server.get_clients()) == 1, timeout=20)
+        page.wait_for_timeout(1500)
+        img = _shot(page)
+        colours = [rv.replay.part_colour(i, "shaft") for i in range(len(rv.replay.instruments))]
+        assert max(_hue_pixels(img, c) for c in colours) > 300, "no instrument on screen"
+    finally:
+        release.set()
+        if page is not None:
+            page.close()
+        viewer.close()

@@ -820,8 +820,16 @@ class ReplayViewer:
                 client.scene.set_background_image(None)
 
     def _watch_camera(self, client: viser.ClientHandle) -> None:
-        """A new browser: follow its camera (the endoscope view's background)."""
+        """A new browser: follow its camera (the endoscope view's background), and put
+        it on the data if the view was fitted while it was still loading. viser counts a
+        browser as connected only at its first camera message, seconds after its page
+        got the initial camera, so :meth:`_fit` can miss it (it then looked at the empty
+        scene's default place)."""
         client.camera.on_update(self._camera_moved)
+        with self._lock:
+            if self._fitted and not self._closing:
+                with contextlib.suppress(Exception):  # the browser may have just left
+                    self.scene.apply_camera(client, "Reset")
 
     def _camera_moved(self, camera: viser.CameraHandle) -> None:
         client = camera.client
