@@ -28,8 +28,11 @@ from mistool.viewer.replay import (
     METRIC_UNITS_PER_MM,
     PAPER_UNITS_PER_PX,
     R_WORLD_CAMERA,
+    Replay,
+    config_parts,
     euler_from_quat,
     quat_z_to,
+    scene_extent,
 )
 
 CAMERA = Camera(fx=600.0, fy=600.0, cx=359.5, cy=287.5)
@@ -636,3 +639,21 @@ def test_endoscope_backdrop_puts_rays_where_the_camera_sees_them(aspect) -> None
     for p in ndc:
         err = np.linalg.norm(found - p, axis=1).min() * out.shape[0] / 2  # in output px
         assert err < 1.5, (p, err)
+
+
+def test_scene_extent_holds_both_ends_of_a_long_cylinder() -> None:
+    """Camera presets frame whole tools: a 40-unit shaft centred at (10, 30, 0) along +x
+    reaches x = -10 and x = 30, far beyond its centre (its centre alone gives 0..10)."""
+    cfg = Config()
+    replay = Replay(
+        cfg, num_frames=1, image_wh=(720, 576), instruments=("a",), parts=config_parts(cfg)
+    )
+    g = replay.modes[replay.default_mode]
+    g.visible[0] = False
+    g.visible[0, 0, 0] = True
+    g.centre[0, 0, 0] = (10.0, 30.0, 0.0)
+    g.wxyz[0, 0, 0] = quat_z_to(np.array([1.0, 0.0, 0.0]))
+    g.length[0, 0, 0] = 40.0
+    lo, hi = scene_extent(replay, replay.default_mode)
+    assert lo[0] < -9.0 and hi[0] > 29.0  # 2nd/98th percentiles of the two ends
+    np.testing.assert_allclose([lo[1], hi[1], lo[2], hi[2]], [0.0, 30.0, 0.0, 0.0], atol=1e-9)

@@ -785,11 +785,20 @@ def _distal_point(end_w: np.ndarray, visible: np.ndarray) -> np.ndarray:
 
 def scene_extent(replay: Replay, mode: str) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) world corners of the 2nd..98th percentiles of the cylinders' ends,
-    including the endoscope at the origin."""
+    including the endoscope at the origin (so a preset camera frames whole tools, not
+    only their centres: a long shaft's outer end was cut off)."""
     g = replay.modes[mode]
-    pts = g.centre[g.visible]
-    if len(pts) == 0:
+    visible = g.visible
+    centre, q = g.centre[visible], g.wxyz[visible]
+    if len(centre) == 0:
         pts = np.zeros((1, 3))
+    else:
+        w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        axis = np.stack(  # the rotation of wxyz applied to +z
+            [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1
+        )
+        half = 0.5 * g.length[visible][:, None] * axis
+        pts = np.concatenate([centre - half, centre + half])
     lo = np.minimum(np.percentile(pts, 2, axis=0), 0.0)
     hi = np.maximum(np.percentile(pts, 98, axis=0), 0.0)
     return lo, hi
