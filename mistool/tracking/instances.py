@@ -23,6 +23,7 @@ here is pure and per frame (it runs in worker processes).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -234,18 +235,50 @@ def _own_labels(
     return out
 
 
-def _components(union: np.ndarray) -> tuple[np.ndarray, int]:
+def _components(
+    union: np.ndarray,
+) -> tuple[np.ndarray, int, Sequence[np.ndarray], np.ndarray | None]:
     """The union mask bridged over :data:`MERGE_GAP_PX` when it has several components,
-    and the number of (bridged) components."""
+    the number of (bridged) components, and the returned mask's ``RETR_CCOMP`` contours
+    and hierarchy (outer outlines: hierarchy parent < 0)."""
     contours, hierarchy = cv2.findContours(union, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     n_inst = int((hierarchy[0][:, 3] < 0).sum()) if contours else 0
     if n_inst <= 1 or MERGE_GAP_PX <= 0:  # one connected foreground needs no bridging
-        return union, n_inst
+        return union, n_inst, contours, hierarchy
     # the crop holds every foreground pixel, so no padding is needed for the gaps
     k = 2 * MERGE_GAP_PX + 1
     bridged = cv2.dilate(union, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
     contours, hierarchy = cv2.findContours(bridged, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
-    return bridged, int((hierarchy[0][:, 3] < 0).sum())
+    return bridged, int((hierarchy[0][:, 3] < 0).sum()), contours, hierarchy
+
+
+def labelled_components(
+    mask: np.ndarray, contours: Sequence[np.ndarray], hierarchy: np.ndarray | None
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """``cv2.connectedComponentsWithStats(mask, connectivity=8)``'s labels and the
+    (x, y, w, h) columns of its stats, several times faster.
+
+    OpenCV's statistics pass costs ~20x its labelling on our crops; the bounds come
+    instead from the mask's ``RETR_CCOMP`` outer outlines (``contours``, ``hierarchy``
+    as ``cv2.findContours`` gives them): each 8-connected component has exactly one, and
+    its bounds are the component's. Falls back to OpenCV's statistics when the outlines
+    and the labels disagree in number.
+
+    Returns:
+        ``(n, labels, stats)``: ``n`` labels (0: background), the (H, W) int32 label
+        image, (n, 4) int32 bounds (row 0, the background's, left zero).
+    """
+    n, cc = cv2.connectedComponents(mask, connectivity=8)
+    rows = hierarchy[0] if hierarchy is not None else np.zeros((0, 4), np.int32)
+    outer = [c for c, h in zip(contours, rows, strict=True) if h[3] < 0]
+    if len(outer) != n - 1:  # pragma: no cover - findContours and the labelling agree
+        n, cc, full, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        return n, cc, np.ascontiguousarray(full[:, :4])
+    stats = np.zeros((n, 4), np.int32)
+    for c in outer:
+        x, y = c[0, 0]
+        stats[cc[y, x]] = cv2.boundingRect(c)
+    return n, cc, stats
 
 
 def _merged(
@@ -260,7 +293,7 @@ def _merged(
     union = masks[part_names[0]]
     for p in part_names[1:]:
         union = cv2.bitwise_or(union, masks[p])
-    bridged, n_inst = _components(union)
+    bridged, n_inst, contours, hierarchy = _components(union)
     if n_inst == 0:
         return []
     if n_inst == 1:  # one (bridged) component: everything belongs to it
@@ -268,7 +301,7 @@ def _merged(
         if parts and sum(o.area_px for o in parts.values()) >= max(min_area, 1):
             return [make_instance(None, parts, shape)]
         return []
-    n, cc, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
+    n, cc, stats = labelled_components(bridged, contours, hierarchy)
     counts = np.bincount(cc[union > 0], minlength=n)
     shaft_counts = (
         np.bincount(cc[masks["shaft"] > 0], minlength=n)
@@ -289,15 +322,23 @@ def _merged(
         y0 = min(int(stats[i, 1]) for i in group)
         x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
         y1 = max(int(stats[i, 1] + stats[i, 3]) for i in group)
-        sub = cc[y0:y1, x0:x1]
-        inside = sub == group[0] if len(group) == 1 else np.isin(sub, group)
-        window = {p: np.where(inside, m[y0:y1, x0:x1], np.uint8(0)) for p, m in masks.items()}
+        inside = member_mask(cc[y0:y1, x0:x1], group)
+        window = {p: cv2.bitwise_and(m[y0:y1, x0:x1], inside) for p, m in masks.items()}
         parts = _parts_in(window, (fx + x0, fy + y0), min_area)
         if parts:
             found.append(make_instance(None, parts, shape))
     found = join_by_axis(found, min_area, shape)
     found.sort(key=lambda inst: -inst.area_px)
     return found
+
+
+def member_mask(labels: np.ndarray, members: list[int]) -> np.ndarray:
+    """uint8 mask (255 / 0) of the pixels of ``labels`` (an int32 label image) whose label
+    is one of ``members`` (a few labels: one comparison each, ~100x ``np.isin``)."""
+    out = cv2.compare(labels, members[0], cv2.CMP_EQ)
+    for m in members[1:]:
+        out = cv2.bitwise_or(out, cv2.compare(labels, m, cv2.CMP_EQ))
+    return out
 
 
 def _parts_in(
@@ -377,7 +418,8 @@ def group_components(
     Args:
         counts: (n,) part pixels per component.
         shaft_counts: (n,) shaft pixels per component.
-        stats: (n, 5) ``cv2.connectedComponentsWithStats`` stats (x, y, w, h, area).
+        stats: (n, >= 4) component bounds (x, y, w, h), the first columns of
+            ``cv2.connectedComponentsWithStats``' stats.
         min_area: specks and shafts below this many pixels.
         cc: (H, W) component label image.
         border: (n,) True where a component touches the image border.
@@ -442,12 +484,12 @@ def _pixel_gap(
     x1 = max(box_a[2], min(box_a[2] + reach, box_b[2]))
     y1 = max(box_a[3], min(box_a[3] + reach, box_b[3]))
     win = cc[y0:y1, x0:x1]
-    in_b = win == b[0] if len(b) == 1 else np.isin(win, b)
-    if not in_b.any():
+    in_b = member_mask(win, b)
+    if not cv2.countNonZero(in_b):
         return math.inf
-    not_a = (win != a[0] if len(a) == 1 else ~np.isin(win, a)).astype(np.uint8)
+    not_a = cv2.bitwise_not(member_mask(win, a))
     dist = cv2.distanceTransform(not_a, cv2.DIST_L2, cv2.DIST_MASK_3)  # ~2% off: a gate
-    return float(dist[in_b].min())
+    return float(cv2.minMaxLoc(dist, mask=in_b)[0])
 
 
 # joining pieces an occluder cut off, by shaft geometry -------------------------------------
