@@ -203,8 +203,15 @@ def track_into(spec: JobSpec, stop: Any = None) -> Progress:
 
 
 def _child(spec: JobSpec) -> None:
-    """Entry point of the child process: quiet, no traceback for bad input."""
+    """Entry point of the child process: quiet, no traceback for bad input.
+
+    The parent starts the child daemonic (so that it never outlives the parent, which
+    does not wait for it at exit), but multiprocessing forbids a daemonic process its
+    own children; the flag is cleared here, in the child only, so that ``spec.workers > 1``
+    can start its worker pool. The workers exit by themselves when this child is gone
+    (:func:`mistool.parallel.LocalPool`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us
+    multiprocessing.current_process().daemon = False
     with contextlib.suppress(MistoolError):
         track_into(spec)
 

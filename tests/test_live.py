@@ -247,3 +247,21 @@ def test_serve_tracks_in_the_background_and_resumes_after_ctrl_c(seq: Path, tmp_
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0
+
+
+def test_background_job_with_worker_processes_gives_the_same_table(
+    seq: Path, tracked: TrackTable, tmp_path: Path
+) -> None:
+    """The job's child process is daemonic (it never outlives its parent), yet it starts
+    its own pool of worker processes for ``workers > 1``; the table is the same."""
+    path, cfg = resolve(seq)
+    entry = _entry(seq, tmp_path)
+    job = background.TrackingJob(background.JobSpec(path, cfg, entry, workers=2))
+    job.start()
+    try:
+        assert job.wait(timeout=120), "the tracking child did not finish"
+    finally:
+        job.stop()
+    progress = entry.progress()
+    assert progress.complete and not progress.error, progress.error
+    _assert_same(entry.read_final(mmap=False), tracked)
