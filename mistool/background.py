@@ -20,8 +20,8 @@ import multiprocessing
 import signal
 import threading
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -52,8 +52,9 @@ class JobSpec:
     """The folder of label images or the mask video."""
     config: Config
     """The effective config."""
-    entry: CacheEntry
-    """Where chunks and the finished table go."""
+    entry: CacheEntry | None = None
+    """Where chunks and the finished table go; None: the job finds it (:func:`locate`:
+    it lists the folder and computes the cache key itself, so its caller need not)."""
     metric: bool = True
     """Compute the metric pose when the config has a camera."""
     smoothing: str = "offline"
@@ -63,26 +64,53 @@ class JobSpec:
     files: tuple[Path, ...] = ()
     """The folder's frame files in order, when the caller has listed them already (saves
     listing a long folder again)."""
+    fresh: bool = False
+    """Forget what the entry holds and track from the start."""
+    root: Path | None = None
+    """The cache's folder, where :func:`locate` looks (None: :func:`mistool.cache.cache_root`)."""
+
+    def key_options(self) -> dict[str, Any]:
+        """The tracking options that are part of the cache key."""
+        return {"metric": self.metric, "smoothing": self.smoothing}
 
 
-#: Suffixes of lossy frame files (their label values are widened: listed again instead).
-_LOSSY = frozenset({".jpg", ".jpeg"})
+def locate(spec: JobSpec) -> JobSpec:
+    """``spec`` with its frame files listed (a folder) and its cache entry found.
+
+    The entry's key (:func:`mistool.cache.cache_key`) covers every frame file's name, size
+    and modification time, the config and the tracking options, so this costs a listing
+    and a ``stat`` per frame: ``mistool serve`` does it here, in the tracking process,
+    instead of before its server starts. The entry found is marked used and the cache's
+    size policy applied (:func:`mistool.cache.enforce_limit`); ``spec.fresh`` empties it.
+
+    Raises:
+        InputPathError: the folder cannot be listed, or a frame is a dangling symlink.
+    """
+    from mistool.cache import cache_key, enforce_limit, open_entry
+    from mistool.sequence import list_frames
+
+    files = spec.files
+    if not files and spec.sequence.is_dir():
+        files = tuple(list_frames(spec.sequence))
+    entry = spec.entry
+    if entry is None:
+        keyed = list(files) if files else [spec.sequence]
+        entry = open_entry(
+            cache_key(spec.sequence, spec.config, keyed, **spec.key_options()), spec.root
+        )
+        with contextlib.suppress(OSError):
+            entry.touch()
+            enforce_limit(keep=entry)
+    if spec.fresh:
+        entry.remove()
+    return replace(spec, entry=entry, files=files, fresh=False)
 
 
 def _open(spec: JobSpec) -> MaskSequence:
-    """The sequence to track: from ``spec.files`` when given (PNG folders), else opened."""
-    from mistool.sequence import Frame, open_sequence, read_label_image
+    """The sequence to track (from ``spec.files`` when the folder is listed already)."""
+    from mistool.sequence import open_sequence
 
-    files, cfg = spec.files, spec.config
-    if not files or not spec.sequence.is_dir() or any(f.suffix.lower() in _LOSSY for f in files):
-        return open_sequence(spec.sequence, cfg)
-
-    def frames() -> Iterator[Frame]:
-        for i, f in enumerate(files):
-            yield Frame(i, f.name, lambda f=f: read_label_image(f, colour=cfg.colour_masks))  # type: ignore[misc]
-
-    name = spec.sequence.resolve().name or str(spec.sequence)
-    return MaskSequence("folder", name, cfg, frames, len(files), spec.sequence)
+    return open_sequence(spec.sequence, spec.config, files=list(spec.files) or None)
 
 
 # -- the child ----------------------------------------------------------------------------
@@ -137,73 +165,117 @@ def _raw(table: TrackTable) -> TrackTable:
     return TrackTable({c: table[c] for c in table.columns if c != "pose_status"})
 
 
-def track_into(spec: JobSpec, stop: Any = None) -> Progress:
-    """Track ``spec.sequence`` into ``spec.entry``, resuming after its last stored chunk
-    (when the tracker's state is stored with it; else from the start), then refine.
+def _settle(spec: JobSpec, seq: MaskSequence) -> tuple[int, Any]:
+    """Open ``spec.entry`` for tracking ``seq``: (first frame to track, the identity
+    tracker to go on with); a run that cannot be resumed (no stored state) starts again.
+    The frame names are stored with it (:meth:`~mistool.cache.CacheEntry.write_frame_names`).
+    """
+    from mistool import tracking
+
+    entry = spec.entry
+    assert entry is not None
+    info = {"sequence": str(spec.sequence)}
+    entry.begin(seq.num_frames, info)
+    progress = entry.progress()
+    start = 0 if progress.complete else progress.done
+    tracker = entry.state(start) if start else None
+    if tracker is None and not progress.complete:  # nothing to resume from: start again
+        if start:
+            entry.remove()
+            entry.begin(seq.num_frames, info)
+        start, tracker = 0, tracking.IdentityTracker(seq.config)
+    if spec.files:
+        entry.write_frame_names([f.name for f in spec.files])
+    return start, tracker
+
+
+def track_into(
+    spec: JobSpec,
+    stop: Any = None,
+    on_open: Callable[[CacheEntry, Progress], None] | None = None,
+) -> Progress:
+    """Track ``spec.sequence`` into ``spec.entry`` (found by :func:`locate` when None),
+    resuming after its last stored chunk (when the tracker's state is stored with it;
+    else from the start), then refine.
 
     Args:
         spec: what to track and where.
         stop: an event; when set, return after the current chunk.
+        on_open: called once the entry is ready, before any tracking, with the entry and
+            what it holds (the frame tracking resumes at: ``done``; ``complete``: nothing
+            to do).
 
     Returns:
         The entry's progress at the end.
 
     Raises:
-        MistoolError: bad input (also recorded in the entry).
+        MistoolError: bad input (also recorded in the entry, once there is one).
     """
-    from mistool import api, parallel, tracking
-    from mistool.rows import RowBuilder
-
-    entry, cfg = spec.entry, spec.config
+    entry = spec.entry
     try:
+        spec = locate(spec)
+        entry = spec.entry
+        assert entry is not None
         seq = _open(spec)
-        cfg = seq.config
-        measured = parallel.metric_pose(spec.metric, cfg)
-        entry.begin(seq.num_frames, {"sequence": str(spec.sequence)})
+        start, tracker = _settle(spec, seq)
         progress = entry.progress()
-        if progress.complete:
-            return progress
-        start = progress.done
-        tracker = entry.state(start) if start else None
-        if tracker is None:  # nothing stored, or no state to resume from: start again
-            if start:
-                entry.remove()
-                entry.begin(seq.num_frames, {"sequence": str(spec.sequence)})
-            start, tracker = 0, tracking.IdentityTracker(cfg)
-        context = _tail(entry.read_chunk(*progress.chunks[-1]), _PAPER_CONTEXT) if start else None
-        pool = parallel.LocalPool(spec.workers) if spec.workers > 1 else None
-        batch = pool.batch_frames if pool is not None else 1
-        work = parallel.batches(_from(seq, start), measured, batch)
-        results = enumerate(parallel.ordered_results(work, pool), start)
-        try:
-            for size in chunk_sizes():
-                rows = RowBuilder(cfg.fps)
-                end = start
-                for index, (name, result) in itertools.islice(results, size):
-                    seq.check_shape(name, result.shape)
-                    names, result = api._identify(tracker, index, result, cfg, measured)
-                    rows.add_frame(index, names, result.instances, result.metrics)
-                    end = index + 1
-                if end == start:
-                    break
-                table = _paper(_displayed(rows.take(), cfg, measured), context, cfg)
-                entry.add_chunk(start, end, table, tracker)
-                context, start = _tail(table, _PAPER_CONTEXT), end
-                if stop is not None and stop.is_set():
-                    return entry.progress()
-        finally:
-            if pool is not None:
-                pool.close()
-        raw = _raw(entry.read_raw())
-        entry.finish(api.refine(raw, cfg, spec.smoothing))
+        if on_open is not None:
+            on_open(entry, progress)
+        if not progress.complete:
+            _track_chunks(spec, seq, start, tracker, stop)
     except MistoolError as exc:
-        entry.fail(str(exc))
+        if entry is not None:
+            entry.fail(str(exc))
         raise
     return entry.progress()
 
 
-def _child(spec: JobSpec) -> None:
-    """Entry point of the child process: quiet, no traceback for bad input.
+def _track_chunks(spec: JobSpec, seq: MaskSequence, start: int, tracker: Any, stop: Any) -> None:
+    """Track ``seq`` from frame ``start`` chunk by chunk into ``spec.entry``; refine and
+    store the finished table after the last frame (unless ``stop`` is set before)."""
+    from mistool import api, parallel
+    from mistool.rows import RowBuilder
+
+    entry, cfg = spec.entry, seq.config
+    assert entry is not None
+    measured = parallel.metric_pose(spec.metric, cfg)
+    progress = entry.progress()
+    context = _tail(entry.read_chunk(*progress.chunks[-1]), _PAPER_CONTEXT) if start else None
+    pool = parallel.LocalPool(spec.workers) if spec.workers > 1 else None
+    batch = pool.batch_frames if pool is not None else 1
+    work = parallel.batches(_from(seq, start), measured, batch)
+    results = enumerate(parallel.ordered_results(work, pool), start)
+    try:
+        for size in chunk_sizes():
+            rows = RowBuilder(cfg.fps)
+            end = start
+            for index, (name, result) in itertools.islice(results, size):
+                seq.check_shape(name, result.shape)
+                names, result = api._identify(tracker, index, result, cfg, measured)
+                rows.add_frame(index, names, result.instances, result.metrics)
+                end = index + 1
+            if end == start:
+                break
+            table = _paper(_displayed(rows.take(), cfg, measured), context, cfg)
+            entry.add_chunk(start, end, table, tracker)
+            context, start = _tail(table, _PAPER_CONTEXT), end
+            if stop is not None and stop.is_set():
+                return
+    finally:
+        if pool is not None:
+            pool.close()
+    raw = _raw(entry.read_raw())
+    entry.finish(api.refine(raw, cfg, spec.smoothing))
+
+
+#: Messages the tracking process sends its parent (the first one only): the entry found
+#: and what it held, or the one-line error that stopped it before.
+OPENED, FAILED = "opened", "failed"
+
+
+def _child(spec: JobSpec, conn: Any) -> None:
+    """Entry point of the child process: quiet, no traceback for bad input; tells the
+    parent (``conn``) which entry it tracks into, or why it could not start.
 
     The parent starts the child daemonic (so that it never outlives the parent, which
     does not wait for it at exit), but multiprocessing forbids a daemonic process its
@@ -212,8 +284,21 @@ def _child(spec: JobSpec) -> None:
     (:func:`mistool.parallel.LocalPool`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us
     multiprocessing.current_process().daemon = False
-    with contextlib.suppress(MistoolError):
-        track_into(spec)
+    said = False
+
+    def opened(entry: CacheEntry, progress: Progress) -> None:
+        nonlocal said
+        conn.send((OPENED, entry, progress))
+        said = True
+
+    try:
+        track_into(spec, on_open=opened)
+    except MistoolError as exc:
+        if not said:
+            with contextlib.suppress(OSError, ValueError):
+                conn.send((FAILED, str(exc), None))
+    finally:
+        conn.close()
 
 
 # -- the parent ---------------------------------------------------------------------------
@@ -223,6 +308,7 @@ class TrackingJob:
     def __init__(self, spec: JobSpec) -> None:
         self.spec = spec
         self._process: multiprocessing.process.BaseProcess | None = None
+        self._conn: Any = None  # the receiving end of the child's messages
         self.started = 0.0
 
     def start(self) -> None:
@@ -233,10 +319,29 @@ class TrackingJob:
         alone = threading.active_count() == 1
         method = "fork" if alone and "fork" in multiprocessing.get_all_start_methods() else "spawn"
         ctx: Any = multiprocessing.get_context(method)
-        self._process = ctx.Process(target=_child, args=(self.spec,), name="mistool-track")
+        self._conn, send = ctx.Pipe(duplex=False)
+        self._process = ctx.Process(target=_child, args=(self.spec, send), name="mistool-track")
         self._process.daemon = True
         self.started = time.monotonic()
         self._process.start()
+        send.close()  # the child has its own: the pipe ends when the child does
+
+    def opened(self) -> tuple[CacheEntry | None, Progress | str] | None:
+        """The child's word on its cache entry, without waiting: None while it is still
+        looking (listing the frames, computing the key); ``(entry, what it held)`` once
+        found; ``(None, error)`` when the child stopped before (a one-line error)."""
+        conn = self._conn
+        if conn is None:
+            return None
+        try:
+            if not conn.poll():
+                return None
+            kind, value, progress = conn.recv()
+        except (EOFError, OSError):
+            kind, value = FAILED, "the tracking process ended before it started"
+        conn.close()
+        self._conn = None
+        return (value, progress) if kind == OPENED else (None, str(value))
 
     @property
     def running(self) -> bool:
@@ -245,6 +350,9 @@ class TrackingJob:
 
     def stop(self, timeout: float = 5.0) -> None:
         """Stop the child now (stored chunks stay; the next job resumes after them)."""
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
         p = self._process
         if p is None:
             return

@@ -7,6 +7,7 @@ it stopped. Nothing here imports viser; nothing is ever written beside the seque
 Layout of one entry, ``<root>/<key>/``::
 
     meta.json          what the entry is (key inputs, frames, chunks done, complete or not)
+    frames.json        the frame file names in frame order (a folder; for the viewer)
     raw/<a>-<b>.npz    raw (unrefined) rows of frames [a, b), one file per tracked chunk
     state.pkl          the tracker's state after the last chunk (to resume from there)
     final/<col>.npy    the finished, refined table: one .npy per column (memory-mapped)
@@ -199,6 +200,22 @@ class CacheEntry:
             return (self.path / "used").stat().st_mtime
         except OSError:
             return 0.0
+
+    # -- the frames -------------------------------------------------------------------
+    def write_frame_names(self, names: list[str]) -> None:
+        """Store the sequence's frame file names in frame order (``frames.json``), for the
+        viewer, which then need not list a long folder itself."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        data = json.dumps(list(names)).encode()
+        _atomic_bytes(self.path / "frames.json", lambda f: f.write(data))
+
+    def frame_names(self) -> list[str] | None:
+        """The frame file names stored by :meth:`write_frame_names` (None: not stored)."""
+        try:
+            names = json.loads((self.path / "frames.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        return [str(n) for n in names] if isinstance(names, list) else None
 
     # -- raw chunks ---------------------------------------------------------------------
     def add_chunk(self, start: int, stop: int, table: TrackTable, state: Any = None) -> None:

@@ -588,13 +588,13 @@ def list_frames(folder: Path) -> list[Path]:
         for e in entries
         if not e.name.startswith(".")
         and os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS
-        and _is_frame_file(e)
+        and is_frame_file(e)
     ]
     names.sort(key=natural_key)
     return [folder / name for name in names]
 
 
-def _is_frame_file(entry: os.DirEntry[str]) -> bool:
+def is_frame_file(entry: os.DirEntry[str]) -> bool:
     """Whether a folder entry with an image extension is a frame file; a symlink that
     loops or dangles is an error (it names a frame that cannot be read)."""
     try:
@@ -636,7 +636,10 @@ def resolve(path: str | Path) -> tuple[Path, Config]:
 
 
 def open_sequence(
-    source: str | Path | Iterable[np.ndarray], config: Config | None = None
+    source: str | Path | Iterable[np.ndarray],
+    config: Config | None = None,
+    *,
+    files: list[Path] | None = None,
 ) -> MaskSequence:
     """Open a sequence for streaming (nothing is decoded yet, except a video's header).
 
@@ -645,6 +648,8 @@ def open_sequence(
             (or ``(H, W, 3)`` RGB) integer arrays.
         config: what the pixels mean; None reads ``mistool.toml`` beside the frames
             (defaults for arrays).
+        files: a folder's frame files as :func:`list_frames` gives them, when the caller
+            has listed it already (a long folder is not listed twice).
 
     Raises:
         InputPathError: missing path, or a folder without label images.
@@ -656,7 +661,7 @@ def open_sequence(
         path, found = resolve(source)
         config = config if config is not None else found
         if path.is_dir():
-            return fit_lens(_open_folder(path, config))
+            return fit_lens(_open_folder(path, config, files))
         return fit_lens(_open_video(path, config))
     if isinstance(source, np.ndarray) and (
         source.ndim == 2 or (source.ndim == 3 and source.shape[2] in (3, 4))
@@ -711,8 +716,8 @@ def _calibration_name(config: Config) -> str:
     return str(config.calibration) if config.calibration is not None else "camera"
 
 
-def _open_folder(folder: Path, config: Config) -> MaskSequence:
-    files = list_frames(folder)
+def _open_folder(folder: Path, config: Config, files: list[Path] | None = None) -> MaskSequence:
+    files = list_frames(folder) if files is None else files
     if not files:
         videos = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in VIDEO_EXTENSIONS)
         hint = (

@@ -215,12 +215,14 @@ def test_serve_tracks_in_the_background_and_resumes_after_ctrl_c(seq: Path, tmp_
             cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
         )
         assert proc.stdout is not None
-        return proc, [proc.stdout.readline() for _ in range(2)]
+        # What was stored is said once the job has found the cache entry (after the URL).
+        return proc, [proc.stdout.readline() for _ in range(3)]
 
     proc, lines = launch()
     try:
-        assert "tracking in the background from frame 0" in lines[0], lines
+        assert "tracking in the background" in lines[0], lines
         assert "http://" in lines[1], lines
+        assert "3,000 frames, tracking from frame 0" in lines[2], lines
         entry = cache.entries(tmp_path / "cache" / "mistool" / "tables")
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not (entry and entry[0].progress().done >= 50):
@@ -240,7 +242,7 @@ def test_serve_tracks_in_the_background_and_resumes_after_ctrl_c(seq: Path, tmp_
     assert entry[0].progress().done == done, "the tracking process kept running"
     proc, lines = launch()  # the next launch resumes where the first stopped
     try:
-        assert f"from frame {done}" in lines[0], lines
+        assert f"resuming from frame {done}" in lines[2], lines
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=30)
     finally:
@@ -265,3 +267,154 @@ def test_background_job_with_worker_processes_gives_the_same_table(
     progress = entry.progress()
     assert progress.complete and not progress.error, progress.error
     _assert_same(entry.read_final(mmap=False), tracked)
+
+
+# -- mistool serve starts without listing the frames ---------------------------------------
+def _grow(feed, replay: Replay, timeout: float = 120.0) -> list[tuple[int, int]]:
+    """Poll ``feed`` into ``replay`` until it is finished; the patches' frame ranges."""
+    ranges = []
+    end = time.monotonic() + timeout
+    feed.start()
+    try:
+        while not feed.finished and time.monotonic() < end:
+            for patch in feed.poll(replay):
+                replay.apply(patch)
+                ranges.append((patch.lo, patch.hi))
+            time.sleep(0.05)
+    finally:
+        feed.stop()
+    assert feed.finished, feed.status()
+    return ranges
+
+
+def test_background_load_lists_nothing_and_the_job_finds_the_entry(
+    seq: Path, tracked: TrackTable, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Opening a sequence for ``mistool serve`` neither lists its frames nor keys the
+    cache in this process (the work that grows with the length): the tracking process
+    does both, tells which entry it uses, and the frame names reach the overlay's store
+    before the first frame is shown."""
+    from mistool import sequence as sequence_module
+    from mistool.viewer import app
+    from mistool.viewer.app import load_sequence
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    calls: list[str] = []
+    real_list, real_key = sequence_module.list_frames, cache.cache_key
+
+    def listing(folder: Path) -> list[Path]:
+        calls.append(f"list {os.getpid()}")
+        return real_list(folder)
+
+    def keying(*args: object, **kwargs: object) -> str:
+        calls.append(f"key {os.getpid()}")
+        return real_key(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(sequence_module, "list_frames", listing)
+    monkeypatch.setattr("mistool.viewer.overlay.list_frames", listing)
+    monkeypatch.setattr(cache, "cache_key", keying)
+    loaded = load_sequence(seq, background=True)
+    feed = loaded.feed
+    assert feed is not None and feed.entry is None and feed.status().phase == "opening"
+    assert not loaded.frames.listed and loaded.frames.labels(0) is None
+    assert loaded.replay.tracked == 0
+    ranges = _grow(feed, loaded.replay)
+    here = [c for c in calls if c.endswith(f" {os.getpid()}")]
+    assert here == [], "the server's process listed the frames or keyed the cache"
+    assert feed.status().phase == "done" and feed.total == N
+    assert ranges[0] == (0, background.CHUNK_SCHEDULE[0]), ranges  # grew chunk by chunk
+    assert loaded.frames.listed and loaded.frames.mask_files == list_frames(seq)
+    np.testing.assert_array_equal(
+        loaded.frames.labels(3), cv2.imread(str(list_frames(seq)[3]), cv2.IMREAD_UNCHANGED)
+    )
+    # The job's entry is the one the foreground path (and the key's inputs) name.
+    path, cfg = resolve(seq)
+    assert feed.entry is not None and feed.entry.key == app._entry_for(path, cfg).key
+    _assert_same(feed.entry.read_final(mmap=False), tracked)
+    assert feed.stored is not None and feed.stored.done == 0
+
+
+def test_the_job_keys_the_cache_honestly_and_resumes(seq: Path, tmp_path: Path) -> None:
+    """With ``entry=None`` the job computes the key from every frame file: a stopped run
+    is resumed by the next job; a touched frame is another entry."""
+    import shutil
+
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    path, cfg = resolve(copy)
+    root = tmp_path / "cache"
+    spec = background.JobSpec(path, cfg, None, root=root)
+    opened: list[tuple[cache.CacheEntry, cache.Progress]] = []
+
+    def on_open(entry: cache.CacheEntry, progress: cache.Progress) -> None:
+        opened.append((entry, progress))
+
+    stop = threading.Event()
+    stop.set()  # stop after the first chunk
+    first = background.track_into(spec, stop, on_open)
+    assert first.done == background.CHUNK_SCHEDULE[0] and not first.complete
+    done = background.track_into(spec, None, on_open)  # found again: resumed
+    assert done.complete
+    assert opened[1][0].key == opened[0][0].key
+    assert opened[0][1].done == 0 and opened[1][1].done == background.CHUNK_SCHEDULE[0]
+    assert opened[1][0].frame_names() == [f.name for f in list_frames(copy)]
+    frame = list_frames(copy)[7]
+    st = frame.stat()
+    os.utime(frame, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # touched
+    background.track_into(spec, stop, on_open)
+    assert opened[2][0].key != opened[0][0].key and opened[2][1].done == 0
+    fresh = background.track_into(replace_fresh(spec), stop, on_open)
+    assert opened[3][0].key == opened[2][0].key and opened[3][1].done == 0, "fresh: emptied"
+    assert fresh.done == background.CHUNK_SCHEDULE[0]
+
+
+def replace_fresh(spec: background.JobSpec) -> background.JobSpec:
+    import dataclasses
+
+    return dataclasses.replace(spec, fresh=True)
+
+
+def test_feed_reports_a_job_that_fails_before_it_finds_its_entry(seq: Path, tmp_path: Path) -> None:
+    """A frame only the listing finds (a dangling symlink) stops the job before it has an
+    entry: the feed says so in one line, and shows nothing."""
+    from mistool.viewer.feed import CacheFeed
+
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "mistool.toml").write_bytes((seq / "mistool.toml").read_bytes())
+    for f in list_frames(seq)[:5]:
+        os.symlink(f, bad / f.name)
+    os.symlink(tmp_path / "gone.png", bad / "000999.png")
+    path, cfg = resolve(bad)
+    feed = CacheFeed(None, background.JobSpec(path, cfg, None, root=tmp_path / "c"), None)
+    replay = Replay(cfg, num_frames=1, image_wh=(720, 576), parts=config_parts(cfg))
+    assert _grow(feed, replay) == []
+    status = feed.status()
+    assert status.phase == "failed" and feed.entry is None
+    assert status.error is not None and "dangling symlink" in status.error
+    assert "\n" not in status.error and "dangling symlink" in status.text()
+
+
+def test_overlay_of_a_frame_not_listed_yet_is_not_kept(seq: Path) -> None:
+    """Before a deferred listing arrives, an overlay has no mask: it is drawn but not
+    cached, so the same frame is drawn again, with its mask, once the names are known."""
+    from mistool.viewer.overlay import FrameStore, OverlayCache, OverlayRenderer
+
+    path, cfg = resolve(seq)
+    table = api.track(seq)
+    replay = build_replay(table, cfg, num_frames=N, image_wh=(720, 576))
+    frames = FrameStore(path, cfg, defer_listing=True)
+    assert frames.probe_file is not None and frames.probe_file.parent == path
+    assert frames.mask_shape() == (576, 720) and frames.num_mask_frames == 0
+    overlays = OverlayCache(OverlayRenderer(replay, frames))
+    try:
+        busy = int(replay.first_busy_frame() or 0)
+        before = overlays.get(busy, 1.0, False)[0]
+        assert overlays.peek(busy, 1.0, False) is None, "a render without masks was kept"
+        frames.set_mask_names([f.name for f in list_frames(seq)])
+        after = overlays.get(busy, 1.0, False)[0]
+        assert overlays.peek(busy, 1.0, False) is not None
+        assert (after != before).any(axis=2).sum() > 100, "the mask is not drawn"
+    finally:
+        overlays.close()
+        frames.close()

@@ -58,12 +58,14 @@ def test_long_procedure_renders_before_tracking_finishes(
         os.symlink(src, long / f"{k:05d}.png")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     sequence = load_sequence(long, background=True)
-    assert sequence.replay.tracked == 0 and sequence.replay.num_frames == LONG_FRAMES
+    # Nothing listed before the server starts: the background job lists the frames.
+    assert sequence.replay.tracked == 0 and not sequence.frames.listed
     viewer = ReplayViewer(sequence, port=0)
     page = None
     try:
         page = _open(browser, viewer.url)
         assert viewer.wait_tracked(50, timeout=90), "no tracked frame arrived"
+        assert sequence.frames.num_mask_frames == LONG_FRAMES == sequence.feed.total  # type: ignore[union-attr]
         assert _wait(lambda: viewer._fitted, timeout=30), "the view never showed an instrument"
         shown = viewer.timeline.shown
         assert _wait(lambda: viewer.overlay_frame == viewer.timeline.shown, timeout=10)

@@ -206,6 +206,37 @@ def _annotations_path(args: argparse.Namespace) -> Path | None:
     return default_path(args.sequence) if args.sequence is not None else None
 
 
+def _say_start(sequence: Any) -> None:
+    """The first line: what is shown (the length of a sequence tracked in the background
+    comes later, from :func:`_say_stored`)."""
+    replay = sequence.replay
+    if sequence.feed is not None:
+        what = "tracking in the background (progress in the browser)"
+    else:
+        what = f"{replay.num_frames} frames, {len(replay.instruments)} instrument(s)"
+    print(f"mistool serve: {sequence.name}: {what}, {replay.default_mode} mode", flush=True)
+
+
+def _say_stored(sequence: Any) -> bool:
+    """Print, once the tracking job has found its cache entry, how long the sequence is
+    and what was stored; returns whether it was printed (or nothing will be)."""
+    feed = sequence.feed
+    if feed is None or feed.finished and feed.stored is None:
+        return True
+    stored = feed.stored
+    if stored is None:
+        return False
+    if stored.complete:
+        state = "tracked (cached)"
+    elif stored.done:
+        state = f"resuming from frame {stored.done} (cached before)"
+    else:
+        state = "tracking from frame 0"
+    total = f"{stored.total:,} frames" if stored.total is not None else "frames"
+    print(f"mistool serve: {sequence.name}: {total}, {state}", flush=True)
+    return True
+
+
 def run(
     args: argparse.Namespace,
     *,
@@ -220,7 +251,6 @@ def run(
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port}: must be in 0..65535")
     sequence, compare = _open(args)
-    stored = sequence.feed.entry.progress() if sequence.feed is not None else None
     if sequence.feed is not None:  # tracking starts while the server starts
         sequence.feed.start()
     try:
@@ -244,32 +274,16 @@ def run(
     if threading.current_thread() is threading.main_thread():
         # SIGTERM (e.g. from a service manager) stops as cleanly as Ctrl+C.
         previous = signal.signal(signal.SIGTERM, lambda *_: waiter.set())
-    replay = sequence.replay
     try:  # from here on, Ctrl+C (even during the prints) stops cleanly
-        if stored is not None:
-            state = (
-                "tracked (cached)"
-                if stored.complete
-                else f"tracking in the background from frame {stored.done} (progress in the "
-                "browser)"
-            )
-            print(
-                f"mistool serve: {sequence.name}: {replay.num_frames} frames, {state}, "
-                f"{replay.default_mode} mode",
-                flush=True,
-            )
-        else:
-            print(
-                f"mistool serve: {sequence.name}: {replay.num_frames} frames, "
-                f"{len(replay.instruments)} instrument(s), {replay.default_mode} mode",
-                flush=True,
-            )
+        _say_start(sequence)
         _say_odd(args, viewer.port, access)
         print(f"open {viewer.url}   (Ctrl+C to stop)", flush=True)
         if ready is not None:
             ready.set()
-        while not waiter.wait(0.5):
-            pass
+        said = False
+        while not waiter.wait(0.2):
+            if not said:
+                said = _say_stored(sequence)
         print("mistool serve: stopped", file=sys.stderr)
     except KeyboardInterrupt:
         print("mistool serve: stopped", file=sys.stderr)

@@ -99,7 +99,10 @@ def load_sequence(
     calibration: str | Path | None = None,
 ) -> LoadedSequence:
     """Open a sequence for the viewer: track it (or load its motion table) and index its
-    frames. Every problem with the input is raised here, before any server starts.
+    frames. Every problem with the input is raised here, before any server starts; in the
+    ``background``, what only a listing of every frame can find (a dangling symlink, a
+    frame of another size, an unreadable frame) stops the tracking job instead, which
+    says so (:attr:`LoadedSequence.feed`'s status).
 
     Args:
         path: the sequence folder or mask video; None for the bundled sample.
@@ -110,10 +113,11 @@ def load_sequence(
         cache: reuse the table tracked by an earlier call for the same, unchanged
             sequence (:mod:`mistool.cache`), and store it after tracking; a partly
             tracked entry is resumed. The sequence's folder is never written to.
-        background: do not track here: return at once with the frames tracked so far
-            (cached ones, or none) and a :attr:`LoadedSequence.feed` that tracks the rest
-            in a background process while the viewer shows it (``mistool serve``).
-            Implies ``cache``.
+        background: do not track here: return at once with an empty replay and a
+            :attr:`LoadedSequence.feed` whose background process lists the frames, finds
+            the cache entry, and tracks what is not stored yet while the viewer shows it
+            (``mistool serve``); the work done here does not grow with the number of
+            frames (one frame is read). Implies ``cache``.
         fresh: forget what the cache holds for this sequence and track it again.
         calibration: a camera calibration file overriding the config's camera
             (``--calibration``; :func:`mistool.calibration.with_calibration`).
@@ -130,13 +134,12 @@ def load_sequence(
     config = with_calibration(config, calibration)
     if seq_path.is_file():  # a mask video: its codec smears label values (as tracking does)
         config = widen_for_video(config)
-    frames = FrameStore(seq_path, config)
+    # In the background, the job lists the frames (and keys the cache on them): the
+    # server starts at once however long the sequence (FrameStore's deferred listing).
+    deferred = background and table is None and poses is None
+    frames = FrameStore(seq_path, config, defer_listing=deferred)
     num_frames: int | None = frames.num_mask_frames or None
-    shape: tuple[int, int] | None = None
-    if frames.has_masks:
-        first = frames.labels(0)
-        if first is not None:
-            shape = (int(first.shape[0]), int(first.shape[1]))
+    shape = frames.mask_shape()
     if config.camera is not None and shape is not None:  # a calibration of another size
         config = _fit_camera(config, shape)
     if table is None and poses is not None:
@@ -149,16 +152,16 @@ def load_sequence(
         return LoadedSequence(
             replay=replay, frames=frames, name=seq_path.name, table=table, path=seq_path
         )
-    if seq_path.is_dir() and not frames.num_mask_frames:
+    if seq_path.is_dir() and not frames.has_masks:
         raise InputPathError(
             f"{seq_path}: no label images in this folder; pass a folder "
             "of masks, a mask video, or --poses with a motion table"
         )
     check_source(config, num_frames, shape)  # warns when source and masks disagree
+    if background:
+        return _background(seq_path, config, frames, num_frames, shape, fresh)
     if fresh:
         _entry_for(seq_path, config, frames.mask_files).remove()
-    if background:
-        return _background(seq_path, config, frames, num_frames, shape)
     table, num_frames, config, shape = _track_now(
         seq_path,
         config,
@@ -227,8 +230,11 @@ def _background(
     frames: FrameStore,
     num_frames: int | None,
     shape: tuple[int, int] | None,
+    fresh: bool,
 ) -> LoadedSequence:
-    """A growing replay fed by a background tracking job through the cache."""
+    """A growing replay fed by a background tracking job through the cache. The job
+    lists the frames, finds the cache entry (``fresh``: empties it) and gives the frame
+    names to ``frames``; nothing here grows with the sequence's length."""
     from mistool.background import JobSpec
     from mistool.viewer.feed import CacheFeed
 
@@ -245,15 +251,8 @@ def _background(
         instruments=tuple(s.name for s in config.instruments),
         parts=config_parts(config),
     )
-    entry = _entry_for(seq_path, config, frames.mask_files)
-    spec = JobSpec(
-        seq_path,
-        config,
-        entry,
-        files=tuple(frames.mask_files),
-        **SERVE_TRACKING,  # type: ignore[arg-type]
-    )
-    feed = CacheFeed(entry, spec, num_frames)
+    spec = JobSpec(seq_path, config, None, fresh=fresh, **SERVE_TRACKING)  # type: ignore[arg-type]
+    feed = CacheFeed(None, spec, num_frames, on_names=frames.set_mask_names)
     return LoadedSequence(
         replay=replay, frames=frames, name=seq_path.name, feed=feed, path=seq_path
     )
@@ -648,9 +647,11 @@ class ReplayViewer:
     # -- internals ----------------------------------------------------------------------
     def _title(self) -> str:
         replay, name = self.replay, self.sequence.name
+        # A growing replay's length is on its progress line (learnt after the start).
+        length = f"{replay.num_frames:,} frames at " if self.sequence.feed is None else ""
         return (
-            f"**mistool replay** · {name} · {replay.num_frames:,} frames "
-            f"at {replay.fps:g} fps · {len(replay.instruments)} instrument(s)"
+            f"**mistool replay** · {name} · {length}{replay.fps:g} fps · "
+            f"{len(replay.instruments)} instrument(s)"
         )
 
     def _parts_markdown(self, frame: int) -> str:

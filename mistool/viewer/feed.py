@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import collections
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from mistool.background import JobSpec, TrackingJob
-from mistool.cache import CacheEntry
+from mistool.cache import CacheEntry, Progress
 from mistool.errors import MistoolError
 from mistool.viewer.replay import WRITE_WINDOW, Replay, ReplayPatch
 
@@ -36,7 +36,8 @@ class FeedStatus:
     rate: float
     """Frames per second recently (0 when unknown)."""
     phase: str
-    """``"tracking"``, ``"refining"``, ``"done"``, ``"stopped"`` or ``"failed"``."""
+    """``"opening"`` (the job lists the frames and looks in the cache), ``"tracking"``,
+    ``"refining"``, ``"done"``, ``"stopped"`` or ``"failed"``."""
     error: str | None = None
     """The one-line error that stopped tracking."""
 
@@ -50,6 +51,8 @@ class FeedStatus:
     def text(self) -> str:
         """One line for the GUI."""
         total = f"{self.total:,}" if self.total is not None else "?"
+        if self.phase == "opening":
+            return "**Listing** the frames and looking in the cache..."
         if self.phase == "done":
             return f"**Tracked** all {self.done:,} frames (refined)"
         if self.phase == "failed":
@@ -93,38 +96,80 @@ class RateMeter:
 
 
 class CacheFeed:
-    """Grows a replay from a cache entry that a background job fills (or has filled)."""
+    """Grows a replay from a cache entry that a background job fills (or has filled).
 
-    def __init__(self, entry: CacheEntry, spec: JobSpec | None, total: int | None) -> None:
+    The entry may be unknown at first (``entry=None``): the job then finds it itself
+    (:func:`mistool.background.locate`: listing the frames and computing the cache key cost
+    a second at 100,000 frames, which would otherwise delay the server's start) and says
+    which it is; only then is anything shown from it, so a changed sequence never shows
+    another's stored frames.
+    """
+
+    def __init__(
+        self,
+        entry: CacheEntry | None,
+        spec: JobSpec | None,
+        total: int | None,
+        *,
+        on_names: Callable[[list[str]], None] | None = None,
+    ) -> None:
         """
         Args:
-            entry: the cache entry (complete, partial or new).
-            spec: the job that fills it (None: show only what is stored).
-            total: frames in the sequence, when known.
+            entry: the cache entry (complete, partial or new); None: the job finds it.
+            spec: the job that fills it (None: show only what is stored; required when
+                ``entry`` is None).
+            total: frames in the sequence, when known (else learnt from the job).
+            on_names: given the sequence's frame file names in frame order (as the job
+                listed them) once the entry is known and before any frame is shown; e.g.
+                :meth:`mistool.viewer.overlay.FrameStore.set_mask_names`.
         """
+        if entry is None and spec is None:
+            raise ValueError("CacheFeed: give the entry, or the job that finds it")
         self.entry = entry
         self.spec = spec
         self.total = total
+        self.stored: Progress | None = entry.progress() if entry is not None else None
+        """What the entry held before this run tracked anything (None until known)."""
         self.job: TrackingJob | None = None
+        self._on_names = on_names
         self._shown = 0  # frames [0, _shown) applied from raw chunks
         self._final_shown = False
         self._meter = RateMeter()
-        self._phase = "tracking"
+        self._phase = "tracking" if entry is not None else "opening"
         self._error: str | None = None
 
     def start(self) -> None:
         """Start the background job, unless the entry is complete or it has started."""
-        if self.job is not None:
+        if self.job is not None or self.spec is None:
             return
-        if self.spec is not None and not self.entry.progress().complete:
+        if self.entry is None or not self.entry.progress().complete:
             self.job = TrackingJob(self.spec)
             self.job.start()
+
+    def _find_entry(self) -> bool:
+        """Whether the entry is known (asks the job once more when it is not)."""
+        if self.entry is not None:
+            return True
+        said = self.job.opened() if self.job is not None else None
+        if said is None:
+            return False
+        entry, stored = said
+        if entry is None or not isinstance(stored, Progress):
+            self._phase, self._error = "failed", str(stored)
+            return False
+        names = entry.frame_names()
+        if names is not None and self._on_names is not None:
+            self._on_names(names)
+        self.stored, self.total = stored, stored.total if stored.total else self.total
+        self._phase = "tracking"
+        self.entry = entry  # last: readers of ``entry`` see a complete state
+        return True
 
     def stop(self) -> None:
         """Stop the job (what is stored stays, for the next launch to resume)."""
         if self.job is not None:
             self.job.stop()
-        if self._phase in ("tracking", "refining"):
+        if self._phase in ("opening", "tracking", "refining"):
             self._phase = "stopped"
 
     @property
@@ -141,6 +186,13 @@ class CacheFeed:
     def poll(self, replay: Replay) -> Iterator[ReplayPatch]:
         """New patches since the last call (computed, not applied), in frame order;
         computed one at a time as the caller iterates."""
+        if self._phase == "failed" or not self._find_entry():
+            if self._phase == "opening" and self.job is not None and not self.job.running:
+                self._find_entry()  # the child's last word, if it said one
+                if self._phase == "opening":
+                    self._phase = "stopped"
+            return
+        assert self.entry is not None
         progress = self.entry.progress()
         if progress.complete:
             if not self._final_shown:
@@ -165,6 +217,7 @@ class CacheFeed:
 
     def _final(self, replay: Replay) -> Iterator[ReplayPatch]:
         """The refined table, as patches over the whole timeline."""
+        assert self.entry is not None
         table = self.entry.read_final()
         n = max(replay.num_frames, self._shown)
         if table.num_rows:

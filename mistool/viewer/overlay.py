@@ -9,6 +9,7 @@ than :data:`MAX_OVERLAY_SIDE` (the JPEG sent to the browser stays small).
 
 from __future__ import annotations
 
+import os
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
@@ -22,6 +23,7 @@ from mistool.errors import InputPathError, MaskFormatError
 from mistool.sequence import (
     IMAGE_EXTENSIONS,
     VIDEO_EXTENSIONS,
+    is_frame_file,
     list_frames,
     natural_key,
     read_label_image,
@@ -59,28 +61,77 @@ class _VideoReader:
         self._cap.release()
 
 
+def find_frame_file(folder: Path) -> Path | None:
+    """One label image of ``folder`` (the first the folder lists, not the first in frame
+    order), or None when it has none: a look at a few entries, not a listing of them all.
+
+    Raises:
+        InputPathError: the folder cannot be listed, or the frame found is a dangling or
+            looping symlink.
+    """
+    try:
+        with os.scandir(folder) as it:
+            for entry in it:
+                if entry.name.startswith("."):
+                    continue
+                if os.path.splitext(entry.name)[1].lower() not in IMAGE_EXTENSIONS:
+                    continue
+                if is_frame_file(entry):
+                    return Path(entry.path)
+    except OSError as exc:
+        raise InputPathError(f"{folder}: cannot list folder: {exc.strerror or exc}") from None
+    return None
+
+
 class FrameStore:
     """Lazy, random-access frames of a sequence: label images and source video frames.
 
     Thread-safe (one lock); a small LRU cache keeps the most recent decoded frames.
+
+    A folder's frames are listed here, unless ``defer_listing``: then only one of its
+    frames is looked for (:attr:`probe_file`: the image size, and a folder without label
+    images is reported at once), and the ordered frame names come later, from
+    :meth:`set_mask_names` (``mistool serve``: the background job lists the folder, so the
+    server starts at once whatever the procedure's length). Until then :meth:`labels`
+    returns None and :attr:`listed` is False.
     """
 
-    def __init__(self, sequence: Path | None, config: Config, *, cache_frames: int = 8) -> None:
+    def __init__(
+        self,
+        sequence: Path | None,
+        config: Config,
+        *,
+        cache_frames: int = 8,
+        defer_listing: bool = False,
+    ) -> None:
         """
         Args:
             sequence: the folder of label images or the mask video (None: no masks).
             config: the sequence's config (``source``, colour masks).
             cache_frames: decoded frames kept in memory.
+            defer_listing: do not list a folder's frames (see the class docstring).
         """
         self.config = config
         self._lock = threading.Lock()
         self._cache: OrderedDict[tuple[str, int], np.ndarray | None] = OrderedDict()
         self._cache_frames = cache_frames
-        self._mask_files: list[Path] = []
+        self._mask_dir: Path | None = None
+        # Names, not paths: building 100,000 Path objects costs a second.
+        self._mask_names: list[str] = []
+        self._listed = True
+        self.probe_file: Path | None = None
+        """One label image of the folder (the first in frame order when listed here)."""
         self._mask_video: _VideoReader | None = None
         if sequence is not None:
             if sequence.is_dir():
-                self._mask_files = list_frames(sequence)
+                self._mask_dir = sequence
+                if defer_listing:
+                    self._listed = False
+                    self.probe_file = find_frame_file(sequence)
+                else:
+                    self._mask_names = [f.name for f in list_frames(sequence)]
+                    if self._mask_names:
+                        self.probe_file = sequence / self._mask_names[0]
             elif sequence.suffix.lower() in VIDEO_EXTENSIONS:
                 self._mask_video = _VideoReader(sequence)
         self._source_files: list[Path] = []
@@ -100,27 +151,59 @@ class FrameStore:
             else:
                 self._source_video = _VideoReader(src)
 
+    def set_mask_names(self, names: list[str]) -> None:
+        """Give the folder's frame file names, in frame order (a deferred listing)."""
+        with self._lock:
+            self._mask_names = list(names)
+            self._listed = True
+            for key in [k for k in self._cache if k[0] == "mask"]:
+                del self._cache[key]
+
+    @property
+    def listed(self) -> bool:
+        """Whether the mask frames are known (False only until a deferred listing is
+        given with :meth:`set_mask_names`)."""
+        return self._listed
+
     @property
     def mask_files(self) -> list[Path]:
-        """The label image files, in frame order (empty for a mask video)."""
-        return self._mask_files
+        """The label image files, in frame order (empty for a mask video, or while a
+        deferred listing is pending)."""
+        if self._mask_dir is None:
+            return []
+        return [self._mask_dir / name for name in self._mask_names]
 
     @property
     def has_masks(self) -> bool:
-        """Whether label images can be read."""
-        return bool(self._mask_files) or self._mask_video is not None
+        """Whether label images can be read (a deferred listing: once it is given)."""
+        return bool(self._mask_names) or self.probe_file is not None or self._mask_video is not None
 
     @property
     def has_source(self) -> bool:
         """Whether the procedure's own video frames can be read."""
         return bool(self._source_files) or self._source_video is not None
 
+    def mask_shape(self) -> tuple[int, int] | None:
+        """``(H, W)`` of the label images, from one of them (:attr:`probe_file`, or a mask
+        video's first frame); None without masks.
+
+        Raises:
+            MistoolError: that frame cannot be read as a label image.
+        """
+        if self._mask_video is not None:
+            first = self.labels(0)
+        elif self.probe_file is not None:
+            first = read_label_image(self.probe_file, colour=self.config.colour_masks)
+        else:
+            return None
+        return None if first is None else (int(first.shape[0]), int(first.shape[1]))
+
     @property
     def num_mask_frames(self) -> int:
-        """Number of mask frames (0 without masks)."""
+        """Number of mask frames (0 without masks, or while a deferred listing is pending)."""
         if self._mask_video is not None:
             return self._mask_video.num_frames
-        return len(self._mask_files)
+        return len(self._mask_names)
 
     def _cached(self, key: tuple[str, int]) -> tuple[bool, np.ndarray | None]:
         if key in self._cache:
@@ -150,9 +233,13 @@ class FrameStore:
                 )
                 self._store(("mask", index), value)
                 return value
+            if not self._listed:
+                return None  # not known yet (and not cached: known later)
+            names = self._mask_names
         value = None
-        if 0 <= index < len(self._mask_files):
-            value = read_label_image(self._mask_files[index], colour=self.config.colour_masks)
+        if self._mask_dir is not None and 0 <= index < len(names):
+            path = self._mask_dir / names[index]
+            value = read_label_image(path, colour=self.config.colour_masks)
         with self._lock:
             self._store(("mask", index), value)
         return value
@@ -383,8 +470,10 @@ class OverlayCache:
                 self.hits += 1
                 return item
         self.misses += 1
+        known = self.renderer.frames.listed  # a render without the masks is not kept
         item = self._make(key)
-        self._put(key, item)
+        if known:
+            self._put(key, item)
         return item
 
     def invalidate(self, lo: int, hi: int) -> None:
@@ -426,7 +515,10 @@ class OverlayCache:
 
     def _background(self, key: tuple[int, float, bool]) -> None:
         try:
-            self._put(key, self._make(key))
+            known = self.renderer.frames.listed
+            item = self._make(key)
+            if known:
+                self._put(key, item)
         except Exception:  # noqa: BLE001 - the frame is rendered again on demand
             pass
         finally:
