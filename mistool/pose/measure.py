@@ -1036,8 +1036,6 @@ def _jaw_tips(
             picks.append(int(i))
         if len(picks) == 2:
             break
-    ys, xs = np.nonzero(mask_u8)
-    area = np.stack([xs + float(offset[0]), ys + float(offset[1])], axis=1)
     rad = _JAW_RAD * width_px
     if len(picks) == 2:
         rad = min(rad, 0.5 * math.hypot(*(c[picks[0]] - c[picks[1]])))
@@ -1046,8 +1044,7 @@ def _jaw_tips(
     dirs: list[np.ndarray] = []
     halfw: list[float] = []
     for k in picks:
-        dc = area - c[k]
-        nb = area[np.einsum("ij,ij->i", dc, dc) <= rad * rad]
+        nb = _pixels_within(mask_u8, offset, c[k], rad)
         if len(nb) < 3:
             continue
         m = nb.mean(axis=0)
@@ -1063,6 +1060,24 @@ def _jaw_tips(
         dc = c - c[k]
         nears.append(c[np.einsum("ij,ij->i", dc, dc) <= rad * rad])
     return ends, nears, dirs, halfw
+
+
+def _pixels_within(
+    mask_u8: np.ndarray, offset: tuple[int, int], centre: np.ndarray, rad: float
+) -> np.ndarray:
+    """(M, 2) full-image px of the mask's pixels within ``rad`` px of ``centre`` (2,), in
+    row-major order (as ``np.nonzero`` over the whole crop, only the window around
+    ``centre`` examined)."""
+    h, w = mask_u8.shape
+    cx, cy = float(centre[0]) - offset[0], float(centre[1]) - offset[1]
+    x0, y0 = max(int(math.floor(cx - rad)), 0), max(int(math.floor(cy - rad)), 0)
+    x1, y1 = min(int(math.ceil(cx + rad)) + 1, w), min(int(math.ceil(cy + rad)) + 1, h)
+    if x0 >= x1 or y0 >= y1:
+        return np.zeros((0, 2))
+    ys, xs = np.nonzero(mask_u8[y0:y1, x0:x1])
+    area = np.stack([xs + float(offset[0] + x0), ys + float(offset[1] + y0)], axis=1)
+    dc = area - centre
+    return area[np.einsum("ij,ij->i", dc, dc) <= rad * rad]
 
 
 def _tip(
