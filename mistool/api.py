@@ -5,7 +5,8 @@ Pipeline (one direction)::
     open_sequence  ->  per frame, in worker processes (decode, Algorithm 1 observations,
                        metric pose when a camera is known): mistool.parallel
                    ->  in frame order, here: instrument identities (IdentityTracker.resolve;
-                       split blobs are measured again here) -> rows (mistool.rows)
+                       the pieces of a split blob are measured again in the workers,
+                       while the next frames are identified) -> rows (mistool.rows)
                    ->  raw chunks of rows (iter_track)
                    ->  refine: paper motion (Algorithm 2), sequence-level metric refinement
                        (trocar, smoothing) -> sorted table
@@ -24,11 +25,12 @@ Entry points:
 
 from __future__ import annotations
 
+import collections
 import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -126,6 +128,69 @@ def _identify(
 
 
 @dataclass
+class _Pending:
+    """A frame identified and waiting for the metric pose of its split pieces."""
+
+    index: int
+    names: list[str]
+    result: parallel.FrameResult
+    metrics: parallel.ResultFuture | None
+    """The pieces' metric pose being measured in the pool (None: ``result`` is final)."""
+
+    def finish(self) -> tuple[int, list[str], parallel.FrameResult]:
+        if self.metrics is None:
+            return self.index, self.names, self.result
+        r = self.result
+        return self.index, self.names, replace(r, metrics=list(self.metrics.result()))
+
+
+def identified(
+    results: Iterable[tuple[int, tuple[str, parallel.FrameResult]]],
+    seq: MaskSequence,
+    tracker: tracking.IdentityTracker,
+    metric: bool,
+    pool: parallel.FramePool | None,
+) -> Iterator[tuple[int, list[str], parallel.FrameResult]]:
+    """``(index, instrument names, result)`` of every frame, in frame order: the identity
+    step (sequential, here) on :func:`mistool.parallel.ordered_results`' frames.
+
+    When the identity step splits a blob (:func:`_identify`), the pieces' metric pose is
+    measured in ``pool`` while the following frames are identified; a frame is yielded
+    once its pieces are measured (at most ``PENDING_FRAMES_PER_WORKER`` frames per
+    worker wait). Without a pool the pieces are measured here. Same output either way:
+    the identity step sees the frames in the same order and the pose is pure."""
+    cfg = seq.config
+    if pool is None:
+        for index, (name, result) in results:
+            seq.check_shape(name, result.shape)
+            names, result = _identify(tracker, index, result, cfg, metric)
+            yield index, names, result
+        return
+    limit = max(1, parallel.PENDING_FRAMES_PER_WORKER * pool.workers)
+    pending: collections.deque[_Pending] = collections.deque()
+    try:
+        for index, (name, result) in results:
+            seq.check_shape(name, result.shape)
+            instances, names = tracker.resolve(index, result.instances)
+            future = None
+            if instances is not result.instances:
+                instances = list(instances)
+                future = pool.submit(parallel.measure_all, instances, result.shape, cfg, metric)
+                result = replace(result, instances=instances, metrics=[])
+            pending.append(_Pending(index, list(names), result, future))
+            while pending and (
+                pending[0].metrics is None or pending[0].metrics.done() or len(pending) > limit
+            ):
+                yield pending.popleft().finish()
+        while pending:
+            yield pending.popleft().finish()
+    finally:
+        for p in pending:
+            if p.metrics is not None:
+                p.metrics.cancel()
+
+
+@dataclass
 class Chunk:
     """Raw (unrefined) rows of consecutive frames, with what a run summary needs."""
 
@@ -203,9 +268,8 @@ def iter_chunks(
     start, count, yielded = 0, 0, False
     unknown: set[int] = set()
     index = 0
-    for index, (name, result) in enumerate(parallel.ordered_results(work, pool)):
-        seq.check_shape(name, result.shape)
-        names, result = _identify(tracker, index, result, cfg, measured)
+    results = enumerate(parallel.ordered_results(work, pool))
+    for index, names, result in identified(results, seq, tracker, measured, pool):
         rows.add_frame(index, names, result.instances, result.metrics)
         unknown.update(int(v) for v in result.unknown.ravel())
         count += 1

@@ -55,6 +55,9 @@ DASK_BATCH_FRAMES = 64
 DASK_CONNECT_TIMEOUT_S = 10.0
 #: Batches in flight per worker: one running, one queued, so no worker waits on the caller.
 IN_FLIGHT_PER_WORKER = 2
+#: Frames the caller may have identified and not yet turned into rows while the pieces of
+#: a split blob are measured in a worker, per worker (``mistool.api.identified``).
+PENDING_FRAMES_PER_WORKER = 32
 
 
 def default_workers() -> int:
@@ -103,6 +106,14 @@ def measure(
         config.shaft_diameter_for(name) if name else config.shaft_diameter_mm,
         config.clasper_length_for(name) if name else config.clasper_length_mm,
     )
+
+
+def measure_all(
+    instances: list[InstanceObservation], shape: tuple[int, int], config: Config, metric: bool
+) -> list[dict[str, dict[str, float]] | None]:
+    """:func:`measure` of each instance (a task: the pieces of a blob the identity step
+    split, measured in a worker while the caller goes on with the next frames)."""
+    return [measure(inst, shape, config, metric) for inst in instances]
 
 
 def unknown_values(labels: np.ndarray, config: Config, lossy: bool = False) -> np.ndarray:
@@ -206,6 +217,8 @@ class ResultFuture(Protocol):
     def result(self) -> Any: ...
 
     def cancel(self) -> Any: ...
+
+    def done(self) -> bool: ...
 
 
 class FramePool(Protocol):
@@ -443,6 +456,7 @@ __all__ = [
     "default_workers",
     "in_flight_frames",
     "measure",
+    "measure_all",
     "observe_batch",
     "observe_labels",
     "ordered_results",

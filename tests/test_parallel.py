@@ -157,6 +157,55 @@ def test_frames_in_flight_are_bounded_per_worker(tmp_path: Path) -> None:
     assert pool.peak <= parallel.IN_FLIGHT_PER_WORKER * pool.workers
 
 
+def test_split_pieces_are_measured_in_the_pool_while_frames_go_on(crossing: Path) -> None:
+    """The identity step stays in the caller; the metric pose of the pieces of a split
+    blob is a pool task, finished later (frames are identified meanwhile), and the rows
+    are the same as when the caller measures them."""
+    from concurrent.futures import Future
+
+    class DeferredPool:
+        """Runs tasks in this process, the pieces' only when their result is asked."""
+
+        workers = 2
+        batch_frames = 4
+
+        def __init__(self) -> None:
+            self.pieces = 0
+            self.later = 0  # piece tasks not done when the caller checked
+
+        def submit(self, fn, *args):  # type: ignore[no-untyped-def]
+            fut: Future = Future()
+            if fn is not parallel.measure_all:
+                fut.set_result(fn(*args))
+                return fut
+            self.pieces += 1
+            done = False
+
+            def is_done() -> bool:
+                self.later += not done
+                return done
+
+            def result(timeout: float | None = None) -> object:
+                nonlocal done
+                if not done:
+                    fut.set_result(fn(*args))
+                    done = True
+                return Future.result(fut, timeout)
+
+            fut.done = is_done  # type: ignore[method-assign]
+            fut.result = result  # type: ignore[method-assign]
+            return fut
+
+        def close(self) -> None:
+            pass
+
+    pool = DeferredPool()
+    chunks = list(iter_track(crossing, pool=pool, chunk_frames=7))
+    assert pool.pieces >= 1 and pool.later >= 1
+    seq = open_sequence(crossing)
+    assert_same(refine(TrackTable.concat(chunks), seq.config), track(crossing, workers=1))
+
+
 def test_a_script_without_a_main_guard_is_not_run_again_by_the_workers(
     crossing: Path, tmp_path: Path
 ) -> None:
