@@ -323,6 +323,8 @@ def test_background_load_lists_nothing_and_the_job_finds_the_entry(
     assert here == [], "the server's process listed the frames or keyed the cache"
     assert feed.status().phase == "done" and feed.total == N
     assert ranges[0] == (0, background.CHUNK_SCHEDULE[0]), ranges  # grew chunk by chunk
+    # The length learnt from the job sizes the replay once (not doubled: 64 frames).
+    assert loaded.replay.expected_frames == N == loaded.replay.capacity
     assert loaded.frames.listed and loaded.frames.mask_files == list_frames(seq)
     np.testing.assert_array_equal(
         loaded.frames.labels(3), cv2.imread(str(list_frames(seq)[3]), cv2.IMREAD_UNCHANGED)

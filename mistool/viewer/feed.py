@@ -150,6 +150,8 @@ class CacheFeed:
         """Whether the entry is known (asks the job once more when it is not)."""
         if self.entry is not None:
             return True
+        if self._phase == "failed":
+            return False
         said = self.job.opened() if self.job is not None else None
         if said is None:
             return False
@@ -186,13 +188,14 @@ class CacheFeed:
     def poll(self, replay: Replay) -> Iterator[ReplayPatch]:
         """New patches since the last call (computed, not applied), in frame order;
         computed one at a time as the caller iterates."""
-        if self._phase == "failed" or not self._find_entry():
+        if self.entry is None and not self._find_entry():
             if self._phase == "opening" and self.job is not None and not self.job.running:
-                self._find_entry()  # the child's last word, if it said one
-                if self._phase == "opening":
+                if not self._find_entry() and self._phase == "opening":  # its last word
                     self._phase = "stopped"
             return
         assert self.entry is not None
+        if replay.expected_frames is None and self.total is not None:
+            replay.expected_frames = self.total  # allocated once, not doubled as it grows
         progress = self.entry.progress()
         if progress.complete:
             if not self._final_shown:

@@ -233,6 +233,9 @@ class Replay:
         """Incremented by every change (consumers cache per revision)."""
         self.complete = False
         """Set by the writer when no more frames will come (refinement included)."""
+        self.expected_frames: int | None = None
+        """The sequence's length when a growing replay learns it: storage for that many
+        frames is allocated at the first write within it (not doubled as frames come)."""
         self.statuses: list[str] = [NOT_VISIBLE, "ok"]
         """Vocabulary of :attr:`status` codes (0 = not visible, 1 = ok)."""
         self._mode_names = tuple(m for m in modes if m != "metric" or config.camera is not None)
@@ -378,7 +381,9 @@ class Replay:
         """Store a computed patch: frames ``[lo, hi)`` replaced, the timeline extended
         past ``hi`` when needed, new instruments added (fast: array copies only)."""
         if patch.hi > self.capacity or len(patch.instruments) > len(self.instruments):
-            capacity = self.capacity
+            capacity, expected = self.capacity, self.expected_frames
+            if expected is not None and patch.hi <= expected:
+                capacity = max(capacity, expected)
             while capacity < patch.hi:
                 capacity = max(2 * capacity, 64)
             self._allocate(patch.instruments, capacity)
