@@ -20,10 +20,10 @@ import multiprocessing
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 from mistool.cache import CacheEntry, Progress
 from mistool.config import Config
@@ -61,7 +61,7 @@ class JobSpec:
     """Sequence-level smoothing applied when tracking finishes."""
     workers: int = 1
     """Processes for the per-frame work (1: in the tracking process itself)."""
-    files: tuple[Path, ...] = ()
+    files: Sequence[Path] = ()
     """The folder's frame files in order, when the caller has listed them already (saves
     listing a long folder again)."""
     fresh: bool = False
@@ -87,14 +87,16 @@ def locate(spec: JobSpec) -> JobSpec:
         InputPathError: the folder cannot be listed, or a frame is a dangling symlink.
     """
     from mistool.cache import cache_key, enforce_limit, open_entry
-    from mistool.sequence import list_frames
+    from mistool.sequence import scan_frames
 
-    files = spec.files
+    files: Sequence[Path] = spec.files
+    keyed: Sequence[Any] = files
     if not files and spec.sequence.is_dir():
-        files = tuple(list_frames(spec.sequence))
+        keyed = scan_frames(spec.sequence)  # one stat per frame, shared with the key
+        files = FrameFiles(spec.sequence, [e.name for e in keyed])
     entry = spec.entry
     if entry is None:
-        keyed = list(files) if files else [spec.sequence]
+        keyed = keyed or [spec.sequence]
         entry = open_entry(
             cache_key(spec.sequence, spec.config, keyed, **spec.key_options()), spec.root
         )
@@ -106,11 +108,33 @@ def locate(spec: JobSpec) -> JobSpec:
     return replace(spec, entry=entry, files=files, fresh=False)
 
 
+class FrameFiles(Sequence[Path]):
+    """A folder's frame files in order, each path made when asked for (making 100,000
+    ``Path`` objects at once costs about half a second)."""
+
+    def __init__(self, folder: Path, names: list[str]) -> None:
+        self.folder = folder
+        self.names = names
+        """The file names, in frame order."""
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @overload
+    def __getitem__(self, index: int) -> Path: ...
+    @overload
+    def __getitem__(self, index: slice) -> list[Path]: ...
+    def __getitem__(self, index: int | slice) -> Path | list[Path]:
+        if isinstance(index, slice):
+            return [self.folder / n for n in self.names[index]]
+        return self.folder / self.names[index]
+
+
 def _open(spec: JobSpec) -> MaskSequence:
     """The sequence to track (from ``spec.files`` when the folder is listed already)."""
     from mistool.sequence import open_sequence
 
-    return open_sequence(spec.sequence, spec.config, files=list(spec.files) or None)
+    return open_sequence(spec.sequence, spec.config, files=spec.files or None)
 
 
 # -- the child ----------------------------------------------------------------------------
@@ -184,8 +208,10 @@ def _settle(spec: JobSpec, seq: MaskSequence) -> tuple[int, Any]:
             entry.remove()
             entry.begin(seq.num_frames, info)
         start, tracker = 0, tracking.IdentityTracker(seq.config)
-    if spec.files:
-        entry.write_frame_names([f.name for f in spec.files])
+    files = spec.files
+    if files:
+        names = files.names if isinstance(files, FrameFiles) else [f.name for f in files]
+        entry.write_frame_names(names)
     return start, tracker
 
 

@@ -63,13 +63,17 @@ def cache_root() -> Path:
     return Path(base) / "mistool" / "tables"
 
 
-def cache_key(seq_path: Path, config: Config, files: Iterable[Path], **options: Any) -> str:
+def cache_key(
+    seq_path: Path, config: Config, files: Iterable[Path | os.DirEntry[str]], **options: Any
+) -> str:
     """A digest of everything a tracked table depends on.
 
     Args:
         seq_path: the sequence folder or mask video.
         config: the effective config (after ``mistool.toml`` and command-line options).
-        files: the frame files (a video: the video itself).
+        files: the frame files in frame order (a video: the video itself), as paths or
+            as directory entries (:func:`mistool.sequence.scan_frames`; the same key, with
+            the stat the listing fetched).
         **options: tracking options (e.g. ``metric=True, smoothing="offline"``).
     """
     from mistool import __version__

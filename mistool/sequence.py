@@ -58,7 +58,7 @@ import os
 import re
 import struct
 import warnings
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -577,21 +577,29 @@ class MaskSequence:
 
 def list_frames(folder: Path) -> list[Path]:
     """The label image files of a folder in natural order (other files ignored)."""
+    return [folder / e.name for e in scan_frames(folder)]
+
+
+def scan_frames(folder: Path) -> list[os.DirEntry[str]]:
+    """:func:`list_frames` as directory entries: their ``stat()`` is cached (fetched once,
+    e.g. for a cache key, and not at all again for a symlink, which the listing stats)."""
     try:
-        entries = list(os.scandir(folder))
+        with os.scandir(folder) as it:
+            entries = list(it)
     except OSError as exc:
         raise InputPathError(f"{folder}: cannot list folder: {exc.strerror or exc}") from None
-    # Names are filtered and sorted as plain strings: an hour-long procedure has ~100,000
-    # frames, and this listing is on the way to the viewer's first picture.
-    names = [
-        e.name
+    # Filtered and sorted on plain strings: an hour-long procedure has ~100,000 frames,
+    # and this listing is on the way to the viewer's first picture.
+    frames = [
+        e
         for e in entries
         if not e.name.startswith(".")
         and os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS
         and is_frame_file(e)
     ]
-    names.sort(key=natural_key)
-    return [folder / name for name in names]
+    keys = [natural_key(e.name) for e in frames]
+    order = sorted(range(len(frames)), key=keys.__getitem__)
+    return [frames[i] for i in order]
 
 
 def is_frame_file(entry: os.DirEntry[str]) -> bool:
@@ -639,7 +647,7 @@ def open_sequence(
     source: str | Path | Iterable[np.ndarray],
     config: Config | None = None,
     *,
-    files: list[Path] | None = None,
+    files: Sequence[Path] | None = None,
 ) -> MaskSequence:
     """Open a sequence for streaming (nothing is decoded yet, except a video's header).
 
@@ -716,7 +724,7 @@ def _calibration_name(config: Config) -> str:
     return str(config.calibration) if config.calibration is not None else "camera"
 
 
-def _open_folder(folder: Path, config: Config, files: list[Path] | None = None) -> MaskSequence:
+def _open_folder(folder: Path, config: Config, files: Sequence[Path] | None = None) -> MaskSequence:
     files = list_frames(folder) if files is None else files
     if not files:
         videos = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in VIDEO_EXTENSIONS)
