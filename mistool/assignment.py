@@ -9,9 +9,18 @@ column unmatched costs the gate).
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 __all__ = ["gated_assignment", "linear_assignment"]
+
+
+def linear_sum_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SciPy's ``linear_sum_assignment``, imported at the first call: ``scipy.optimize``
+    takes ~0.3 s to import, and the worker processes (``mistool.parallel`` imports
+    ``mistool.tracking``) never assign."""
+    from scipy.optimize import linear_sum_assignment as solve
+
+    rows, cols = solve(cost)
+    return np.asarray(rows), np.asarray(cols)
 
 
 def linear_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
