@@ -183,7 +183,7 @@ def _clean(mask: np.ndarray, min_area_px: int) -> tuple[np.ndarray, int, list[np
     fewer than ``min_area_px`` pixels is a speck, one whose contour polygon (through
     pixel centres, which encloses fewer pixels than the component has, by Pick's theorem)
     has an area of at least ``min_area_px`` is kept. Anything else, or a component with a
-    hole, is decided by exact pixel counts (``connectedComponentsWithStats``, slower).
+    hole, is decided by exact pixel counts (``connectedComponents``, slower).
     """
     contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
@@ -212,8 +212,9 @@ def _clean(mask: np.ndarray, min_area_px: int) -> tuple[np.ndarray, int, list[np
             exact = True
             break
     if exact:
-        n, cc, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        areas = stats[1:, cv2.CC_STAT_AREA]
+        # labels, then pixel counts: OpenCV 5's statistics pass costs ~20x its labelling
+        n, cc = cv2.connectedComponents(mask, connectivity=8)
+        areas = np.bincount(cc.ravel(), minlength=n)[1:]
         ok = areas >= min_area_px
         if ok.all():
             return mask, int(areas.sum()), outer
