@@ -38,6 +38,7 @@ __all__ = [
     "REACH_RULES",
     "ReachRule",
     "angle_diff_deg",
+    "foreground_bounds",
     "make_instance",
     "observe_frame",
     "part_observation",
@@ -188,7 +189,19 @@ def make_instance(
     )
 
 
-def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservation]:
+def foreground_bounds(labels: np.ndarray) -> tuple[int, int, int, int]:
+    """``(x, y, w, h)`` bounds of the non-zero pixels of a label image (``w = h = 0``
+    when there is none): every part pixel, and every label value but 0, is inside.
+
+    Raises:
+        MaskFormatError: if ``labels`` is not a 2-D integer image.
+    """
+    return _foreground(_check_labels(labels))
+
+
+def observe_frame(
+    labels: np.ndarray, config: Config, *, bounds: tuple[int, int, int, int] | None = None
+) -> list[InstanceObservation]:
     """Every instrument in one label image, with Algorithm 1's box for each visible part.
 
     Pure and thread-safe.
@@ -197,6 +210,7 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
         labels: (H, W) integer label image (uint8/uint16, or uint32 packed RGB when
             ``config.colour_masks``).
         config: part value ranges, instruments, ``min_area_px``.
+        bounds: :func:`foreground_bounds` of ``labels`` when the caller has them.
 
     Returns:
         With ``config.instruments``: one observation per instrument that has a visible
@@ -208,7 +222,7 @@ def observe_frame(labels: np.ndarray, config: Config) -> list[InstanceObservatio
     """
     img = _check_labels(labels)
     shape = (int(img.shape[0]), int(img.shape[1]))
-    fx, fy, fw, fh = _foreground(img)
+    fx, fy, fw, fh = _foreground(img) if bounds is None else bounds
     if fw == 0 or fh == 0:
         return []
     crop = img[fy : fy + fh, fx : fx + fw]  # every part pixel is non-zero: work on its bounds
