@@ -13,9 +13,11 @@ once into ``--data`` and reused):
   work in N processes, identities, refinement and writing the CSV), N = 1 and
   ``--workers`` (default: the CPU cores);
 - per stage, in one process (``--stages``): decode, instances (Algorithm 1 +
-  grouping), metric pose, identity (``IdentityTracker.resolve`` + re-measuring split
-  pieces), rows, refinement (paper motion + metric refinement), CSV writing, in ms per
-  frame; the parent's sequential share is identity + rows + refinement + CSV;
+  grouping), metric pose, identity (``IdentityTracker.resolve``, the crossing split
+  included), split pose (the metric pose of the pieces of split blobs: in the workers
+  when there are workers), rows, refinement (paper motion + metric refinement), CSV
+  writing, in ms per frame; the parent's sequential share is identity + rows +
+  refinement + CSV;
 - with ``--formats``: write/read times and sizes of the last case's table as CSV,
   ``.npz`` and ``.parquet``; with ``--memory N ...``: peak RSS of tracking N frames (the
   last case's frames repeated) in a fresh process;
@@ -90,8 +92,13 @@ def track_cli(seq: Path, out: Path, workers: int, metric: bool) -> None:
 
 
 def stages(seq: Path, out: Path) -> dict[str, float]:
-    """Milliseconds per frame of each stage, in this process (metric pose on)."""
-    from mistool import api, parallel, tracking
+    """Milliseconds per frame of each stage, in this process (metric pose on).
+
+    ``identity`` is ``IdentityTracker.resolve`` (the crossing split included);
+    ``split pose`` the metric pose of the pieces of the blobs it split (in the worker
+    processes when there are workers)."""
+    from mistool import parallel, tracking
+    from mistool.api import refine
     from mistool.export import write_csv
     from mistool.model import TrackTable
     from mistool.rows import RowBuilder
@@ -102,7 +109,8 @@ def stages(seq: Path, out: Path) -> dict[str, float]:
     metric = parallel.metric_pose(True, cfg)
     tracker = tracking.IdentityTracker(cfg)
     rows = RowBuilder(cfg.fps)
-    t = dict.fromkeys(("decode", "instances", "metric pose", "identity", "rows"), 0.0)
+    keys = ("decode", "instances", "metric pose", "identity", "split pose", "rows")
+    t = dict.fromkeys(keys, 0.0)
     files = list_frames(seq)
     clock = time.perf_counter
     for i, f in enumerate(files):
@@ -114,22 +122,19 @@ def stages(seq: Path, out: Path) -> dict[str, float]:
         shape = (labels.shape[0], labels.shape[1])
         metrics = [parallel.measure(inst, shape, cfg, metric) for inst in found]
         t3 = clock()
-        result = parallel.FrameResult(found, metrics, parallel.unknown_values(labels, cfg), shape)
-        names, result = api._identify(tracker, i, result, cfg, metric)
+        instances, names = tracker.resolve(i, found)
         t4 = clock()
-        rows.add_frame(i, names, result.instances, result.metrics)
+        if instances is not found:
+            found = list(instances)
+            metrics = [parallel.measure(inst, shape, cfg, metric) for inst in found]
         t5 = clock()
-        for key, a, b in (
-            ("decode", t0, t1),
-            ("instances", t1, t2),
-            ("metric pose", t2, t3),
-            ("identity", t3, t4),
-            ("rows", t4, t5),
-        ):
+        rows.add_frame(i, list(names), found, metrics)
+        t6 = clock()
+        for key, a, b in zip(keys, (t0, t1, t2, t3, t4, t5), (t1, t2, t3, t4, t5, t6), strict=True):
             t[key] += b - a
     raw = TrackTable.concat([rows.take()])
     t0 = clock()
-    table = api.refine(raw, cfg)
+    table = refine(raw, cfg)
     t["refinement"] = clock() - t0
     t0 = clock()
     write_csv(table, out)
@@ -335,7 +340,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(
                     "  stages, ms/frame (one process): "
                     + ", ".join(f"{k} {v:.2f}" for k, v in ms.items())
-                    + f"; sequential in the parent: {parent:.2f}"
+                    + f"; sequential in the parent: {parent:.2f} (identity, rows, "
+                    "refinement, CSV)"
                 )
         name = args.cases[-1]
         last = synth(args.data / f"{name}_{args.frames}", args.frames, CASES[name], seed=3)
