@@ -92,6 +92,25 @@ def natural_key(name: str) -> tuple[Any, ...]:
     return tuple(int(c) if i % 2 else c.lower() for i, c in enumerate(chunks)) + (name,)
 
 
+#: Every ASCII digit to "0": names equal under it have their digit runs at the same places.
+_DIGIT_SHAPE = str.maketrans("123456789", "000000000")
+
+
+def natural_order(names: list[str]) -> list[int]:
+    """Indices that sort ``names`` as :func:`natural_key` does.
+
+    Frame names usually differ only in equally wide numbers (``000123.png``): their
+    natural order is then their plain string order, found without building a key per
+    name (a fifth of a second at 100,000 frames).
+    """
+    if names:
+        shape = names[0].translate(_DIGIT_SHAPE)
+        if all(n.translate(_DIGIT_SHAPE) == shape for n in names):
+            return sorted(range(len(names)), key=names.__getitem__)
+    keys = [natural_key(n) for n in names]
+    return sorted(range(len(names)), key=keys.__getitem__)
+
+
 def _quiet_opencv() -> None:
     """Silence OpenCV's/FFmpeg's own stderr warnings; mistool reports problems itself."""
     try:
@@ -597,9 +616,7 @@ def scan_frames(folder: Path) -> list[os.DirEntry[str]]:
         and os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS
         and is_frame_file(e)
     ]
-    keys = [natural_key(e.name) for e in frames]
-    order = sorted(range(len(frames)), key=keys.__getitem__)
-    return [frames[i] for i in order]
+    return [frames[i] for i in natural_order([e.name for e in frames])]
 
 
 def is_frame_file(entry: os.DirEntry[str]) -> bool:

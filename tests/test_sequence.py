@@ -7,11 +7,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mistool.config import Config, config_from_dict
 from mistool.errors import InputPathError, MaskFormatError
 from mistool.sequence import (
     natural_key,
+    natural_order,
     open_sequence,
     read_label_image,
     resolve,
@@ -41,6 +44,26 @@ def test_natural_sort_orders_numbers_numerically(tmp_path: Path) -> None:
     order = [name for _, name, _ in open_sequence(tmp_path, Config())]
     assert order == ["frame1.png", "frame2.png", "Frame3.png", "frame10.png", "frame100.png"]
     assert sorted(["a10b2", "a2b10", "a2b9"], key=natural_key) == ["a2b9", "a2b10", "a10b2"]
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.sampled_from(["f", "F", "a_", "v2_", ""]), st.integers(0, 10**4)),
+        unique=True,
+        max_size=30,
+    ),
+    st.sampled_from([0, 3, 5]),
+    st.sampled_from([".png", ".PNG", "b1.png"]),
+)
+def test_natural_order_is_natural_keys_order(parts, width: int, suffix: str) -> None:
+    """The fast path (names differing only in equally wide numbers: plain string order)
+    and the general one sort as natural_key does."""
+    names = list(dict.fromkeys(f"{p}{n:0{width}d}{suffix}" for p, n in parts))
+    assert [names[i] for i in natural_order(names)] == sorted(names, key=natural_key)
+    same = [f"x{n:05d}.png" for _, n in parts]  # one shape: the fast path
+    same = list(dict.fromkeys(same))
+    assert [same[i] for i in natural_order(same)] == sorted(same, key=natural_key)
 
 
 def test_folder_ignores_non_image_files_and_reads_lazily(tmp_path: Path) -> None:
