@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -349,10 +350,14 @@ def _merged(
 def member_mask(labels: np.ndarray, members: list[int]) -> np.ndarray:
     """uint8 mask (255 / 0) of the pixels of ``labels`` (an int32 label image) whose label
     is one of ``members`` (a few labels: one comparison each, ~100x ``np.isin``)."""
-    out = cv2.compare(labels, members[0], cv2.CMP_EQ)
+    out = _compare(labels, members[0], cv2.CMP_EQ)
     for m in members[1:]:
-        out = cv2.bitwise_or(out, cv2.compare(labels, m, cv2.CMP_EQ))
+        out = cv2.bitwise_or(out, _compare(labels, m, cv2.CMP_EQ))
     return out
+
+
+#: ``cv2.compare`` (its stubs omit the scalar second operand it accepts).
+_compare: Any = cv2.compare
 
 
 def _parts_in(
