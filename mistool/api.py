@@ -42,7 +42,7 @@ from mistool.model import PARTS, TrackTable
 from mistool.pose import refine_sequence
 from mistool.pose.status import status_column
 from mistool.rows import RowBuilder
-from mistool.sequence import MaskSequence, open_sequence, to_labels
+from mistool.sequence import MaskSequence, finish_video, open_sequence, to_labels
 
 #: Allowed values of ``smoothing``.
 SMOOTHING = ("none", "offline", "online")
@@ -264,12 +264,19 @@ def iter_chunks(
     tracker = tracking.IdentityTracker(cfg)
     rows = RowBuilder(cfg.fps)
     batch = pool.batch_frames if pool is not None else 1
-    work = parallel.batches(seq, measured, batch)
+    # a local worker decodes the video frames it works on (a Dask worker may not see the
+    # file: the caller decodes them)
+    spans = isinstance(pool, parallel.LocalPool) and seq.video is not None
+    work = parallel.batches(seq, measured, batch, video_spans=spans)
     start, count, yielded = 0, 0, False
     unknown: set[int] = set()
-    index = 0
+    corrupt: list[int] = []
+    index, total = 0, 0
     results = enumerate(parallel.ordered_results(work, pool))
     for index, names, result in identified(results, seq, tracker, measured, pool):
+        total = index + 1
+        if result.corrupt:
+            corrupt.append(index)
         rows.add_frame(index, names, result.instances, result.metrics)
         unknown.update(int(v) for v in result.unknown.ravel())
         count += 1
@@ -278,6 +285,8 @@ def iter_chunks(
         if count == chunk_frames:
             yield Chunk(rows.take(), start, count, frozenset(unknown), seq.shape)
             start, count, unknown, yielded = index + 1, 0, set(), True
+    if spans and seq.video is not None:  # the end of the video, as its sequential read ends
+        finish_video(seq.video, total, corrupt)
     if count or not yielded:
         yield Chunk(rows.take(), start, count, frozenset(unknown), seq.shape)
 

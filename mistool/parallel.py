@@ -25,6 +25,7 @@ the caller and sent as arrays.
 from __future__ import annotations
 
 import collections
+import itertools
 import os
 import signal
 import threading
@@ -44,7 +45,14 @@ from mistool.config import Config
 from mistool.errors import MistoolError
 from mistool.model import InstanceObservation
 from mistool.pose import measure_instance
-from mistool.sequence import VIDEO_TOLERANCE, FastPathGate, MaskSequence, read_label_image
+from mistool.sequence import (
+    VIDEO_TOLERANCE,
+    FastPathGate,
+    MaskSequence,
+    VideoReader,
+    VideoSource,
+    read_label_image,
+)
 from mistool.tracking.instances import foreground_bounds
 
 #: Frames per task sent to a local worker process: enough to amortise the inter-process
@@ -84,6 +92,9 @@ class FrameResult:
     """Label values present that the config does not know (1-D int64)."""
     shape: tuple[int, int]
     """``(H, W)`` of the frame."""
+    corrupt: bool = False
+    """A mask video frame decoded in a worker that looks like decoded garbage
+    (:data:`mistool.sequence.GARBAGE_FRACTION`)."""
 
 
 def metric_pose(metric: bool, config: Config) -> bool:
@@ -157,13 +168,23 @@ def observe_labels(
 
 
 @dataclass(frozen=True)
+class VideoSpan:
+    """Frames ``start .. stop - 1`` of a mask video, decoded by the worker."""
+
+    source: VideoSource
+    start: int
+    stop: int
+
+
+@dataclass(frozen=True)
 class Batch:
     """Consecutive frames of one sequence, as sent to a worker (picklable)."""
 
     names: tuple[str, ...]
     """Frame names, for error messages (a file name, ``video#i``, ``frame i``)."""
-    items: tuple[Path | np.ndarray, ...]
-    """Per frame: the label image file (decoded by the worker) or the label array."""
+    items: tuple[Path | np.ndarray | VideoSpan, ...]
+    """Per frame: the label image file (decoded by the worker) or the label array; or
+    one :class:`VideoSpan` for all the names (fewer frames at the end of the video)."""
     config: Config
     metric: bool
     lossy: bool
@@ -182,6 +203,27 @@ def _load(item: Path | np.ndarray, config: Config) -> np.ndarray:
     )
 
 
+# The video a worker process decodes spans of (one at a time: a new video closes the last).
+_READER: list[VideoReader] = []
+
+
+def _video_span(span: VideoSpan) -> list[tuple[np.ndarray, bool]]:
+    if not _READER or _READER[0].source != span.source:
+        for r in _READER:
+            r.close()
+        _READER[:] = [VideoReader(span.source)]
+    return _READER[0].read(span.start, span.stop)
+
+
+def _observe_span(batch: Batch, span: VideoSpan, metric: bool) -> list[FrameResult]:
+    out = []
+    for labels, corrupt in _video_span(span):
+        result = observe_labels(labels, batch.config, metric, batch.lossy)
+        result.corrupt = corrupt
+        out.append(result)
+    return out
+
+
 def observe_batch(batch: Batch) -> list[FrameResult]:
     """The per-frame work of a batch (runs in a worker).
 
@@ -190,9 +232,12 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
             names the frame.
     """
     metric = metric_pose(batch.metric, batch.config)
+    if batch.items and isinstance(batch.items[0], VideoSpan):
+        return _observe_span(batch, batch.items[0], metric)
     out = []
     for name, item in zip(batch.names, batch.items, strict=True):
         try:
+            assert not isinstance(item, VideoSpan)
             labels = _load(item, batch.config)
             out.append(observe_labels(labels, batch.config, metric, batch.lossy))
         except MistoolError as exc:
@@ -204,13 +249,20 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
 
 
 def batches(
-    seq: MaskSequence, metric: bool, batch_frames: int
+    seq: MaskSequence, metric: bool, batch_frames: int, *, video_spans: bool = False
 ) -> Iterator[tuple[list[str], Batch]]:
     """The sequence's frames in batches of ``batch_frames``: ``(frame names, batch)``.
 
-    Folder frames go as absolute paths; other frames are decoded here (in order)."""
+    Folder frames go as absolute paths; other frames are decoded here (in order), except
+    with ``video_spans`` the frames of a mask video (``seq.video``): each batch is then a
+    :class:`VideoSpan` the worker decodes itself, without end (the batch holding the
+    video's last frame comes back short: :func:`ordered_results` stops there; then
+    :func:`mistool.sequence.finish_video`)."""
+    if video_spans and seq.video is not None:
+        yield from _spans(seq, seq.video, metric, batch_frames)
+        return
     names: list[str] = []
-    items: list[Path | np.ndarray] = []
+    items: list[Path | np.ndarray | VideoSpan] = []
     folder = seq.path.resolve() if seq.kind == "folder" and seq.path is not None else None
     for frame in seq.frames():
         names.append(frame.name)
@@ -220,6 +272,26 @@ def batches(
             names, items = [], []
     if names:
         yield names, Batch(tuple(names), tuple(items), seq.config, metric, seq.lossy)
+
+
+def _spans(
+    seq: MaskSequence, video: VideoSource, metric: bool, batch_frames: int
+) -> Iterator[tuple[list[str], Batch]]:
+    name = video.path.name
+    for start in itertools.count(0, batch_frames):
+        stop = start + batch_frames
+        span = VideoSpan(video, start, stop)
+        names = [f"{name}#{i}" for i in range(start, stop)]
+        yield names, Batch(tuple(names), (span,), seq.config, metric, seq.lossy)
+
+
+def _pairs(
+    names: list[str], batch: Batch, results: list[FrameResult]
+) -> list[tuple[str, FrameResult]]:
+    """``(name, result)`` of a batch; a video span may come back short (its end)."""
+    if batch.items and isinstance(batch.items[0], VideoSpan):
+        return list(zip(names, results, strict=False))
+    return list(zip(names, results, strict=True))
 
 
 # --- where the work runs ------------------------------------------------------------------
@@ -433,21 +505,30 @@ def ordered_results(
     early or an error is raised."""
     if pool is None:
         for names, batch in work:
-            yield from zip(names, observe_batch(batch), strict=True)
+            pairs = _pairs(names, batch, observe_batch(batch))
+            yield from pairs
+            if len(pairs) < len(names):  # the end of a video
+                return
         return
     limit = max(1, IN_FLIGHT_PER_WORKER * pool.workers)
-    pending: collections.deque[tuple[list[str], ResultFuture]] = collections.deque()
+    pending: collections.deque[tuple[list[str], Batch, ResultFuture]] = collections.deque()
     try:
         for names, batch in work:
-            pending.append((names, pool.submit(observe_batch, batch)))
+            pending.append((names, batch, pool.submit(observe_batch, batch)))
             if len(pending) >= limit:
-                done, fut = pending.popleft()
-                yield from zip(done, fut.result(), strict=True)
+                done, sent, fut = pending.popleft()
+                pairs = _pairs(done, sent, fut.result())
+                yield from pairs
+                if len(pairs) < len(done):  # the end of a video: the rest is past it
+                    return
         while pending:
-            done, fut = pending.popleft()
-            yield from zip(done, fut.result(), strict=True)
+            done, sent, fut = pending.popleft()
+            pairs = _pairs(done, sent, fut.result())
+            yield from pairs
+            if len(pairs) < len(done):
+                return
     finally:
-        for _, fut in pending:
+        for _, _, fut in pending:
             fut.cancel()
 
 
@@ -476,4 +557,5 @@ __all__ = [
     "ordered_results",
     "metric_pose",
     "unknown_values",
+    "VideoSpan",
 ]

@@ -561,6 +561,9 @@ class MaskSequence:
         """Frames from a lossy codec (videos, JPEG folders): label values are smeared."""
         self.shape: tuple[int, int] | None = None
         """``(H, W)`` of the frames, once the first frame was checked."""
+        self.video: VideoSource | None = None
+        """For a mask video: what a worker process needs to decode spans of its frames
+        itself (:class:`VideoReader`); None otherwise."""
         self._frames = frames
 
     def frames(self) -> Iterator[Frame]:
@@ -847,13 +850,7 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
                 ok, img = vc.read()
                 if not ok:
                     break
-                where = f"{path}#{index}"
-                if colour:
-                    labels = _pack_bgr(img) if img.ndim == 3 else to_labels(img, where, colour=True)
-                elif img.ndim == 3:
-                    labels = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-                else:
-                    labels = to_labels(img, where, colour=False)
+                labels = _video_labels(img, f"{path}#{index}", colour)
                 check.see(index, labels)
                 yield Frame(index, f"{path.name}#{index}", _constant(labels))
                 index += 1
@@ -863,7 +860,7 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
         finally:
             vc.release()
 
-    return MaskSequence(
+    seq = MaskSequence(
         "video",
         stem,
         widened,
@@ -872,6 +869,85 @@ def _open_video(path: Path, config: Config) -> MaskSequence:
         path,
         lossy=True,
     )
+    seq.video = VideoSource(path.resolve(), widened, count)
+    return seq
+
+
+def _video_labels(img: np.ndarray, where: str, colour: bool) -> np.ndarray:
+    """A decoded mask video frame (BGR or grey) -> its label image."""
+    if colour:
+        return _pack_bgr(img) if img.ndim == 3 else to_labels(img, where, colour=True)
+    if img.ndim == 3:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    return to_labels(img, where, colour=False)
+
+
+@dataclass(frozen=True)
+class VideoSource:
+    """A mask video as a worker process opens it (picklable; :class:`VideoReader`)."""
+
+    path: Path
+    """The video file (absolute)."""
+    config: Config
+    """The sequence's config (label values widened for the codec)."""
+    count: int
+    """Frames its header announces (0: unknown)."""
+
+
+class VideoReader:
+    """Decodes spans of a mask video's frames in frame order, as
+    :meth:`MaskSequence.frames` does, for a worker process.
+
+    No seeking (not frame-exact for every codec): the reader decodes from the first frame
+    on, and a span after the previous one skips the frames in between with ``grab()``
+    (decoded, not converted: about a quarter of a frame's cost); a span before its
+    position reopens the video. The frames are therefore those of a sequential read.
+    """
+
+    def __init__(self, source: VideoSource) -> None:
+        self.source = source
+        self._cap: Any = None
+        self._next = 0
+        self._lut = _VideoCheck(source.path, source.config, source.count).lut
+
+    def read(self, start: int, stop: int) -> list[tuple[np.ndarray, bool]]:
+        """Frames ``start .. stop - 1`` (fewer at the end of the video) as ``(labels,
+        looks corrupt)`` pairs (:data:`GARBAGE_FRACTION`)."""
+        src = self.source
+        if self._cap is None or self._next > start:
+            self.close()
+            self._cap, self._next = cv2.VideoCapture(str(src.path), cv2.CAP_FFMPEG), 0
+        while self._next < start:
+            if not self._cap.grab():
+                return []
+            self._next += 1
+        out = []
+        colour = src.config.colour_masks
+        while self._next < stop:
+            ok, img = self._cap.read()
+            if not ok:
+                break
+            labels = _video_labels(img, f"{src.path}#{self._next}", colour)
+            out.append((labels, _looks_corrupt(labels, self._lut)))
+            self._next += 1
+        return out
+
+    def close(self) -> None:
+        """Release the video."""
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+def finish_video(source: VideoSource, frames: int, corrupt: Sequence[int]) -> None:
+    """After the last frame of a video decoded by :class:`VideoReader` spans: the error
+    and the warnings that :meth:`MaskSequence.frames` gives at its end (no readable
+    frame; fewer frames than the header announces; frames that look corrupt)."""
+    if frames == 0:
+        raise MaskFormatError(f"{source.path}: the video has no readable frame")
+    check = _VideoCheck(source.path, source.config, source.count)
+    check.garbage = list(corrupt)
+    check.finish(frames)
 
 
 #: A mask video frame with more than this fraction of its pixels neither background nor
@@ -896,10 +972,7 @@ class _VideoCheck:
 
     def see(self, index: int, labels: np.ndarray) -> None:
         """Check one decoded 8-bit grey frame."""
-        if self.lut is None or labels.dtype != np.uint8 or labels.ndim != 2:
-            return
-        unknown = labels.size - cv2.countNonZero(cv2.LUT(labels, self.lut))
-        if unknown > GARBAGE_FRACTION * labels.size:
+        if _looks_corrupt(labels, self.lut):
             self.garbage.append(index)
 
     def finish(self, frames: int) -> None:
@@ -921,6 +994,16 @@ class _VideoCheck:
                 InputWarning,
                 stacklevel=3,
             )
+
+
+def _looks_corrupt(labels: np.ndarray, lut: np.ndarray | None) -> bool:
+    """Whether a decoded 8-bit grey video frame has more than :data:`GARBAGE_FRACTION` of
+    its pixels neither background nor a label value (``lut``: 1 for the known values;
+    None: colour masks, not checked)."""
+    if lut is None or labels.dtype != np.uint8 or labels.ndim != 2:
+        return False
+    unknown = labels.size - cv2.countNonZero(cv2.LUT(labels, lut))
+    return unknown > GARBAGE_FRACTION * labels.size
 
 
 def _video_count(cap: Any) -> int:

@@ -322,3 +322,76 @@ def test_ctrl_c_on_the_command_line_stops_every_worker(crossing: Path, tmp_path:
     while any(Path(f"/proc/{w}").exists() for w in workers) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not [w for w in workers if Path(f"/proc/{w}").exists()]
+
+
+@pytest.fixture(scope="module")
+def crossing_video(crossing: Path) -> Path:
+    """The crossing fixture's 60 frames as a grey MJPG mask video, with its config."""
+    out = crossing.parent / "video"
+    out.mkdir()
+    (out / "mistool.toml").write_bytes((crossing / "mistool.toml").read_bytes())
+    frames = [labels for _, _, labels in open_sequence(crossing)]
+    h, w = frames[0].shape
+    writer = cv2.VideoWriter(
+        str(out / "masks.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 25, (w, h), False
+    )
+    for f in frames:
+        writer.write(f)
+    writer.release()
+    return out / "masks.avi"
+
+
+def _tracked_with_warnings(source: Path, workers: int) -> tuple[TrackTable, list[str]]:
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        table = track(source, workers=workers)
+    return table, [str(w.message) for w in caught]
+
+
+def test_a_mask_video_is_decoded_by_the_workers_not_the_caller(
+    crossing_video: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With a local pool the workers decode the video's frames themselves (each reads it
+    in order, skipping the other workers' frames): the caller never decodes a frame,
+    and the table is the one the caller's own decoding gives."""
+    from mistool import sequence
+
+    one, _ = _tracked_with_warnings(crossing_video, 1)
+    decoded: list[str] = []
+    real = sequence.MaskSequence.frames
+
+    def frames(self: sequence.MaskSequence):  # type: ignore[no-untyped-def]
+        decoded.append(self.name)
+        return real(self)
+
+    monkeypatch.setattr(sequence.MaskSequence, "frames", frames)
+    two, _ = _tracked_with_warnings(crossing_video, 2)
+    assert decoded == [] and one.num_rows > 100
+    assert_same(one, two)
+
+
+def test_a_truncated_or_corrupt_video_warns_the_same_with_workers(
+    crossing: Path, tmp_path: Path
+) -> None:
+    """The end of a video decoded by the workers (a file cut short) and its frames that
+    look like garbage give the caller's warnings, and the same table."""
+    frames = [labels for _, _, labels in open_sequence(crossing)]
+    h, w = frames[0].shape
+    (tmp_path / "mistool.toml").write_bytes((crossing / "mistool.toml").read_bytes())
+    path = tmp_path / "masks.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25, (w, h), False)
+    noise = np.random.default_rng(0).integers(0, 256, (h, w), dtype=np.uint8)
+    for i, f in enumerate(frames):
+        writer.write(noise if i in (5, 17) else f)
+    writer.release()
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * 0.7)])
+    one, said_one = _tracked_with_warnings(path, 1)
+    two, said_two = _tracked_with_warnings(path, 2)
+    assert any("look corrupt (#5, #17" in m for m in said_one), said_one
+    assert any("the video ended after" in m for m in said_one), said_one
+    assert said_two == said_one
+    assert 10 < one["frame"].max() < 59
+    assert_same(one, two)
