@@ -657,3 +657,38 @@ def test_scene_extent_holds_both_ends_of_a_long_cylinder() -> None:
     lo, hi = scene_extent(replay, replay.default_mode)
     assert lo[0] < -9.0 and hi[0] > 29.0  # 2nd/98th percentiles of the two ends
     np.testing.assert_allclose([lo[1], hi[1], lo[2], hi[2]], [0.0, 30.0, 0.0, 0.0], atol=1e-9)
+
+
+def test_scrubbing_a_source_video_decodes_ahead_instead_of_seeking(tmp_path: Path) -> None:
+    """Frames asked out of order set a worker decoding in order around them: the frames
+    near a scrubbed one then come without a seek each (a seek decodes from a keyframe);
+    frames asked in order (playback) start no worker; close() stops it."""
+    video = tmp_path / "video.avi"
+    n, size = 120, (64, 48)
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, size)
+    for k in range(n):  # each frame's brightness says its index
+        writer.write(np.full((size[1], size[0], 3), 2 * k, np.uint8))
+    writer.release()
+    small = (32, 24)
+    frames = FrameStore(None, Config(source=video))
+    try:
+        for k in range(5):  # in order: no worker
+            frames.source_at(k, small)
+        assert frames._ahead is None or frames._ahead._thread is None
+        reader = frames._source_video
+        assert reader is not None and reader.seeks == 0
+        first = frames.source_at(60, small)
+        assert first is not None and first.shape == (24, 32, 3) and reader.seeks == 1
+        ahead = frames._ahead
+        assert ahead is not None
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not all(ahead.get(k) is not None for k in range(30, n)):
+            time.sleep(0.02)
+        assert all(ahead.get(k) is not None for k in range(30, n)), "not decoded ahead"
+        for k in np.random.default_rng(1).permutation(np.arange(30, n))[:40]:
+            img = frames.source_at(int(k), small)
+            assert img is not None and abs(float(img.mean()) - 2 * k) < 3, k
+        assert reader.seeks == 1, "scrubbing near a decoded frame seeked again"
+    finally:
+        frames.close()
+    assert ahead._thread is not None and not ahead._thread.is_alive()

@@ -48,17 +48,130 @@ class _VideoReader:
             raise MaskFormatError(f"{path}: cannot open as a video")
         self._next = 0
         self.num_frames = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        self.seeks = 0
+        """Seeks so far (each decodes from the keyframe before the frame asked)."""
+
+    def is_next(self, index: int) -> bool:
+        """Whether ``index`` is read without a seek."""
+        return index == self._next
 
     def read(self, index: int) -> np.ndarray | None:
         """The BGR (or grey) frame at ``index``, or None past the end."""
         if index != self._next:
             self._cap.set(cv2.CAP_PROP_POS_FRAMES, index)
+            self.seeks += 1
         ok, img = self._cap.read()
         self._next = index + 1 if ok else -1
         return img if ok else None
 
     def close(self) -> None:
         self._cap.release()
+
+
+#: Source video frames kept at display size (JPEG) around where the user scrubs.
+AHEAD_FRAMES = 1500
+#: JPEG quality of the frames kept (about 20 KB each at display size).
+AHEAD_QUALITY = 90
+
+
+class DecodedAhead:
+    """A source video's frames at display size, decoded in order around where the user
+    scrubs, so that random access does not seek for every frame.
+
+    A seek decodes every frame from the keyframe before it (H.264 encoders put one every
+    few seconds, or only one at the start): scrubbing the bundled sample's video cost
+    ~70 ms a frame. When a frame is asked out of order, a worker thread with its own
+    decoder seeks once to a little before it and decodes onwards, keeping up to
+    ``capacity`` frames (JPEG at display size, least recently asked dropped first); a
+    request far from what it is decoding moves it there.
+    """
+
+    def __init__(self, path: Path, size_wh: tuple[int, int], capacity: int = AHEAD_FRAMES) -> None:
+        self.path = path
+        self.size_wh = size_wh
+        self.capacity = capacity
+        self._items: OrderedDict[int, bytes] = OrderedDict()
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._centre: int | None = None
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        self.decoded = 0
+        """Frames the worker has decoded (tests, benchmarks)."""
+
+    def get(self, index: int) -> np.ndarray | None:
+        """The frame at display size (RGB uint8 ``(h, w, 3)``), if it is kept."""
+        with self._lock:
+            jpeg = self._items.get(index)
+            if jpeg is not None:
+                self._items.move_to_end(index)
+        if jpeg is None:
+            return None
+        bgr = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+        return None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+    def around(self, index: int) -> None:
+        """Decode the frames around ``index`` (returns at once; the worker starts once)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._centre = int(index)
+            if self._thread is None:
+                self._thread = threading.Thread(
+                    target=self._run, name="mistool-video-ahead", daemon=True
+                )
+                self._thread.start()
+        self._wake.set()
+
+    def _window(self, centre: int) -> range:
+        start = max(0, centre - self.capacity // 4)
+        return range(start, start + self.capacity)
+
+    def _run(self) -> None:
+        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        try:
+            while not self._closed:
+                self._wake.wait()
+                self._wake.clear()
+                centre = self._centre
+                if centre is not None and cap.isOpened():
+                    self._fill(cap, self._window(centre))
+        finally:
+            cap.release()
+
+    def _fill(self, cap: cv2.VideoCapture, window: range) -> None:
+        """Decode ``window`` in order (from its first frame not kept), until it is done or
+        a request falls outside it."""
+        with self._lock:
+            todo = [k for k in window if k not in self._items]
+        if not todo:
+            return
+        cap.set(cv2.CAP_PROP_POS_FRAMES, todo[0])
+        for k in range(todo[0], window.stop):
+            centre = self._centre
+            if self._closed or (centre is not None and centre not in window):
+                self._wake.set()  # go there
+                return
+            ok, bgr = cap.read()
+            if not ok:
+                return
+            self.decoded += 1
+            small = cv2.resize(bgr, self.size_wh, interpolation=cv2.INTER_AREA)
+            ok, buf = cv2.imencode(".jpg", small, [int(cv2.IMWRITE_JPEG_QUALITY), AHEAD_QUALITY])
+            with self._lock:
+                self._items[k] = buf.tobytes()
+                self._items.move_to_end(k)
+                while len(self._items) > self.capacity:
+                    self._items.popitem(last=False)
+
+    def close(self) -> None:
+        """Stop the worker."""
+        with self._lock:
+            self._closed = True
+            thread = self._thread
+        self._wake.set()
+        if thread is not None:
+            thread.join(timeout=10.0)
 
 
 def find_frame_file(folder: Path) -> Path | None:
@@ -136,6 +249,7 @@ class FrameStore:
                 self._mask_video = _VideoReader(sequence)
         self._source_files: list[Path] = []
         self._source_video: _VideoReader | None = None
+        self._ahead: DecodedAhead | None = None
         src = config.source
         if src is not None:
             if not src.exists():
@@ -262,8 +376,35 @@ class FrameStore:
             self._store(("source", index), value)
         return value
 
+    def source_at(self, index: int, size_wh: tuple[int, int]) -> np.ndarray | None:
+        """The RGB source frame ``index`` resized to ``size_wh`` (w, h) (None when there is
+        none). A video frame asked out of order comes from :class:`DecodedAhead` when it
+        has it, and sets it decoding around that frame otherwise; frames asked in order
+        (playback) are read as they come."""
+        video = self._source_video
+        ahead = None
+        if video is not None:
+            with self._lock:
+                if self._ahead is None or self._ahead.size_wh != size_wh:
+                    if self._ahead is not None:
+                        self._ahead.close()
+                    self._ahead = DecodedAhead(video.path, size_wh)
+                ahead = self._ahead
+                in_order = video.is_next(index) or ("source", index) in self._cache
+            small = ahead.get(index)
+            if small is not None:
+                return small
+            if not in_order:
+                ahead.around(index)
+        src = self.source(index)
+        if src is None:
+            return None
+        return cv2.resize(src, size_wh, interpolation=cv2.INTER_AREA)
+
     def close(self) -> None:
-        """Release open videos."""
+        """Release open videos (and stop decoding ahead)."""
+        if self._ahead is not None:
+            self._ahead.close()
         for v in (self._mask_video, self._source_video):
             if v is not None:
                 v.close()
@@ -388,11 +529,8 @@ class OverlayRenderer:
         """The image the mask is blended over: the source video frame at display size
         (RGB uint8, a new array), or a dark background without one. Every image shown
         under the overlay (GUI panel, frustum, Endoscope view) comes from here."""
-        w, h = self.size_wh
-        src = self.frames.source(frame)
-        if src is not None:
-            return cv2.resize(src, (w, h), interpolation=cv2.INTER_AREA)
-        return self._background.copy()
+        src = self.frames.source_at(frame, self.size_wh)
+        return src if src is not None else self._background.copy()
 
     def _instances_from_boxes(self, part: np.ndarray, corners: np.ndarray | None) -> np.ndarray:
         """Instrument index per pixel for merged masks: the instrument whose box of that
