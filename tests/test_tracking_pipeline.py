@@ -206,3 +206,101 @@ def test_rasterised_owner_image_matches_per_pixel_nearest_axis():
     want = nearest_axis(p, ax.ends, ax.dirs, ax.back, ax.radius)
     assert len(set(want.tolist())) == 2
     assert np.array_equal(got[cy, cx], want)
+
+
+def test_distal_axis_of_a_shaft_alone_points_away_from_the_border():
+    """A shaft seen without its head: its distal end is the one inside the image."""
+    from mistool.model import RotatedBox
+    from mistool.tracking.split import distal_axis
+
+    box = RotatedBox(300.0, 476.0, 200.0, 30.0, 90.0)  # from the bottom border, upwards
+    ax = distal_axis({"shaft": box}, (576, 720))
+    assert ax.direction @ np.array([0.0, -1.0]) > 0.99
+    assert ax.end == pytest.approx([300.0, 376.0])
+    flipped = RotatedBox(300.0, 100.0, 200.0, 30.0, 90.0)  # from the top border
+    assert distal_axis({"shaft": flipped}, (576, 720)).direction @ np.array([0.0, 1.0]) > 0.99
+
+
+def test_head_pixels_go_to_the_shaft_they_continue():
+    """A head lies beyond its own shaft's distal end: pixels there go to that shaft,
+    although another shaft's body passes nearer (in its own half-widths)."""
+    from mistool.tracking.split import _Axes, head_distance2
+
+    ax = _Axes(
+        ends=np.array([[300.0, 200.0], [320.0, 260.0]]),
+        dirs=np.array([[1.0, 0.0], [-1.0, 0.0]]),
+        back=np.array([math.inf, math.inf]),
+        radius=np.array([10.0, 30.0]),  # the second shaft is wide (near the camera)
+        limit_end=np.zeros((2, 2)),
+        margin=np.zeros(2),
+    )
+    head = np.array([[330.0, 205.0], [350.0, 200.0]])  # beyond the first shaft's end
+    assert head_distance2(head, ax).argmin(1).tolist() == [0, 0]
+    assert ax.distance(head).argmin(1).tolist() == [1, 1]  # the body distance says 1
+
+
+def _reference_entries(inst):
+    """border_entries as it was (all shaft pixels, covariance eigenvectors)."""
+    from mistool.tracking.split import _pixels, border_runs
+
+    pts = _pixels(inst.parts["shaft"])
+    out = []
+    for ends, length in border_runs(inst):
+        mid = ends[1]
+        r = max(3.0 * length, 30.0)
+        near = pts[np.einsum("nd,nd->n", pts - mid, pts - mid) <= r * r]
+        c = near.mean(0)
+        _, v = np.linalg.eigh(np.cov((near - c).T))
+        d = v[:, 1] if v[:, 1] @ (c - mid) >= 0 else -v[:, 1]
+        out.append((mid, d))
+    return out
+
+
+def test_border_entries_match_the_reference():
+    from mistool.tracking import observe_frame
+    from mistool.tracking.split import border_entries
+
+    img = frame(((420.0, 300.0), 20.0), ((330.0, 260.0), 160.0), shaft_len=500.0)
+    (inst,) = observe_frame(img, MERGED)
+    got = border_entries(inst)
+    want = _reference_entries(inst)
+    assert len(got) == len(want) == 2
+    for (p, d, width), (q, e) in zip(got, want, strict=True):
+        assert np.allclose(p, q)
+        assert float(d @ e) > 1.0 - 1e-9
+        assert 15.0 < width < 30.0  # the drawn shafts are 22 px wide
+
+
+def test_a_head_fragment_inside_its_tools_blob_is_absorbed():
+    """A tool entering head first: its jaws, cut apart from its wrist, first look like
+    a second instrument; when the tool's blob swallows them, that name is forgotten
+    and the tool keeps its own."""
+    from mistool.tracking import IdentityTracker, TrackState, observe_frame
+
+    def img(parts):
+        out = np.zeros((576, 720), np.uint8)
+        for (x0, y0, x1, y1), v in parts:
+            out[y0:y1, x0:x1] = v
+        return out
+
+    wrist = ((680, 200, 720, 230), 20)  # at the right border
+    frames = [
+        img([wrist]),
+        img([wrist, ((560, 205, 600, 225), 30)]),  # jaws 80 px away, inside the view
+    ]
+    for k in range(8):  # the whole tool slides in from the right
+        x = 620 - 25 * k
+        frames.append(
+            img(
+                [
+                    ((x, 195, 720, 235), 10),
+                    ((x - 40, 200, x, 230), 20),
+                    ((x - 80, 205, x - 40, 225), 30),
+                ]
+            )
+        )
+    tracker = IdentityTracker(MERGED)
+    names = [tracker.resolve(k, observe_frame(f, MERGED))[1] for k, f in enumerate(frames)]
+    assert names[1] == ["1", "2"]  # the jaws taken for a second tool
+    assert all(n == ["1"] for n in names[2:]), names
+    assert tracker.tracks[1].state is TrackState.ABSORBED

@@ -17,6 +17,9 @@ appearance.
   state is not polluted by the merged blob's centroid) until they separate, when position
   and shaft direction tell them apart again. :meth:`IdentityTracker.resolve` also splits
   the blob between them (:func:`~mistool.tracking.split.split_instance`).
+- A piece of an instrument taken for another (a head an occluder cut off, seen for a
+  few frames, never with a shaft, never at the image border) is forgotten when it is
+  found inside that instrument's blob (``ABSORBED``), so the blob keeps its name.
 - Touching since they appeared (``resolve`` only): a blob whose shaft pixels enter the
   view at more places on the image border than instruments known in it is split on
   those shafts; each known instrument takes the piece entering nearest to where its own
@@ -77,6 +80,9 @@ HIDDEN_MAX_GAP_FRAMES = 3
 #: seen apart by at most this many frames of its velocity (slowing to a stop when the
 #: tools met); the second all the way (keeping on).
 SPLIT_STOP_FRAMES = 5
+#: A track seen for at most this many frames, never with a shaft, found hidden in the
+#: blob of an older track that could not be split, was a piece of it (absorbed).
+FRAGMENT_MAX_SEEN = 3
 
 
 class TrackState(enum.Enum):
@@ -91,6 +97,10 @@ class TrackState(enum.Enum):
     """In a blob carrying another instrument's name (coasting too)."""
     LOST = "lost"
     """Unseen for more than :data:`LOST_AFTER_FRAMES` frames (not in a blob)."""
+    ABSORBED = "absorbed"
+    """A piece of another instrument taken for one (a head cut off by an occluder, seen
+    for at most :data:`FRAGMENT_MAX_SEEN` frames, never with a shaft), found inside that
+    instrument's blob: forgotten."""
 
     @property
     def coasting(self) -> bool:
@@ -156,6 +166,8 @@ class Track:
     """Frames it was updated in."""
     entry: np.ndarray | None = None
     """(2,) px where its shaft last entered the view alone."""
+    at_border: bool = False
+    """Whether it was ever seen touching the image border (entering the view)."""
 
     def predict_steps(self, frame: int) -> int:
         """Frames of motion to predict at ``frame``: the gap, at most
@@ -180,7 +192,11 @@ def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
 def shaft_entry(inst: InstanceObservation) -> np.ndarray | None:
     """(2,) px where the instance's one shaft enters the view, or None (no shaft at the
     border, or several: a blob)."""
-    runs = border_runs(inst)
+    return _one_entry(border_runs(inst))
+
+
+def _one_entry(runs: list[tuple[np.ndarray, int]]) -> np.ndarray | None:
+    """The middle of the one border run, or None (none, or several: a blob)."""
     return runs[0][0][1] if len(runs) == 1 else None
 
 
@@ -238,6 +254,28 @@ def _more_shafts(n_entries: int, n_group: int, known: bool) -> bool:
     return not (n_entries == n_group and known)
 
 
+def _fragment_of(t: Track, host: Track | None) -> bool:
+    """Whether track ``t``, hidden in ``host``'s blob that could not be split, was only a
+    piece of it: seen for at most :data:`FRAGMENT_MAX_SEEN` frames, never with a shaft,
+    while the host has been seen longer."""
+    return (
+        host is not None
+        and t.boxes is None
+        and not t.at_border
+        and t.seen <= FRAGMENT_MAX_SEEN
+        and host.seen > t.seen
+    )
+
+
+def _touches_border(inst: InstanceObservation) -> bool:
+    """Whether the instance's bounds reach the image border."""
+    if inst.image_shape is None:
+        return True
+    x, y, w, h = inst.bbox_xywh
+    hh, ww = inst.image_shape
+    return x <= 0 or y <= 0 or x + w >= ww or y + h >= hh
+
+
 def _inside(p: np.ndarray, bbox: tuple[int, int, int, int], margin: float) -> bool:
     x, y, w, h = bbox
     mx, my = margin * w, margin * h
@@ -282,6 +320,8 @@ class IdentityTracker:
         self._tracks: list[Track] = []
         self._next = 1
         self._last_frame: int | None = None
+        # border runs of this frame's instances (and pieces), by id: computed once
+        self._runs: dict[int, tuple[InstanceObservation, list[tuple[np.ndarray, int]]]] = {}
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -341,6 +381,7 @@ class IdentityTracker:
                 f"{self._last_frame}; frames must come in increasing order"
             )
         self._last_frame = frame_index
+        self._runs = {}
         fr = _Frame(frame_index, instances, self._predict_live(frame_index))
         self._match(fr)
         self._find_hidden(fr)
@@ -351,7 +392,11 @@ class IdentityTracker:
 
     def _predict_live(self, frame: int) -> list[Track]:
         """The tracks still remembered at ``frame``, their states brought up to date."""
-        live = [t for t in self._tracks if frame - t.last_frame <= self._max_gap]
+        live = [
+            t
+            for t in self._tracks
+            if frame - t.last_frame <= self._max_gap and t.state is not TrackState.ABSORBED
+        ]
         for t in live:
             if t.state is TrackState.TRACKED and frame - t.last_frame > LOST_AFTER_FRAMES:
                 t.state = TrackState.LOST
@@ -365,7 +410,7 @@ class IdentityTracker:
     def _match(self, fr: _Frame) -> None:
         """One gated assignment of live tracks to instances."""
         cost = np.full((len(fr.live), len(fr.instances)), np.inf)
-        entries = [shaft_entry(inst) for inst in fr.instances]
+        entries = [_one_entry(self._runs_of(inst)) for inst in fr.instances]
         for a, t in enumerate(fr.live):
             for b, inst in enumerate(fr.instances):
                 cost[a, b] = self._cost(t, inst, fr.index, entries[b])
@@ -440,9 +485,10 @@ class IdentityTracker:
         for b, inst in enumerate(fr.instances):
             group = ([fr.owner[b]] + fr.blob_of.get(b, [])) if b in fr.owner else []
             known = b not in fr.blob_of or b in fr.pieces
-            if not _more_shafts(len(border_runs(inst)), len(group), known):
+            runs = self._runs_of(inst)
+            if not _more_shafts(len(runs), len(group), known):
                 continue  # (entries <= runs: the cheap count first)
-            entries = border_entries(inst)
+            entries = border_entries(inst, runs)
             if not _more_shafts(len(entries), len(group), known):
                 continue
             # (a blob the crossing handler split, holding one more tool entering: redone)
@@ -520,8 +566,13 @@ class IdentityTracker:
                 names.append(self._new_track(inst, fr.index).name)
         for b, hidden in fr.blob_of.items():
             if b not in fr.pieces:
+                host = fr.live[fr.owner[b]] if b in fr.owner else None
                 for a in hidden:  # keep them coasting on their predicted motion
-                    self._hide(fr.live[a], fr.index)
+                    t = fr.live[a]
+                    if _fragment_of(t, host):
+                        t.state = TrackState.ABSORBED
+                    else:
+                        self._hide(t, fr.index)
         if not fr.pieces:
             return fr.instances, names  # the caller's own list: nothing was split
         return out, names
@@ -551,7 +602,8 @@ class IdentityTracker:
             t.area = float(inst.area_px)
             t.size = max(t.size, math.sqrt(t.area))
             t.angle, t.elongation = _appearance(inst)
-            if apart and "shaft" in inst.parts:  # a split piece is no reference shape
+            # a split piece is no reference shape, nor a blob of two shafts entering
+            if apart and "shaft" in inst.parts and len(self._runs_of(inst)) <= 1:
                 t.boxes = {p: o.box for p, o in inst.parts.items()}
                 t.boxes_frame = frame
             self._set_entry(t, inst)
@@ -559,11 +611,20 @@ class IdentityTracker:
         t.last_frame = frame
         t.seen += 1
 
-    @staticmethod
-    def _set_entry(t: Track, inst: InstanceObservation) -> None:
-        runs = border_runs(inst)
-        if len(runs) == 1:  # one shaft entering: this instrument's (not a blob's)
-            t.entry = runs[0][0][1]
+    def _set_entry(self, t: Track, inst: InstanceObservation) -> None:
+        t.at_border = t.at_border or _touches_border(inst)
+        entry = _one_entry(self._runs_of(inst))
+        if entry is not None:  # one shaft entering: this instrument's (not a blob's)
+            t.entry = entry
+
+    def _runs_of(self, inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
+        """:func:`~mistool.tracking.split.border_runs` of an instance of this frame,
+        computed once per instance."""
+        got = self._runs.get(id(inst))
+        if got is None or got[0] is not inst:
+            got = (inst, border_runs(inst))
+            self._runs[id(inst)] = got
+        return got[1]
 
     def _new_track(self, inst: InstanceObservation, frame: int) -> Track:
         angle, elong = _appearance(inst)

@@ -3,8 +3,9 @@
 Two instruments touching in merged masks form one instance. :func:`split_instance`
 splits it between the instruments' shaft axes (from their expected part boxes), and
 :func:`split_on_entries` between the shafts entering the view at the image border
-(:func:`border_entries`), when nothing is known of the instruments yet. Both refine each
-shaft axis on the blob's own pixels and refuse a split that is not shaft-like.
+(:func:`border_entries`). Both refine each shaft axis on the blob's
+own pixels and refuse a split that is not shaft-like; head pixels (wrist, jaws) go to
+the head beyond a shaft's distal end (:func:`head_distance2`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ __all__ = [
     "BlobPixels",
     "SplitFit",
     "fit_split",
+    "head_distance2",
     "split_instance",
     "split_on_entries",
     "split_pieces",
@@ -80,9 +82,10 @@ def _segment_distance(
     return np.hypot(perp, excess) / radius[None]
 
 
-def distal_axis(boxes: dict[str, RotatedBox]) -> Axis:
+def distal_axis(boxes: dict[str, RotatedBox], shape: tuple[int, int] | None = None) -> Axis:
     """The shaft's axis from part boxes: the distal side is the one towards the other
-    parts (a half-line from the border); without them, unknown: a segment."""
+    parts (a half-line from the border); without them, a segment whose distal end is
+    the one farther inside the image of ``shape`` (H, W) (a shaft comes from the border)."""
     sb = boxes["shaft"]
     u = unit_vector(sb.angle_deg)
     c = np.array([sb.cx, sb.cy])
@@ -94,6 +97,14 @@ def distal_axis(boxes: dict[str, RotatedBox]) -> Axis:
         back = math.inf
     else:
         back = sb.length
+        if shape is not None:
+            h, w = shape
+
+            def inside(q: np.ndarray) -> float:  # distance to the nearest image border
+                return float(min(q[0], w - 1 - q[0], q[1], h - 1 - q[1]))
+
+            if inside(c - 0.5 * sb.length * u) > inside(c + 0.5 * sb.length * u):
+                u = -u
     return Axis(c + 0.5 * sb.length * u, u, back)
 
 
@@ -180,26 +191,40 @@ def border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
     return out
 
 
-def border_entries(inst: InstanceObservation) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """The shafts entering the view at the image border (:func:`border_runs`), as
-    ``(point, inward direction, width)``, px: the direction is the principal axis of the
-    shaft pixels near the run, the width the run's length across it. Empty unless there
-    are two entries or more (one instrument per entry, unless two touch at the border)."""
-    runs = border_runs(inst)
+#: The direction of a shaft entering the view is fitted on at most about this many of
+#: its pixels near the border (evenly subsampled).
+ENTRY_FIT_POINTS = 4000
+
+
+def border_entries(
+    inst: InstanceObservation, runs: list[tuple[np.ndarray, int]] | None = None
+) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """The shafts entering the view at the image border (:func:`border_runs`, or
+    ``runs`` when already computed), as ``(point, inward direction, width)``, px: the
+    direction is the principal axis of the shaft pixels near the run, the width the
+    run's length across it. Empty unless there are two entries or more (one instrument
+    per entry, unless two touch at the border)."""
+    runs = border_runs(inst) if runs is None else runs
     if len(runs) < 2:
         return []
-    pts = _pixels(inst.parts["shaft"])
-    pts = pts[:: max(1, len(pts) // 20000)]
+    shaft = inst.parts["shaft"]
+    x0, y0 = shaft.offset
+    h, w = shaft.mask.shape
     out = []
     for ends, length in runs:
         mid = ends[1]
         r = max(3.0 * length, 30.0)
-        near = pts[np.einsum("nd,nd->n", pts - mid, pts - mid) <= r * r]
+        # the shaft pixels within r of the run: its window of the crop, then the disc
+        xa, ya = max(int(mid[0] - r) - x0, 0), max(int(mid[1] - r) - y0, 0)
+        xb, yb = min(int(mid[0] + r) + 1 - x0, w), min(int(mid[1] + r) + 1 - y0, h)
+        ys, xs = np.nonzero(shaft.mask[ya:yb, xa:xb])
+        step = max(1, len(ys) // ENTRY_FIT_POINTS)
+        box = np.stack([xs[::step] + (xa + x0), ys[::step] + (ya + y0)], 1).astype(np.float64)
+        rel = box - mid
+        near = box[np.einsum("nd,nd->n", rel, rel) <= r * r]
         if len(near) < 3:
             continue
-        c = near.mean(0)
-        _, v = np.linalg.eigh(np.cov((near - c).T))
-        d = v[:, 1]
+        c, d = _principal_direction(near)
         if d @ (c - mid) < 0:
             d = -d
         tangent = ends[2] - ends[0]
@@ -238,8 +263,9 @@ def split_instance(
     distal end; a few rounds), and the split is kept only if every instrument's pixels
     hug its axis like a shaft of its width (RMS distance at most
     :data:`SPLIT_MAX_SPREAD` x width) and no two axes are parallel. Wrist and clasper
-    pixels go to the nearest expected box of that part, moved with its shaft's refitted
-    distal end.
+    pixels go to the nearest head: the segment continuing a refitted shaft beyond its
+    distal end (:func:`head_distance2`), or the expected box of that part moved with
+    the shaft's distal end, whichever is nearer.
 
     Args:
         inst: the merged instance (parts with pixel crops).
@@ -271,9 +297,13 @@ class _Axes:
         return _segment_distance(pts, self.ends, self.dirs, self.back, self.radius)
 
 
-def _initial_axes(expected: list[dict[str, RotatedBox]], axes: list[Axis] | None) -> _Axes:
+def _initial_axes(
+    expected: list[dict[str, RotatedBox]],
+    axes: list[Axis] | None,
+    shape: tuple[int, int] | None = None,
+) -> _Axes:
     if axes is None:
-        axes = [distal_axis(e) for e in expected]
+        axes = [distal_axis(e, shape) for e in expected]
     dirs = np.array([a.direction for a in axes], dtype=np.float64)
     ends0 = np.array([a.end for a in axes], dtype=np.float64)
     margin = np.array([SPLIT_END_MARGIN * e["shaft"].length for e in expected])
@@ -351,16 +381,37 @@ def _score(ax: _Axes, pts: np.ndarray) -> float | None:
 def _part_distance(
     name: str, p: np.ndarray, ax: _Axes, expected: list[dict[str, RotatedBox]]
 ) -> np.ndarray:
-    """(N, K) distances of a part's pixels to each instrument: to its shaft axis, or for a
-    head part, to its expected box of that part moved with the shaft's distal end."""
-    if name == "shaft" or not all(name in e for e in expected):
-        return ax.distance(p)
-    shift = ax.ends - ax.limit_end  # the other parts move with their shaft's distal end
-    u = np.array([unit_vector(e[name].angle_deg) for e in expected])
-    h = np.array([0.5 * e[name].length for e in expected])
-    c = np.array([[e[name].cx, e[name].cy] for e in expected]) + shift
-    r = np.array([max(e[name].width / 2.0, 1.0) for e in expected])
-    return _segment_distance(p, c + h[:, None] * u, u, 2 * h, r)
+    """(N, K) squared distances (in half-widths) of a head part's pixels to each
+    instrument: to its head segment (:func:`head_distance2`), or, when it is nearer,
+    to its expected box of that part moved with the shaft's distal end (its last shape
+    seen apart: a bent wrist, open jaws)."""
+    out = head_distance2(p, ax)
+    idx = [k for k, e in enumerate(expected) if name in e]
+    if not idx:
+        return out
+    boxes = [expected[k][name] for k in idx]
+    shift = (ax.ends - ax.limit_end)[idx]  # the other parts move with their shaft's end
+    u = np.array([unit_vector(b.angle_deg) for b in boxes])
+    h = np.array([0.5 * b.length for b in boxes])
+    c = np.array([[b.cx, b.cy] for b in boxes]) + shift
+    r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
+    box = segment_d2(p, c + h[:, None] * u, u, 2 * h, r)
+    out[:, idx] = np.minimum(out[:, idx], box)
+    return out
+
+
+#: A head (wrist and jaws) lies on its shaft's distal extension: from the shaft's end
+#: forward for at most this many shaft widths (robotic: 2, laparoscopic: about 3.4).
+HEAD_LENGTH_WIDTHS = 3.5
+
+
+def head_distance2(p: np.ndarray, ax: _Axes) -> np.ndarray:
+    """(N, K) squared distances of head pixels (N, 2) to each instrument's head segment
+    (from its fitted shaft's distal end forward along its axis for
+    :data:`HEAD_LENGTH_WIDTHS` shaft widths), in units of its shaft's half-width: a head
+    is attached to the end of its own shaft, whatever shafts pass beside it."""
+    length = 2.0 * HEAD_LENGTH_WIDTHS * ax.radius
+    return segment_d2(p, ax.ends + length[:, None] * ax.dirs, ax.dirs, length, ax.radius)
 
 
 def segment_d2(
@@ -488,7 +539,7 @@ def fit_split(
     pts = pixels.shaft_points()
     step = max(1, len(pts) // SPLIT_FIT_POINTS)  # the fits need no more points than this
     fit_pts = pts[::step]
-    ax = _initial_axes(expected, axes)
+    ax = _initial_axes(expected, axes, inst.image_shape)
     if not _refit(ax, fit_pts, step, min_area_px, contiguous):
         return None
     score = _score(ax, fit_pts)
