@@ -6,7 +6,9 @@ Measures (several runs, median):
 
 1. **time to first picture**: from starting ``mistool serve DIR`` (a new process, empty
    cache) to the first screenshot of the 3D view showing an instrument's colour, while the
-   sequence is tracked in the background; also the time until the URL is printed. The
+   sequence is tracked in the background; also the time until the URL is printed, and,
+   without server or browser, the tracking process's time to name its cache entry
+   (listing the frames and keying the cache) and to store its first chunk. The
    sequences are a 200-frame synthetic procedure (2 instruments, camera) played forwards
    and backwards to the length asked (frames symlinked). Ratio: each length against the
    shortest, measured in the same run (the goal: no growth with length).
@@ -148,6 +150,33 @@ def first_picture(browser, seq: Path, cache_home: Path) -> tuple[float, float]:
     finally:
         page.close()
         _stop(proc)
+
+
+def job_start(seq: Path, cache_home: Path) -> tuple[float, float]:
+    """The tracking process alone (no server, no browser), empty cache: seconds from its
+    start to naming its cache entry (it has listed the frames and keyed the cache) and to
+    storing its first chunk, in this process (forked, as ``mistool serve`` does)."""
+    from mistool.background import CHUNK_SCHEDULE, JobSpec, TrackingJob
+    from mistool.sequence import resolve
+
+    path, cfg = resolve(seq)
+    job = TrackingJob(JobSpec(path, cfg, None, root=cache_home))
+    t0 = time.perf_counter()
+    job.start()
+    try:
+        said = None
+        while said is None:
+            said = job.opened()
+            time.sleep(0.002)
+        t_open = time.perf_counter() - t0
+        entry = said[0]
+        if entry is None:
+            raise RuntimeError(f"tracking failed: {said[1]}")
+        while entry.progress().done < CHUNK_SCHEDULE[0]:
+            time.sleep(0.002)
+        return t_open, time.perf_counter() - t0
+    finally:
+        job.stop()
 
 
 def _tiled_table(base_table, frames: int, base_frames: int, fps: float):
@@ -295,6 +324,14 @@ def main() -> int:
             shortest = min(firsts)
             for n in args.lengths:
                 print(f"  ratio {n:,} / {shortest:,} frames: {firsts[n] / firsts[shortest]:.2f}")
+            for n in args.lengths:
+                jobs = [job_start(tmp / f"long{n}", tmp / f"j{n}_{r}") for r in range(args.runs)]
+                named, stored = (statistics.median(j[k] for j in jobs) for k in (0, 1))
+                print(
+                    f"tracking process alone, {n:,} frames: cache entry named after "
+                    f"{named:.2f} s (frames listed, cache keyed), first chunk stored after "
+                    f"{stored:.2f} s"
+                )
             base_table = api.track(base)
             fps = 25.0
             for n in args.memory_lengths:
