@@ -600,3 +600,27 @@ def test_hole_in_a_shafts_border_contact_does_not_split_the_tool(tmp_path):
     late = shafts[shafts["frame"] >= 36]
     assert sorted(set(late["instrument"])) == ["1", "2"]
     assert sorted(set(table["instrument"])) == ["1", "2"]
+
+
+def test_split_instance_takes_shafts_on_one_line_pointing_at_each_other():
+    """Two shafts entering from opposite borders along one line, their ends touching:
+    parallel, but end to end, not side by side: two instruments."""
+    img = np.zeros((H, W), np.uint8)
+    img[200:230, 0:361] = SHAFT  # from the left border
+    img[200:230, 361:720] = SHAFT  # from the right border: one blob
+    img[205:225, 340:360] = CLASPER
+    img[205:225, 361:381] = CLASPER
+    (inst,) = observe_frame(img, MERGED)
+    a = {
+        "shaft": RotatedBox(150.0, 214.5, 300.0, 30.0, 0.0),
+        "clasper": RotatedBox(330.0, 214.5, 20.0, 20.0, 0.0),
+    }
+    b = {
+        "shaft": RotatedBox(570.0, 214.5, 300.0, 30.0, 0.0),
+        "clasper": RotatedBox(390.0, 214.5, 20.0, 20.0, 0.0),
+    }
+    got = split_instance(inst, [a, b])
+    assert got is not None
+    left, right = (g.parts["shaft"].box for g in got)
+    assert left.cx < 360.0 < right.cx
+    assert left.length == pytest.approx(right.length, abs=20.0)

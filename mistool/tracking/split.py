@@ -262,7 +262,8 @@ def split_instance(
     units of each shaft's half-width), each line is refitted to its pixels (direction,
     distal end; a few rounds), and the split is kept only if every instrument's pixels
     hug its axis like a shaft of its width (RMS distance at most
-    :data:`SPLIT_MAX_SPREAD` x width) and no two axes are parallel. Wrist and clasper
+    :data:`SPLIT_MAX_SPREAD` x width) and no two axes are parallel side by side (two
+    shafts on one line, pointing at each other, are fine). Wrist and clasper
     pixels go to the nearest head: the segment continuing a refitted shaft beyond its
     distal end (:func:`head_distance2`), or the expected box of that part moved with
     the shaft's distal end, whichever is nearer.
@@ -372,10 +373,23 @@ def _score(ax: _Axes, pts: np.ndarray) -> float | None:
         score = max(score, rms)
     for i in range(k):
         for j in range(i + 1, k):
-            cosang = min(1.0, abs(float(ax.dirs[i] @ ax.dirs[j])))
-            if math.degrees(math.acos(cosang)) < SPLIT_MIN_ANGLE_DEG:
+            if _side_by_side(ax, i, j):
                 return None
     return score
+
+
+def _side_by_side(ax: _Axes, i: int, j: int) -> bool:
+    """Whether axes ``i`` and ``j`` are near parallel (:data:`SPLIT_MIN_ANGLE_DEG`) and
+    side by side (one shaft cut in two strips), not end to end: two shafts on one line
+    pointing at each other, from opposite sides of the view, are two shafts."""
+    cos = float(ax.dirs[i] @ ax.dirs[j])
+    if math.degrees(math.acos(min(1.0, abs(cos)))) >= SPLIT_MIN_ANGLE_DEG:
+        return False
+    if cos > 0:
+        return True
+    u = ax.dirs[i]  # along i; j points the other way: it covers [end_j, end_j + back_j]
+    hi_i, lo_j = float(ax.ends[i] @ u), float(ax.ends[j] @ u)
+    return hi_i - lo_j > ax.radius[i] + ax.radius[j]  # their extents overlap along u
 
 
 def _part_distance(
