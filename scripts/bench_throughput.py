@@ -16,7 +16,7 @@ once into ``--data`` and reused):
   grouping), metric pose, identity (``IdentityTracker.resolve``, the crossing split
   included), split pose (the metric pose of the pieces of split blobs: in the workers
   when there are workers), rows, refinement (paper motion + metric refinement), CSV
-  writing, in ms per frame; the parent's sequential share is identity + rows +
+  writing, in CPU ms per frame; the parent's sequential share is identity + rows +
   refinement + CSV;
 - with ``--formats``: write/read times and sizes of the last case's table as CSV,
   ``.npz`` and ``.parquet``; with ``--memory N ...``: peak RSS of tracking N frames (the
@@ -92,7 +92,9 @@ def track_cli(seq: Path, out: Path, workers: int, metric: bool) -> None:
 
 
 def stages(seq: Path, out: Path) -> dict[str, float]:
-    """Milliseconds per frame of each stage, in this process (metric pose on).
+    """CPU milliseconds per frame of each stage, in this process (metric pose on; CPU
+    time, so that other programs on the machine inflate the figures less than they do
+    wall-clock times).
 
     ``identity`` is ``IdentityTracker.resolve`` (the crossing split included);
     ``split pose`` the metric pose of the pieces of the blobs it split (in the worker
@@ -112,7 +114,7 @@ def stages(seq: Path, out: Path) -> dict[str, float]:
     keys = ("decode", "instances", "metric pose", "identity", "split pose", "rows")
     t = dict.fromkeys(keys, 0.0)
     files = list_frames(seq)
-    clock = time.perf_counter
+    clock = time.process_time
     for i, f in enumerate(files):
         t0 = clock()
         labels = read_label_image(f)
@@ -338,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
                 ms = stages(seq, tmp / "stages.csv")
                 parent = sum(ms[k] for k in ("identity", "rows", "refinement", "CSV"))
                 print(
-                    "  stages, ms/frame (one process): "
+                    "  stages, CPU ms/frame (one process): "
                     + ", ".join(f"{k} {v:.2f}" for k, v in ms.items())
                     + f"; sequential in the parent: {parent:.2f} (identity, rows, "
                     "refinement, CSV)"
