@@ -18,6 +18,10 @@ once into ``--data`` and reused):
   when there are workers), rows, refinement (paper motion + metric refinement), CSV
   writing, in CPU ms per frame; the parent's sequential share is identity + rows +
   refinement + CSV;
+- with ``--process-cpu``: every process's CPU per frame (workers from ``/proc``, the
+  caller) of ``mistool.track`` on a reused ``LocalPool(N)``, each case;
+- with ``--video``: the crossing case as an mp4v mask video (decoded by the workers):
+  ``cv2.VideoCapture.read`` decode-only frames/s and every process's CPU per frame;
 - with ``--formats``: write/read times and sizes of the last case's table as CSV,
   ``.npz`` and ``.parquet``; with ``--memory N ...``: peak RSS of tracking N frames (the
   last case's frames repeated) in a fresh process;
@@ -187,6 +191,63 @@ def print_case(name: str, n: int, med: dict[str, float], load: tuple[float, ...]
         print(f"  metric / no-metric time, w{w}: {on / off:.2f}")
 
 
+def _proc_cpu(pid: int) -> float:
+    """CPU seconds (user + system) a process has used so far (Linux ``/proc``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def process_cpu(name: str, source: Path, frames: int, workers: int, runs: int) -> None:
+    """Every process's CPU per frame of ``mistool.track(source)`` on a warm
+    ``LocalPool(workers)`` (reused, as ``mistool track DATASET/`` does): the workers'
+    (from ``/proc``) and the caller's; median of ``runs`` runs after one warm-up run."""
+    import warnings
+
+    from mistool import api, parallel
+
+    warnings.simplefilter("ignore")  # e.g. label values smeared by a video codec
+    with parallel.LocalPool(workers) as pool:
+        api.track(source, pool=pool)
+        pids = list(pool._executor._processes)  # type: ignore[union-attr]
+        walls, callers, workers_cpu = [], [], []
+        for _ in range(runs):
+            before = sum(_proc_cpu(p) for p in pids)
+            t0, c0 = time.perf_counter(), time.process_time()
+            api.track(source, pool=pool)
+            walls.append(time.perf_counter() - t0)
+            callers.append(time.process_time() - c0)
+            workers_cpu.append(sum(_proc_cpu(p) for p in pids) - before)
+    wall, caller, work = (statistics.median(v) for v in (walls, callers, workers_cpu))
+    print(
+        f"  process CPU, {name}, {workers} workers (pool reused), load average "
+        f"{os.getloadavg()[0]:.1f}: {frames / wall:.1f} frames/s; CPU ms/frame: workers "
+        f"{1e3 * work / frames:.2f}, caller {1e3 * caller / frames:.2f}, total "
+        f"{1e3 * (work + caller) / frames:.2f}"
+    )
+
+
+def bench_video(data: Path, frames: int, workers: int, runs: int) -> None:
+    """The crossing case as an mp4v mask video: decode-only (``cv2.VideoCapture.read``,
+    one process) and every process's CPU with ``workers`` workers."""
+    from mistool.synth import synthesize
+
+    folder = data / f"video_{frames}"
+    if not (folder / "synth.json").is_file():
+        synthesize(folder, frames=frames, instruments=2, seed=3, video="mp4v", force=True)
+    video = folder / "masks.avi"
+
+    def decode() -> None:
+        cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
+        while cap.read()[0]:
+            pass
+        cap.release()
+
+    secs = statistics.median(timed(decode) for _ in range(runs))
+    print(f"\nmask video (crossing, mp4v): {frames} frames")
+    print(f"  {'decode (cv2.VideoCapture.read, 1 process)':44s} {frames / secs:8.1f} frames/s")
+    process_cpu("video", video, frames, workers, runs)
+
+
 def bench_formats(seq: Path, tmp: Path, runs: int) -> None:
     """Write and read times and sizes of the sequence's table as CSV, .npz, .parquet."""
     from mistool.api import track
@@ -302,6 +363,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-dataset", action="store_true")
     parser.add_argument("--formats", action="store_true", help="CSV vs .npz vs .parquet")
     parser.add_argument(
+        "--process-cpu",
+        action="store_true",
+        help="every process's CPU per frame with N workers (pool reused), each case",
+    )
+    parser.add_argument(
+        "--video", action="store_true", help="the crossing case as an mp4v mask video"
+    )
+    parser.add_argument(
         "--memory",
         type=int,
         nargs="+",
@@ -336,6 +405,8 @@ def main(argv: list[str] | None = None) -> int:
                 med,
                 os.getloadavg(),
             )
+            if args.process_cpu:
+                process_cpu(name, seq, args.frames, args.workers, args.runs)
             if args.stages:
                 ms = stages(seq, tmp / "stages.csv")
                 parent = sum(ms[k] for k in ("identity", "rows", "refinement", "CSV"))
@@ -347,6 +418,8 @@ def main(argv: list[str] | None = None) -> int:
                 )
         name = args.cases[-1]
         last = synth(args.data / f"{name}_{args.frames}", args.frames, CASES[name], seed=3)
+        if args.video:
+            bench_video(args.data, args.frames, args.workers, args.runs)
         if args.formats:
             bench_formats(last, tmp, args.runs)
         if args.memory:
