@@ -74,38 +74,40 @@ class JobSpec:
         return {"metric": self.metric, "smoothing": self.smoothing}
 
 
-def locate(spec: JobSpec) -> JobSpec:
-    """``spec`` with its frame files listed (a folder) and its cache entry found.
+def locate(spec: JobSpec) -> tuple[JobSpec, Sequence[Any]]:
+    """``spec`` with its frame files listed (a folder) and its cache entry found, and the
+    files to ``stat`` for the entry's :func:`~mistool.cache.frames_digest` (directory
+    entries, paths, or the video), in frame order.
 
-    The entry's key (:func:`mistool.cache.cache_key`) covers every frame file's name, size
-    and modification time, the config and the tracking options, so this costs a listing
-    and a ``stat`` per frame: ``mistool serve`` does it here, in the tracking process,
-    instead of before its server starts. The entry found is marked used and the cache's
-    size policy applied (:func:`mistool.cache.enforce_limit`); ``spec.fresh`` empties it.
+    The entry's key (:func:`mistool.cache.cache_key`) covers the frame names, the config and
+    the tracking options: a listing (``mistool serve`` does it here, in the tracking
+    process, not before its server starts), without a ``stat`` per frame (symlinks are not
+    followed either): the files' sizes and times are checked by :func:`_settle` when
+    something is stored, else digested while tracking. The entry found is marked used and
+    the cache's size policy applied (:func:`mistool.cache.enforce_limit`); ``spec.fresh``
+    empties it.
 
     Raises:
-        InputPathError: the folder cannot be listed, or a frame is a dangling symlink.
+        InputPathError: the folder cannot be listed.
     """
     from mistool.cache import cache_key, enforce_limit, open_entry
     from mistool.sequence import scan_frames
 
     files: Sequence[Path] = spec.files
-    keyed: Sequence[Any] = files
+    stat_of: Sequence[Any] = files or [spec.sequence]
     if not files and spec.sequence.is_dir():
-        keyed = scan_frames(spec.sequence)  # one stat per frame, shared with the key
-        files = FrameFiles(spec.sequence, [e.name for e in keyed])
+        stat_of = scan_frames(spec.sequence, check_links=False)
+        files = FrameFiles(spec.sequence, [e.name for e in stat_of])
     entry = spec.entry
     if entry is None:
-        keyed = keyed or [spec.sequence]
-        entry = open_entry(
-            cache_key(spec.sequence, spec.config, keyed, **spec.key_options()), spec.root
-        )
+        key = cache_key(spec.sequence, spec.config, stat_of, **spec.key_options())
+        entry = open_entry(key, spec.root)
         with contextlib.suppress(OSError):
             entry.touch()
             enforce_limit(keep=entry)
     if spec.fresh:
         entry.remove()
-    return replace(spec, entry=entry, files=files, fresh=False)
+    return replace(spec, entry=entry, files=files, fresh=False), stat_of
 
 
 class FrameFiles(Sequence[Path]):
@@ -189,18 +191,26 @@ def _raw(table: TrackTable) -> TrackTable:
     return TrackTable({c: table[c] for c in table.columns if c != "pose_status"})
 
 
-def _settle(spec: JobSpec, seq: MaskSequence) -> tuple[int, Any]:
+def _settle(spec: JobSpec, seq: MaskSequence, stat_of: Sequence[Any]) -> tuple[int, Any]:
     """Open ``spec.entry`` for tracking ``seq``: (first frame to track, the identity
-    tracker to go on with); a run that cannot be resumed (no stored state) starts again.
-    The frame names are stored with it (:meth:`~mistool.cache.CacheEntry.write_frame_names`).
+    tracker to go on with). What it stores is kept only if it comes from the same files
+    (their :func:`~mistool.cache.frames_digest` now is the one stored with it) and can be
+    resumed (the tracker's state is stored); else the entry starts again. The frame names
+    are stored with it (:meth:`~mistool.cache.CacheEntry.write_frame_names`).
     """
     from mistool import tracking
+    from mistool.cache import frames_digest
 
     entry = spec.entry
     assert entry is not None
     info = {"sequence": str(spec.sequence)}
     entry.begin(seq.num_frames, info)
     progress = entry.progress()
+    stored = progress.complete or progress.done > 0
+    if stored and entry.frames_digest() != frames_digest(stat_of):  # touched: start again
+        entry.remove()
+        entry.begin(seq.num_frames, info)
+        progress = entry.progress()
     start = 0 if progress.complete else progress.done
     tracker = entry.state(start) if start else None
     if tracker is None and not progress.complete:  # nothing to resume from: start again
@@ -239,16 +249,16 @@ def track_into(
     """
     entry = spec.entry
     try:
-        spec = locate(spec)
+        spec, stat_of = locate(spec)
         entry = spec.entry
         assert entry is not None
         seq = _open(spec)
-        start, tracker = _settle(spec, seq)
+        start, tracker = _settle(spec, seq, stat_of)
         progress = entry.progress()
         if on_open is not None:
             on_open(entry, progress)
         if not progress.complete:
-            _track_chunks(spec, seq, start, tracker, stop)
+            _track_chunks(spec, seq, start, tracker, stop, stat_of if start == 0 else None)
     except MistoolError as exc:
         if entry is not None:
             entry.fail(str(exc))
@@ -256,11 +266,27 @@ def track_into(
     return entry.progress()
 
 
-def _track_chunks(spec: JobSpec, seq: MaskSequence, start: int, tracker: Any, stop: Any) -> None:
+def _track_chunks(
+    spec: JobSpec,
+    seq: MaskSequence,
+    start: int,
+    tracker: Any,
+    stop: Any,
+    stat_of: Sequence[Any] | None,
+) -> None:
     """Track ``seq`` from frame ``start`` chunk by chunk into ``spec.entry``; refine and
-    store the finished table after the last frame (unless ``stop`` is set before)."""
+    store the finished table after the last frame (unless ``stop`` is set before).
+
+    ``stat_of`` (a run from the first frame): the files whose digest is stored with the
+    entry. The first chunk's files are stat'ed before they are read, the others right after
+    the first chunk is stored (every file before it is read), so that the first frames
+    are shown without waiting for a ``stat`` of every frame.
+    """
     from mistool import api, parallel
+    from mistool.cache import FramesDigest
     from mistool.rows import RowBuilder
+
+    digest = FramesDigest() if stat_of is not None else None
 
     entry, cfg = spec.entry, seq.config
     assert entry is not None
@@ -273,6 +299,8 @@ def _track_chunks(spec: JobSpec, seq: MaskSequence, start: int, tracker: Any, st
     results = enumerate(parallel.ordered_results(work, pool), start)
     try:
         for size in chunk_sizes():
+            if digest is not None and stat_of is not None and start == 0:
+                digest.add(stat_of[:size])
             rows = RowBuilder(cfg.fps)
             end = start
             for index, (name, result) in itertools.islice(results, size):
@@ -284,6 +312,9 @@ def _track_chunks(spec: JobSpec, seq: MaskSequence, start: int, tracker: Any, st
                 break
             table = _paper(_displayed(rows.take(), cfg, measured), context, cfg)
             entry.add_chunk(start, end, table, tracker)
+            if digest is not None and stat_of is not None and start == 0:
+                digest.add(stat_of[size:])
+                entry.set_frames_digest(digest.hexdigest())
             context, start = _tail(table, _PAPER_CONTEXT), end
             if stop is not None and stop.is_set():
                 return

@@ -19,8 +19,10 @@ it). Every file is written to a
 temporary name and renamed, so a run killed at any moment leaves a readable entry.
 
 **Key** (:func:`cache_key`): a digest of mistool's version, the sequence's resolved path,
-every frame file's name, size and modification time (a video: its own), the effective
-config, and the tracking options. Change any of them and the entry is another one.
+every frame file's name (a video: its own), the effective config, and the tracking options.
+Change any of them and the entry is another one. The files' sizes and modification times
+are digested apart (:func:`frames_digest`, stored in ``meta.json``): stored rows are reused
+only when that digest is the files' digest now (a touched frame empties the entry).
 
 **Size policy** (:func:`enforce_limit`): the cache holds at most ``MISTOOL_CACHE_MAX_BYTES``
 bytes (default :data:`DEFAULT_MAX_BYTES`); when it is over, whole entries are removed, least
@@ -30,6 +32,7 @@ recently used first (an entry is "used" when opened), never the entry in use.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
@@ -45,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from mistool.config import Config
-from mistool.errors import TableError
+from mistool.errors import InputPathError, TableError
 from mistool.model import COLUMN_DTYPES, TrackTable
 
 #: Default upper bound of the whole cache (bytes), overridden by ``MISTOOL_CACHE_MAX_BYTES``.
@@ -53,7 +56,7 @@ DEFAULT_MAX_BYTES = 2_000_000_000
 #: Environment variable holding the cache's size bound in bytes.
 MAX_BYTES_ENV = "MISTOOL_CACHE_MAX_BYTES"
 #: Version of the on-disk layout (part of every key).
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 
 def cache_root() -> Path:
@@ -66,14 +69,16 @@ def cache_root() -> Path:
 def cache_key(
     seq_path: Path, config: Config, files: Iterable[Path | os.DirEntry[str]], **options: Any
 ) -> str:
-    """A digest of everything a tracked table depends on.
+    """A digest of what names a tracked table: mistool's version, the sequence, its frame
+    files' names in order, the config and the tracking options. The files' contents are
+    checked apart (:func:`frames_digest`, stored in the entry): listing 100,000 names is
+    quick, ``stat``-ing them all is not, and need not delay tracking's first frames.
 
     Args:
         seq_path: the sequence folder or mask video.
         config: the effective config (after ``mistool.toml`` and command-line options).
         files: the frame files in frame order (a video: the video itself), as paths or
-            as directory entries (:func:`mistool.sequence.scan_frames`; the same key, with
-            the stat the listing fetched).
+            directory entries (:func:`mistool.sequence.scan_frames`).
         **options: tracking options (e.g. ``metric=True, smoothing="offline"``).
     """
     from mistool import __version__
@@ -81,10 +86,50 @@ def cache_key(
     h = hashlib.sha256(f"{__version__}\n{FORMAT_VERSION}\n{seq_path.resolve()}\n".encode())
     h.update(repr(config).encode())
     h.update(json.dumps(options, sort_keys=True, default=str).encode())
-    for f in files:
-        st = f.stat()
-        h.update(f"{f.name}\t{st.st_size}\t{st.st_mtime_ns}\n".encode())
+    h.update("\n".join(f.name for f in files).encode())
     return h.hexdigest()[:32]
+
+
+class FramesDigest:
+    """A digest of frame files' sizes and modification times, fed in frame order (with
+    :func:`cache_key`'s names: what the old single key covered). A stored run is reused
+    only when the digest stored with it is the files' digest now."""
+
+    def __init__(self) -> None:
+        self._h = hashlib.sha256()
+
+    def add(self, files: Iterable[Path | os.DirEntry[str]]) -> None:
+        """Stat ``files`` (the next ones in frame order) into the digest.
+
+        Raises:
+            InputPathError: a file cannot be stat'ed (e.g. a dangling symlink).
+        """
+        for f in files:
+            try:
+                st = f.stat()
+            except OSError as exc:
+                raise InputPathError(_unreadable(str(getattr(f, "path", f)), exc)) from None
+            self._h.update(f"{st.st_size}\t{st.st_mtime_ns}\n".encode())
+
+    def hexdigest(self) -> str:
+        """The digest so far."""
+        return self._h.hexdigest()[:32]
+
+
+def _unreadable(path: str, exc: OSError) -> str:
+    """One line for a frame file that cannot be stat'ed."""
+    if exc.errno == errno.ELOOP:
+        return f"{path}: cannot read this frame: symlink loop"
+    if os.path.islink(path):
+        return f"{path}: cannot read this frame: dangling symlink to {os.readlink(path)}"
+    return f"{path}: cannot read this frame: {exc.strerror or exc}"
+
+
+def frames_digest(files: Iterable[Path | os.DirEntry[str]]) -> str:
+    """:class:`FramesDigest` of ``files`` (all of them, in frame order)."""
+    digest = FramesDigest()
+    digest.add(files)
+    return digest.hexdigest()
 
 
 # -- columns <-> numpy -------------------------------------------------------------------
@@ -206,6 +251,18 @@ class CacheEntry:
             return 0.0
 
     # -- the frames -------------------------------------------------------------------
+    def frames_digest(self) -> str | None:
+        """The :func:`frames_digest` of the files the stored rows come from (None: not
+        stored yet, e.g. a run stopped before it was: then nothing stored is reused)."""
+        value = self._meta().get("frames")
+        return value if isinstance(value, str) else None
+
+    def set_frames_digest(self, digest: str) -> None:
+        """Store the digest of the files the rows come from."""
+        meta = self._meta()
+        meta["frames"] = digest
+        self._write_meta(meta)
+
     def write_frame_names(self, names: list[str]) -> None:
         """Store the sequence's frame file names in frame order (``frames.json``), for the
         viewer, which then need not list a long folder itself."""

@@ -602,9 +602,15 @@ def list_frames(folder: Path) -> list[Path]:
     return [folder / e.name for e in scan_frames(folder)]
 
 
-def scan_frames(folder: Path) -> list[os.DirEntry[str]]:
-    """:func:`list_frames` as directory entries: their ``stat()`` is cached (fetched once,
-    e.g. for a cache key, and not at all again for a symlink, which the listing stats)."""
+def scan_frames(folder: Path, *, check_links: bool = True) -> list[os.DirEntry[str]]:
+    """:func:`list_frames` as directory entries (their ``stat()`` is fetched once).
+
+    Args:
+        folder: the folder.
+        check_links: check that every symlink names a file (one ``stat`` each; a dangling
+            or looping one is an error here). False: symlinks are taken as frames, and one
+            that is not is an error when it is read.
+    """
     try:
         with os.scandir(folder) as it:
             entries = list(it)
@@ -617,7 +623,7 @@ def scan_frames(folder: Path) -> list[os.DirEntry[str]]:
         for e in entries
         if not e.name.startswith(".")
         and os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS
-        and is_frame_file(e)
+        and (is_frame_file(e) if check_links or not e.is_symlink() else True)
     ]
     return [frames[i] for i in natural_order([e.name for e in frames])]
 

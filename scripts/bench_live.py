@@ -193,7 +193,8 @@ def _tiled_table(base_table, frames: int, base_frames: int, fps: float):
 def server_memory(browser, seq: Path, table, cache_home: Path) -> dict[str, float]:
     """Peak RSS (MB) of ``mistool serve`` showing a finished ``table``, and seconds from
     launch to the whole timeline being available."""
-    from mistool.sequence import resolve
+    from mistool.cache import frames_digest
+    from mistool.sequence import list_frames, resolve
     from mistool.viewer.app import _entry_for
 
     os.environ["XDG_CACHE_HOME"] = str(cache_home)
@@ -201,6 +202,7 @@ def server_memory(browser, seq: Path, table, cache_home: Path) -> dict[str, floa
     entry = _entry_for(path, cfg)
     entry.begin(None, {})
     entry.finish(table)
+    entry.set_frames_digest(frames_digest(list_frames(path)))  # as a finished run leaves it
     env = dict(os.environ)
     proc, url, t0 = _serve(seq, env)
     page = browser.new_page(viewport={"width": 1280, "height": 800})

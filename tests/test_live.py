@@ -337,8 +337,9 @@ def test_background_load_lists_nothing_and_the_job_finds_the_entry(
 
 
 def test_the_job_keys_the_cache_honestly_and_resumes(seq: Path, tmp_path: Path) -> None:
-    """With ``entry=None`` the job computes the key from every frame file: a stopped run
-    is resumed by the next job; a touched frame is another entry."""
+    """With ``entry=None`` the job finds the entry from the frame names: a stopped run is
+    resumed by the next job; a touched frame (its size or time: the entry's frames digest)
+    or a run stopped before its digest was stored is tracked again from the start."""
     import shutil
 
     copy = tmp_path / "seq"
@@ -360,13 +361,18 @@ def test_the_job_keys_the_cache_honestly_and_resumes(seq: Path, tmp_path: Path) 
     assert opened[1][0].key == opened[0][0].key
     assert opened[0][1].done == 0 and opened[1][1].done == background.CHUNK_SCHEDULE[0]
     assert opened[1][0].frame_names() == [f.name for f in list_frames(copy)]
-    frame = list_frames(copy)[7]
+    assert opened[1][0].frames_digest() == cache.frames_digest(list_frames(copy))
+    frame = list_frames(copy)[40]  # a frame of the stored table
     st = frame.stat()
     os.utime(frame, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # touched
+    background.track_into(spec, stop, on_open)  # the same names: the same entry, emptied
+    assert opened[2][0].key == opened[0][0].key and opened[2][1].done == 0
+    assert not opened[2][1].complete
+    opened[2][0].set_frames_digest("a run stopped before its digest was stored")
     background.track_into(spec, stop, on_open)
-    assert opened[2][0].key != opened[0][0].key and opened[2][1].done == 0
+    assert opened[3][1].done == 0, "rows of unknown files were reused"
     fresh = background.track_into(replace_fresh(spec), stop, on_open)
-    assert opened[3][0].key == opened[2][0].key and opened[3][1].done == 0, "fresh: emptied"
+    assert opened[4][0].key == opened[2][0].key and opened[4][1].done == 0, "fresh: emptied"
     assert fresh.done == background.CHUNK_SCHEDULE[0]
 
 
@@ -376,9 +382,9 @@ def replace_fresh(spec: background.JobSpec) -> background.JobSpec:
     return dataclasses.replace(spec, fresh=True)
 
 
-def test_feed_reports_a_job_that_fails_before_it_finds_its_entry(seq: Path, tmp_path: Path) -> None:
-    """A frame only the listing finds (a dangling symlink) stops the job before it has an
-    entry: the feed says so in one line, and shows nothing."""
+def test_feed_reports_a_job_that_fails_before_its_first_frames(seq: Path, tmp_path: Path) -> None:
+    """A frame the server's start does not look at (a dangling symlink) stops the job
+    before it tracks anything: the feed says so in one line, and shows nothing."""
     from mistool.viewer.feed import CacheFeed
 
     bad = tmp_path / "bad"
@@ -390,9 +396,9 @@ def test_feed_reports_a_job_that_fails_before_it_finds_its_entry(seq: Path, tmp_
     path, cfg = resolve(bad)
     feed = CacheFeed(None, background.JobSpec(path, cfg, None, root=tmp_path / "c"), None)
     replay = Replay(cfg, num_frames=1, image_wh=(720, 576), parts=config_parts(cfg))
-    assert _grow(feed, replay) == []
+    assert _grow(feed, replay) == [] and replay.tracked == 0
     status = feed.status()
-    assert status.phase == "failed" and feed.entry is None
+    assert status.phase == "failed" and status.done == 0
     assert status.error is not None and "dangling symlink" in status.error
     assert "\n" not in status.error and "dangling symlink" in status.text()
 

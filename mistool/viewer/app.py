@@ -193,13 +193,16 @@ def _track_now(
 
     if cache:
         from mistool.background import JobSpec, track_into
+        from mistool.cache import frames_digest
 
         entry = _entry_for(seq_path, config, files)
         with contextlib.suppress(OSError, MistoolError):  # a damaged entry: track again
-            if entry.progress().complete:
+            same = entry.frames_digest() == frames_digest(files or [seq_path])
+            if same and entry.progress().complete:
                 return entry.read_final(), num_frames, config, shape
         with contextlib.suppress(OSError):
-            track_into(JobSpec(seq_path, config, entry, **SERVE_TRACKING))  # type: ignore[arg-type]
+            spec = JobSpec(seq_path, config, entry, files=files, **SERVE_TRACKING)  # type: ignore[arg-type]
+            track_into(spec)
             return entry.read_final(), num_frames, config, shape
     result = api.run(seq_path, config, progress=progress)
     if result.shape is not None:
