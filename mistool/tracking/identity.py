@@ -48,6 +48,7 @@ from mistool.tracking.instances import angle_diff_deg, unit_vector
 from mistool.tracking.motion import ConstantVelocity
 from mistool.tracking.split import (
     BlobPixels,
+    SplitFit,
     border_entries,
     border_runs,
     fit_split,
@@ -80,6 +81,10 @@ HIDDEN_MAX_GAP_FRAMES = 3
 #: seen apart by at most this many frames of its velocity (slowing to a stop when the
 #: tools met); the second all the way (keeping on).
 SPLIT_STOP_FRAMES = 5
+#: The second hypothesis is fitted only when the first fails or its score (RMS distance
+#: of a shaft's pixels to its axis, half-widths; a full rectangle gives 0.58) is above
+#: this.
+SPLIT_GOOD_SCORE = 0.65
 #: A track seen for at most this many frames, never with a shaft, found hidden in the
 #: blob of an older track that could not be split, was a piece of it (absorbed).
 FRAGMENT_MAX_SEEN = 3
@@ -453,13 +458,14 @@ class IdentityTracker:
         """Crossing handler: each blob holding hidden tracks split between its tracks.
 
         Two motion hypotheses (:data:`SPLIT_STOP_FRAMES`) share the blob's pixels; only
-        their axes are fitted (cheap), and only the best-scoring fit is measured (its
+        their axes are fitted (cheap), the second only when the first fails or fits
+        poorly (:data:`SPLIT_GOOD_SCORE`), and only the best-scoring fit is measured (its
         pieces' boxes), the other only if that one yields no pieces."""
         min_area = max(self._config.min_area_px, 1)
         for b, hidden in fr.blob_of.items():
             group = [fr.live[fr.owner[b]]] + [fr.live[a] for a in hidden]
             pixels = BlobPixels(fr.instances[b])
-            fits = []
+            fits: list[SplitFit] = []
             for steps in (SPLIT_STOP_FRAMES, None):
                 expected = [self._expected_boxes(t, fr.index, steps) for t in group]
                 if any(e is None for e in expected):
@@ -467,6 +473,8 @@ class IdentityTracker:
                 fit = fit_split(pixels, [e for e in expected if e], min_area)
                 if fit is not None:
                     fits.append(fit)
+                    if fit.score <= SPLIT_GOOD_SCORE:
+                        break  # the second hypothesis only when the first is poor
             for fit in sorted(fits, key=lambda f: f.score):
                 pieces = split_pieces(pixels, fit, min_area)
                 if pieces is not None:
