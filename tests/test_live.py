@@ -323,7 +323,7 @@ def test_background_load_lists_nothing_and_the_job_finds_the_entry(
     assert here == [], "the server's process listed the frames or keyed the cache"
     assert feed.status().phase == "done" and feed.total == N
     assert ranges[0] == (0, background.CHUNK_SCHEDULE[0]), ranges  # grew chunk by chunk
-    # The length learnt from the job sizes the replay once (not doubled: 64 frames).
+    # The length learnt from the job sizes the replay (not doubled past it: 64 frames).
     assert loaded.replay.expected_frames == N == loaded.replay.capacity
     assert loaded.frames.listed and loaded.frames.mask_files == list_frames(seq)
     np.testing.assert_array_equal(
@@ -426,3 +426,20 @@ def test_overlay_of_a_frame_not_listed_yet_is_not_kept(seq: Path) -> None:
     finally:
         overlays.close()
         frames.close()
+
+
+def test_a_growing_replay_allocates_little_first_and_the_length_once(seq: Path) -> None:
+    """The first frames of a long procedure are stored without allocating its whole
+    length; storage then doubles, and takes the whole length in one step once that is at
+    most 4x the storage (never doubled past it)."""
+    _, cfg = resolve(seq)
+    table = api.track(seq)
+    replay = Replay(cfg, num_frames=1, image_wh=(720, 576), parts=config_parts(cfg))
+    replay.expected_frames = 90_000
+    capacities = []
+    for lo in range(0, 40_000, 25):  # 25-frame patches (most empty: past the table)
+        replay.apply(replay.compute(table, lo, lo + 25))
+        if not capacities or capacities[-1] != replay.capacity:
+            capacities.append(replay.capacity)
+    # 64 .. 16,384 doubling; the next doubling (32,768) is within 4x of the length: 90,000.
+    assert capacities == [64 * 2**k for k in range(9)] + [90_000]
