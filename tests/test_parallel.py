@@ -395,3 +395,34 @@ def test_a_truncated_or_corrupt_video_warns_the_same_with_workers(
     assert said_two == said_one
     assert 10 < one["frame"].max() < 59
     assert_same(one, two)
+
+
+def test_a_dataset_of_mask_videos_through_one_pool_equals_each_alone(
+    crossing: Path, tmp_path: Path
+) -> None:
+    """One pool serves every sequence of a dataset: its workers switch from one video to
+    the next (and to a folder in between) and each table is the video's tracked alone."""
+    import shutil
+
+    from mistool.cli import main
+
+    root = tmp_path / "data"
+    root.mkdir()
+    (root / "mistool.toml").write_bytes((crossing / "mistool.toml").read_bytes())
+    frames = [labels for _, _, labels in open_sequence(crossing)]
+    h, w = frames[0].shape
+    for name, order in (("a", frames[:45]), ("c", frames[::-1][:37])):
+        writer = cv2.VideoWriter(
+            str(root / f"{name}.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 25, (w, h), False
+        )
+        for f in order:
+            writer.write(f)
+        writer.release()
+    shutil.copytree(crossing, root / "b")
+    out = tmp_path / "out"
+    assert main(["track", str(root), "-o", str(out), "-q", "--workers", "2"]) == 0
+    for name in ("a", "c"):
+        alone = tmp_path / f"{name}.csv"
+        argv = ["track", str(root / f"{name}.avi"), "-o", str(alone), "-q", "--workers", "1"]
+        assert main(argv) == 0
+        assert alone.read_bytes() == (out / f"{name}_motion.csv").read_bytes(), name
