@@ -400,7 +400,8 @@ def worker_context() -> Any:
         return mp_context.SpawnContext()
     ctx: Any = mp_context.ForkServerContext()
     ctx.Process = _NoMainProcess
-    ctx.set_forkserver_preload(["mistool.parallel"])
+    # worker_signals: Ctrl+C ignored from each worker's first instant (its docstring)
+    ctx.set_forkserver_preload(["mistool.parallel", "mistool.worker_signals"])
     return ctx
 
 

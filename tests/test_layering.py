@@ -21,8 +21,9 @@ LAYERS: list[tuple[str, ...]] = [
     # assignment: the one min-cost matching solver (tracking and evaluation share it)
     ("geometry", "assignment", "lens"),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
-    # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools)
-    ("rows", "parallel"),
+    # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools;
+    # worker_signals: imported by its workers' fork server only)
+    ("rows", "parallel", "worker_signals"),
     # teaching: skill metrics, the report and the video export (tables and sequences in)
     ("skill", "report", "video"),
     ("api",),
