@@ -11,7 +11,7 @@ Measures (several runs, median):
    (listing the frames and keying the cache) and to store its first chunk. The
    sequences are a 200-frame synthetic procedure (2 instruments, camera) played forwards
    and backwards to the length asked (frames symlinked). Ratio: each length against the
-   shortest, measured in the same run (the goal: no growth with length).
+   shortest, measured in the same run, the lengths taking turns (the goal: no growth).
 2. **server memory**: peak resident memory (VmHWM) of the ``mistool serve`` process for a
    procedure tracked to the end (the cache entry is filled beforehand with the tracked
    table tiled to the length, so that the server loads it as a finished run would leave it),
@@ -314,9 +314,13 @@ def main() -> int:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
         try:
             firsts: dict[int, float] = {}
+            seqs = {n: _long(base, n, tmp / f"long{n}") for n in args.lengths}
+            runs: dict[int, list[tuple[float, float]]] = {n: [] for n in args.lengths}
+            for r in range(args.runs):  # lengths interleaved: the machine's load drifts
+                for n in args.lengths:
+                    runs[n].append(first_picture(browser, seqs[n], tmp / f"c{n}_{r}"))
             for n in args.lengths:
-                seq = _long(base, n, tmp / f"long{n}")
-                got = [first_picture(browser, seq, tmp / f"c{n}_{r}") for r in range(args.runs)]
+                got = runs[n]
                 firsts[n] = statistics.median(g[1] for g in got)
                 url = statistics.median(g[0] for g in got)
                 print(
