@@ -34,6 +34,10 @@ from mistool.sequence import MaskSequence
 #: Frames of the first chunks: small at first so that the first picture comes at once,
 #: then growing (fewer files, less overhead), at most the last value.
 CHUNK_SCHEDULE = (25, 50, 100, 200, 400, 800)
+#: Frame files stat'ed for the cache entry's frames digest per frame tracked, until every
+#: file is (a second at 100,000 frames, spread over the first few chunks instead of
+#: delaying the first ones).
+STATS_PER_FRAME = 50
 #: Frames of paper-motion context carried over a chunk boundary (Eq. 5 needs two).
 _PAPER_CONTEXT = 2
 
@@ -278,15 +282,18 @@ def _track_chunks(
     store the finished table after the last frame (unless ``stop`` is set before).
 
     ``stat_of`` (a run from the first frame): the files whose digest is stored with the
-    entry. The first chunk's files are stat'ed before they are read, the others right after
-    the first chunk is stored (every file before it is read), so that the first frames
-    are shown without waiting for a ``stat`` of every frame.
+    entry once every one is in it. They are stat'ed in frame order, each before it is read,
+    :data:`STATS_PER_FRAME` per frame tracked, so that the first frames are shown without
+    waiting for a ``stat`` of every frame (a run stopped before the digest is stored is
+    not resumed: it starts again).
     """
     from mistool import api, parallel
     from mistool.cache import FramesDigest
     from mistool.rows import RowBuilder
 
     digest = FramesDigest() if stat_of is not None else None
+    stated = 0  # files of stat_of in the digest
+    done_digest: str | None = None
 
     entry, cfg = spec.entry, seq.config
     assert entry is not None
@@ -299,8 +306,12 @@ def _track_chunks(
     results = enumerate(parallel.ordered_results(work, pool), start)
     try:
         for size in chunk_sizes():
-            if digest is not None and stat_of is not None and start == 0:
-                digest.add(stat_of[:size])
+            if digest is not None and stat_of is not None and stated < len(stat_of):
+                upto = min(len(stat_of), max(start + size, stated + STATS_PER_FRAME * size))
+                digest.add(stat_of[stated:upto])
+                stated = upto
+                if stated == len(stat_of):
+                    done_digest = digest.hexdigest()
             rows = RowBuilder(cfg.fps)
             end = start
             for index, (name, result) in itertools.islice(results, size):
@@ -312,15 +323,17 @@ def _track_chunks(
                 break
             table = _paper(_displayed(rows.take(), cfg, measured), context, cfg)
             entry.add_chunk(start, end, table, tracker)
-            if digest is not None and stat_of is not None and start == 0:
-                digest.add(stat_of[size:])
-                entry.set_frames_digest(digest.hexdigest())
+            if done_digest is not None:  # stored with the rows it covers
+                entry.set_frames_digest(done_digest)
+                done_digest = digest = None
             context, start = _tail(table, _PAPER_CONTEXT), end
             if stop is not None and stop.is_set():
                 return
     finally:
         if pool is not None:
             pool.close()
+    if done_digest is not None:
+        entry.set_frames_digest(done_digest)
     raw = _raw(entry.read_raw())
     entry.finish(api.refine(raw, cfg, spec.smoothing))
 

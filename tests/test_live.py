@@ -443,3 +443,45 @@ def test_a_growing_replay_allocates_little_first_and_the_length_once(seq: Path) 
             capacities.append(replay.capacity)
     # 64 .. 16,384 doubling; the next doubling (32,768) is within 4x of the length: 90,000.
     assert capacities == [64 * 2**k for k in range(9)] + [90_000]
+
+
+class _StopAfter:
+    """A stop event set after ``n`` chunks (``track_into`` asks once per chunk)."""
+
+    def __init__(self, n: int) -> None:
+        self.asked, self.n = 0, n
+
+    def is_set(self) -> bool:
+        self.asked += 1
+        return self.asked >= self.n
+
+
+def test_the_frames_digest_is_spread_over_the_first_chunks(seq: Path, tmp_path: Path) -> None:
+    """A new run stats its files as it goes (STATS_PER_FRAME per frame tracked, each file
+    before it is read), not all before its first chunk: stopped before every file is in
+    the digest, nothing is reused; once it is stored, the run resumes."""
+    long = tmp_path / "long"
+    long.mkdir()
+    (long / "mistool.toml").write_bytes((seq / "mistool.toml").read_bytes())
+    frames = list_frames(seq)
+    n = 3 * background.STATS_PER_FRAME * background.CHUNK_SCHEDULE[0]  # > the first chunk's
+    for k in range(n):
+        os.symlink(
+            frames[k % N] if (k // N) % 2 == 0 else frames[N - 1 - k % N], long / f"{k:05d}.png"
+        )
+    path, cfg = resolve(long)
+    spec = background.JobSpec(path, cfg, None, root=tmp_path / "cache")
+    opened: list[tuple[cache.CacheEntry, cache.Progress]] = []
+
+    def on_open(entry: cache.CacheEntry, progress: cache.Progress) -> None:
+        opened.append((entry, progress))
+
+    background.track_into(spec, _StopAfter(1), on_open)
+    entry = opened[0][0]
+    assert entry.progress().done == background.CHUNK_SCHEDULE[0]
+    assert entry.frames_digest() is None, "every frame was stat'ed before the first chunk"
+    background.track_into(spec, _StopAfter(2), on_open)
+    assert opened[1][1].done == 0, "a run without its digest was resumed"
+    assert entry.frames_digest() == cache.frames_digest(list_frames(long))
+    background.track_into(spec, _StopAfter(1), on_open)
+    assert opened[2][1].done == sum(background.CHUNK_SCHEDULE[:2]), "not resumed"
