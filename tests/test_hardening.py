@@ -14,6 +14,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 import warnings
 import zlib
 from pathlib import Path
@@ -524,6 +525,71 @@ def test_codec_log_lines_are_filtered_at_the_file_descriptor(
         os.write(2, b"[mjpeg @ 0x55d0c0a0] overread 8\n")
         os.write(2, b"mistool: warning: kept\n")
     assert capfd.readouterr().err == "mistool: warning: kept\n"
+
+
+def test_the_stderr_filter_does_not_wait_for_other_processes_holding_it(
+    capfd: pytest.CaptureFixture,
+) -> None:
+    """Worker processes and multiprocessing's fork server inherit the filter's pipe as
+    their stderr and keep it open after the command is done: the filter passes what they
+    wrote and stops without waiting for them (it waited 5 s after every
+    ``mistool track --workers 2``)."""
+    from mistool.cli import PUMP_THREAD
+
+    with quiet_native_stderr():
+        holder = subprocess.Popen(
+            [sys.executable, "-c", "import os, time; os.write(2, b'held\\n'); time.sleep(60)"]
+        )
+        seen = ""
+        while holder.poll() is None and "held" not in seen:  # through the filter
+            seen += capfd.readouterr().err
+            time.sleep(0.01)
+    try:
+        alive = [t for t in threading.enumerate() if t.name == PUMP_THREAD]
+        assert holder.poll() is None, "the holder exited: nothing was tested"
+        assert not alive, "the filter still waits for the pipe's end of file"
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_progress_bar_reaches_a_terminal(tmp_path: Path) -> None:
+    """Python's stderr is not routed through the codecs' filter: on a terminal,
+    ``mistool track`` shows its progress bar (it was held back: the filter's pipe is not
+    a terminal, so no bar was ever drawn)."""
+    import fcntl
+    import termios
+
+    from mistool.synth import synthesize
+
+    short = tmp_path / "short"
+    synthesize(short, frames=30, instruments=1, seed=0)
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    (seq / "mistool.toml").write_bytes((short / "mistool.toml").read_bytes())
+    frames = sorted(short.glob("*.png"))
+    for k in range(600):  # a run of a few seconds: the bar shows after 0.5 s
+        (seq / f"{k:05d}.png").symlink_to(frames[k % len(frames)])
+    main_fd, term_fd = os.openpty()
+    fcntl.ioctl(term_fd, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    code = "import sys; from mistool.cli import main; sys.exit(main(sys.argv[1:]))"
+    args = ["track", str(seq), "-o", str(tmp_path / "o.csv"), "--workers", "1"]
+    child = subprocess.Popen([sys.executable, "-c", code, *args], stderr=term_fd)
+    os.close(term_fd)
+    seen = b""
+    while True:
+        try:
+            chunk = os.read(main_fd, 4096)
+        except OSError:  # the terminal's last writer is gone
+            break
+        if not chunk:
+            break
+        seen += chunk
+    os.close(main_fd)
+    assert child.wait() == 0
+    text = seen.decode(errors="replace")
+    assert "frame/s]" in text and "\r" in text, text[-500:]
+    assert text.rstrip().splitlines()[-1].lstrip("\r").startswith("mistool: 600 frame(s)")
 
 
 def test_corrupt_png_prints_only_mistool_s_line(

@@ -22,6 +22,7 @@ import contextlib
 import errno
 import os
 import re
+import select
 import sys
 import threading
 import traceback
@@ -182,11 +183,25 @@ _NATIVE_NOISE = re.compile(
 )
 
 
+#: Seconds the stderr filter waits for more of the codecs' output once the command is done
+#: (worker processes and multiprocessing's fork server hold the pipe open after that, so
+#: its end of file would only come when they exit).
+DRAIN_S = 0.05
+#: select() works on pipes (POSIX); elsewhere the filter reads until end of file.
+_SELECT = os.name == "posix"
+#: Name of the thread that filters stderr (tests).
+PUMP_THREAD = "mistool-stderr-filter"
+
+
 @contextlib.contextmanager
 def quiet_native_stderr() -> Iterator[None]:
     """Filter the codecs' own stderr lines (:data:`_NATIVE_NOISE`) at the file
     descriptor level, where C libraries write them; every other line passes unchanged
-    and in order. A no-op when stderr is not a real file descriptor."""
+    and in order. A no-op when stderr is not a real file descriptor.
+
+    Python's own ``sys.stderr`` (mistool's lines, the progress bar) keeps writing to the
+    real stderr, so that a terminal stays a terminal (``isatty``) and a progress bar's
+    carriage returns are not held back until a newline."""
     try:
         sys.stderr.flush()
         saved = os.dup(2)
@@ -196,24 +211,72 @@ def quiet_native_stderr() -> Iterator[None]:
     read_end, write_end = os.pipe()
     os.dup2(write_end, 2)
     os.close(write_end)
-    pump = threading.Thread(target=_pump, args=(read_end, saved), daemon=True)
+    done = threading.Event()
+    pump = threading.Thread(
+        target=_pump, args=(read_end, saved, done), name=PUMP_THREAD, daemon=True
+    )
     pump.start()
+    python_stderr, direct = sys.stderr, _direct_stream(saved)
+    if direct is not None:
+        sys.stderr = direct
     try:
         yield
     finally:
+        sys.stderr = python_stderr
         with contextlib.suppress(OSError, ValueError, AttributeError):
+            if direct is not None:
+                direct.close()
             sys.stderr.flush()
-        os.dup2(saved, 2)  # the pipe's last write end closes: the pump sees EOF
+        os.dup2(saved, 2)
+        done.set()  # drain what is there, then stop (other processes may hold the pipe)
         pump.join(timeout=5.0)
         os.close(saved)
 
 
-def _pump(read_end: int, out: int) -> None:
-    with os.fdopen(read_end, "rb") as lines:
-        for line in lines:
-            if not _NATIVE_NOISE.match(line):
-                with contextlib.suppress(OSError):
-                    os.write(out, line)
+def _direct_stream(saved: int) -> Any:
+    """A text stream on the real stderr (``saved``) in place of ``sys.stderr``, when
+    ``sys.stderr`` is the process's file descriptor 2 (not a test's capture object)."""
+    try:
+        if sys.stderr.fileno() != 2:
+            return None
+    except (OSError, ValueError, AttributeError):
+        return None
+    return open(  # noqa: SIM115 - closed by quiet_native_stderr
+        os.dup(saved),
+        "w",
+        encoding=sys.stderr.encoding or "utf-8",
+        errors="backslashreplace",
+        buffering=1,
+    )
+
+
+def _pump(read_end: int, out: int, done: threading.Event) -> None:
+    """Copy the pipe to ``out`` line by line, without the codecs' lines; once ``done``
+    is set, stop when the pipe has been quiet for :data:`DRAIN_S`."""
+    pending = b""
+    try:
+        while True:
+            ready = select.select([read_end], [], [], DRAIN_S)[0] if _SELECT else [read_end]
+            if not ready:
+                if done.is_set():
+                    break
+                continue
+            chunk = os.read(read_end, 1 << 16)
+            if not chunk:
+                break
+            *lines, pending = (pending + chunk).split(b"\n")
+            for line in lines:
+                _pass_line(line + b"\n", out)
+        if pending:
+            _pass_line(pending, out)
+    finally:
+        os.close(read_end)
+
+
+def _pass_line(line: bytes, out: int) -> None:
+    if not _NATIVE_NOISE.match(line):
+        with contextlib.suppress(OSError):
+            os.write(out, line)
 
 
 @contextlib.contextmanager
