@@ -25,6 +25,7 @@ the caller and sent as arrays.
 from __future__ import annotations
 
 import collections
+import contextlib
 import itertools
 import os
 import signal
@@ -401,8 +402,45 @@ def worker_context() -> Any:
     ctx: Any = mp_context.ForkServerContext()
     ctx.Process = _NoMainProcess
     # worker_signals: Ctrl+C ignored from each worker's first instant (its docstring)
-    ctx.set_forkserver_preload(["mistool.parallel", "mistool.worker_signals"])
+    ctx.set_forkserver_preload(["mistool.worker_signals", "mistool.parallel"])
     return ctx
+
+
+def forget_inherited_fork_server() -> None:
+    """Make a process started by ``fork`` start its own fork server for its workers.
+
+    multiprocessing's fork server is per-process state, and a forked child inherits its
+    parent's: it would ask the parent's server for its worker processes, which then are
+    not its children (waiting for them fails with "No child processes"). Call it first
+    thing in a forked child that may start a :class:`LocalPool`
+    (:mod:`mistool.background`). The child's copy of the parent server's keep-alive pipe is
+    closed: that server is the parent's to stop."""
+    try:
+        from multiprocessing import forkserver
+    except ImportError:  # pragma: no cover - Windows: no fork server
+        return
+    server: Any = getattr(forkserver, "_forkserver", None)
+    if server is None or getattr(server, "_forkserver_pid", None) is None:
+        return
+    with contextlib.suppress(OSError, TypeError):
+        os.close(server._forkserver_alive_fd)
+    server._forkserver_address = server._forkserver_alive_fd = server._forkserver_pid = None
+    server._lock = threading.Lock()
+
+
+def _unblock_results(results: Any) -> None:
+    """Give the executor's result pipe an end of file once its workers are terminated.
+
+    A worker terminated while writing a result leaves half a message in the pipe; the
+    executor's manager thread then waits in ``recv`` for the rest forever (this process
+    holds the pipe's write end too, so no end of file comes), and the interpreter joins
+    that thread at exit: a Ctrl+C'd ``mistool track --workers 2`` hung after printing
+    "interrupted" (about 1 run in 15). With the write end closed, ``recv`` fails, the
+    manager sees a broken pool and exits."""
+    writer = getattr(results, "_writer", None)
+    if writer is not None:
+        with contextlib.suppress(OSError):
+            writer.close()
 
 
 class LocalPool:
@@ -429,6 +467,7 @@ class LocalPool:
         if ex is None:
             return
         procs = list((getattr(ex, "_processes", None) or {}).values())
+        results = getattr(ex, "_result_queue", None)  # shutdown() forgets it
         ex.shutdown(wait=not terminate, cancel_futures=True)
         if terminate:
             for p in procs:
@@ -436,6 +475,7 @@ class LocalPool:
                     p.terminate()
             for p in procs:
                 p.join(timeout=5)
+            _unblock_results(results)
 
     def __enter__(self) -> LocalPool:
         return self

@@ -5,6 +5,9 @@ from a worker, and no worker process left behind on errors or interrupts."""
 from __future__ import annotations
 
 import multiprocessing
+import os
+import threading
+import time
 from pathlib import Path
 
 import cv2
@@ -426,3 +429,40 @@ def test_a_dataset_of_mask_videos_through_one_pool_equals_each_alone(
         argv = ["track", str(root / f"{name}.avi"), "-o", str(alone), "-q", "--workers", "1"]
         assert main(argv) == 0
         assert alone.read_bytes() == (out / f"{name}_motion.csv").read_bytes(), name
+
+
+def test_terminating_the_pool_unblocks_a_half_received_result() -> None:
+    """A worker terminated while writing its result leaves half a message in the result
+    pipe: the executor's manager thread waits for the rest, and the interpreter joins it
+    at exit (a Ctrl+C'd ``mistool track --workers 2`` hung after "interrupted").
+    Terminating the pool must let that thread finish."""
+    import struct
+
+    pool = parallel.LocalPool(1)
+    ex = pool._executor
+    assert ex is not None
+    assert pool.submit(abs, -3).result(timeout=60) == 3  # the manager thread is running
+    manager = ex._executor_manager_thread
+    writer = ex._result_queue._writer
+    assert manager is not None and manager.is_alive()
+    # What a worker killed mid-write leaves: a header announcing 100 bytes, then 10.
+    os.write(writer.fileno(), struct.pack("!i", 100) + b"x" * 10)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and "recv" not in _stack_of(manager):
+        time.sleep(0.01)
+    assert "recv" in _stack_of(manager), "the manager thread is not reading the result"
+    pool.close(terminate=True)
+    manager.join(timeout=30)
+    try:
+        assert not manager.is_alive(), "the manager thread still waits for the result"
+    finally:
+        if manager.is_alive():  # unblock it, or this test run would hang at exit
+            writer.close()
+
+
+def _stack_of(thread: threading.Thread) -> str:
+    import sys
+    import traceback
+
+    frame = sys._current_frames().get(thread.ident or -1)
+    return "".join(traceback.format_stack(frame)) if frame is not None else ""
