@@ -269,6 +269,30 @@ def test_background_job_with_worker_processes_gives_the_same_table(
     _assert_same(entry.read_final(mmap=False), tracked)
 
 
+def test_a_job_forked_from_a_process_that_had_workers_starts_its_own(
+    seq: Path, tracked: TrackTable, tmp_path: Path
+) -> None:
+    """multiprocessing's fork server is per-process state: a tracking child forked from a
+    process that had already started worker processes (a script that tracked before it
+    served) asked its parent's fork server for its workers, and then could not wait for
+    them ("No child processes"); it starts its own."""
+    from mistool import parallel
+
+    with parallel.LocalPool(1) as pool:  # this process's fork server is running
+        assert pool.submit(abs, -2).result(timeout=60) == 2
+    path, cfg = resolve(seq)
+    entry = _entry(seq, tmp_path)
+    job = background.TrackingJob(background.JobSpec(path, cfg, entry, workers=2))
+    job.start()
+    try:
+        assert job.wait(timeout=120), "the tracking child did not finish"
+    finally:
+        job.stop()
+    progress = entry.progress()
+    assert progress.complete and not progress.error, progress.error
+    _assert_same(entry.read_final(mmap=False), tracked)
+
+
 # -- mistool serve starts without listing the frames ---------------------------------------
 def _grow(feed, replay: Replay, timeout: float = 120.0) -> list[tuple[int, int]]:
     """Poll ``feed`` into ``replay`` until it is finished; the patches' frame ranges."""
