@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from mistool.viewer.meshes import JAW_OPEN_DEG, SECTIONS, WRIST_FRACTION, part_poses, unit_meshes
+from mistool.viewer.meshes import JAW_OPEN_DEG, WRIST_FRACTION, part_poses, unit_meshes
 
 
 def _quat(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -100,21 +100,20 @@ def test_jaws_open_symmetrically_and_their_tips_meet_the_tip(
     assert math.isclose(float(dirs[0] @ a), float(dirs[1] @ a))  # symmetric about the axis
 
 
-def test_meshes_match_trimeshs_and_serve_does_not_import_it() -> None:
-    """The unit cylinder is trimesh's (same volume and size); the viewer builds its meshes
-    without importing trimesh (and scipy with it: a third of a second of every start)."""
+def test_meshes_are_closed_solids_and_serve_starts_without_trimesh() -> None:
+    """The unit shapes are closed, outward-facing solids; the viewer starts without
+    importing trimesh (and scipy with it: a third of a second before the URL), which
+    builds them when the first instrument is drawn."""
     import subprocess
     import sys
 
-    ours = unit_meshes()["cylinder"]
-    ref = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=SECTIONS)
-    mine = trimesh.Trimesh(ours.vertices, ours.faces)
-    assert np.isclose(mine.volume, ref.volume) and len(mine.faces) == len(ref.faces)
-    sphere = trimesh.Trimesh(unit_meshes()["sphere"].vertices, unit_meshes()["sphere"].faces)
-    assert 0.95 * (4 / 3 * np.pi) < sphere.volume < 4 / 3 * np.pi
+    for name, mesh in unit_meshes().items():
+        solid = trimesh.Trimesh(mesh.vertices, mesh.faces)
+        assert solid.is_watertight and solid.volume > 0, name
+    cylinder = trimesh.Trimesh(unit_meshes()["cylinder"].vertices, unit_meshes()["cylinder"].faces)
+    assert 0.95 * np.pi < cylinder.volume <= np.pi  # radius 1, height 1
     code = (
         "import sys, mistool.cli.serve; from mistool.viewer import ReplayViewer, load_sequence; "
-        "from mistool.viewer.meshes import unit_meshes; unit_meshes(); "
         "print(sorted(m for m in ('trimesh', 'scipy') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 import viser
@@ -51,91 +52,36 @@ class UnitMesh:
     faces: np.ndarray
 
 
-def _convex(vertices: np.ndarray, faces: list[tuple[int, int, int]]) -> UnitMesh:
-    """A convex solid with every triangle wound counter-clockwise seen from outside
-    (its normal points away from the centroid)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    inward = np.einsum("ij,ij->i", np.cross(b - a, c - a), (a + b + c) / 3 - v.mean(axis=0)) < 0
-    f[inward] = f[inward][:, ::-1]
-    return UnitMesh(v.astype(np.float32), f.astype(np.uint32))
-
-
-def _rings(sections: int) -> tuple[np.ndarray, np.ndarray]:
-    """cos and sin of ``sections`` angles around the z axis."""
-    angle = 2 * np.pi * np.arange(sections) / sections
-    return np.cos(angle), np.sin(angle)
-
-
-def _band(upper: int, lower: int, n: int) -> list[tuple[int, int, int]]:
-    """Triangles joining two rings of ``n`` vertices starting at indices upper, lower."""
-    out = []
-    for k in range(n):
-        k1 = (k + 1) % n
-        out += [(upper + k, lower + k, lower + k1), (upper + k, lower + k1, upper + k1)]
-    return out
-
-
-def _fan(centre: int, ring: int, n: int) -> list[tuple[int, int, int]]:
-    return [(centre, ring + k, ring + (k + 1) % n) for k in range(n)]
-
-
-def _cylinder(sections: int) -> UnitMesh:
-    """Radius 1, z in [-0.5, 0.5], capped."""
-    cos, sin = _rings(sections)
-    bottom = np.stack([cos, sin, np.full(sections, -0.5)], axis=1)
-    top = bottom + [0.0, 0.0, 1.0]
-    v = np.vstack([bottom, top, [[0.0, 0.0, -0.5], [0.0, 0.0, 0.5]]])
-    n = sections
-    faces = _band(0, n, n) + _fan(2 * n, 0, n) + _fan(2 * n + 1, n, n)
-    return _convex(v, faces)
-
-
-def _sphere(latitudes: int, sections: int) -> UnitMesh:
-    """Radius 1, centred: ``latitudes - 1`` rings of ``sections`` vertices and the poles."""
-    cos, sin = _rings(sections)
-    polar = np.pi * np.arange(1, latitudes) / latitudes
-    rings = [
-        np.stack([np.sin(p) * cos, np.sin(p) * sin, np.full(sections, np.cos(p))], 1) for p in polar
-    ]
-    v = np.vstack([*rings, [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]])
-    n, r = sections, len(rings)
-    faces = [f for i in range(r - 1) for f in _band(i * n, (i + 1) * n, n)]
-    faces += _fan(r * n, 0, n) + _fan(r * n + 1, (r - 1) * n, n)
-    return _convex(v, faces)
-
-
-def _jaw() -> UnitMesh:
-    """One jaw: a tapered block, z in [0, 1] from the pivot to its tip."""
-    w, t, tip = JAW_HALF_WIDTH, JAW_HALF_THICKNESS, JAW_TIP_HALF_WIDTH
-    corners = np.array(
-        [
-            (x, y, z)
-            for z, hx, hy in ((0.0, w, t), (1.0, tip, 0.6 * t))
-            for x in (-hx, hx)
-            for y in (-hy, hy)
-        ]
-    )  # index = 4 z + 2 x + y (each 0 or 1)
-    quads = [(0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5)]
-    return _convex(corners, [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+def _unit(mesh: Any) -> UnitMesh:
+    return UnitMesh(
+        np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.uint32)
+    )
 
 
 @lru_cache(maxsize=1)
 def unit_meshes() -> dict[str, UnitMesh]:
-    """The unit shapes, built once (with numpy: importing trimesh would cost a third of
-    a second of ``mistool serve``'s start; ``tests/test_meshes.py`` checks them with it).
+    """The unit shapes, built once, with trimesh (imported here, when the first
+    instrument is drawn, not when the viewer starts: with scipy it costs a third of a
+    second, which would delay ``mistool serve``'s URL).
 
     - ``"cylinder"``: radius 1, z in [-0.5, 0.5] (scaled per frame by (r, r, length));
     - ``"sphere"``: radius 1, centred (scaled by r: the shaft's round end, the knuckles);
     - ``"jaw"``: one jaw, z in [0, 1] from the pivot to its tip, x across the opening
       (scaled by (r, r, jaw length)).
     """
-    return {
-        "cylinder": _cylinder(SECTIONS),
-        "sphere": _sphere(SECTIONS // 2, SECTIONS),
-        "jaw": _jaw(),
-    }
+    import trimesh
+
+    cylinder = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=SECTIONS)
+    sphere = trimesh.creation.uv_sphere(radius=1.0, count=(SECTIONS // 2, SECTIONS))
+    w, t, tip = JAW_HALF_WIDTH, JAW_HALF_THICKNESS, JAW_TIP_HALF_WIDTH
+    corners = [
+        (x, y, z)
+        for z, hx, hy in ((0.0, w, t), (1.0, tip, 0.6 * t))
+        for x in (-hx, hx)
+        for y in (-hy, hy)
+    ]
+    jaw = trimesh.convex.convex_hull(np.array(corners))
+    return {"cylinder": _unit(cylinder), "sphere": _unit(sphere), "jaw": _unit(jaw)}
 
 
 def _quat_mul(q: np.ndarray, r: np.ndarray) -> np.ndarray:
