@@ -251,11 +251,8 @@ def test_serve_tracks_in_the_background_and_resumes_after_ctrl_c(seq: Path, tmp_
     assert proc.returncode == 0
 
 
-def test_background_job_with_worker_processes_gives_the_same_table(
-    seq: Path, tracked: TrackTable, tmp_path: Path
-) -> None:
-    """The job's child process is daemonic (it never outlives its parent), yet it starts
-    its own pool of worker processes for ``workers > 1``; the table is the same."""
+def _assert_two_worker_job_tracks(seq: Path, tracked: TrackTable, tmp_path: Path) -> None:
+    """A background job with 2 worker processes finishes and stores ``tracked``."""
     path, cfg = resolve(seq)
     entry = _entry(seq, tmp_path)
     job = background.TrackingJob(background.JobSpec(path, cfg, entry, workers=2))
@@ -267,6 +264,14 @@ def test_background_job_with_worker_processes_gives_the_same_table(
     progress = entry.progress()
     assert progress.complete and not progress.error, progress.error
     _assert_same(entry.read_final(mmap=False), tracked)
+
+
+def test_background_job_with_worker_processes_gives_the_same_table(
+    seq: Path, tracked: TrackTable, tmp_path: Path
+) -> None:
+    """The job's child process is daemonic (it never outlives its parent), yet it starts
+    its own pool of worker processes for ``workers > 1``; the table is the same."""
+    _assert_two_worker_job_tracks(seq, tracked, tmp_path)
 
 
 def test_a_job_forked_from_a_process_that_had_workers_starts_its_own(
@@ -280,17 +285,7 @@ def test_a_job_forked_from_a_process_that_had_workers_starts_its_own(
 
     with parallel.LocalPool(1) as pool:  # this process's fork server is running
         assert pool.submit(abs, -2).result(timeout=60) == 2
-    path, cfg = resolve(seq)
-    entry = _entry(seq, tmp_path)
-    job = background.TrackingJob(background.JobSpec(path, cfg, entry, workers=2))
-    job.start()
-    try:
-        assert job.wait(timeout=120), "the tracking child did not finish"
-    finally:
-        job.stop()
-    progress = entry.progress()
-    assert progress.complete and not progress.error, progress.error
-    _assert_same(entry.read_final(mmap=False), tracked)
+    _assert_two_worker_job_tracks(seq, tracked, tmp_path)
 
 
 # -- mistool serve starts without listing the frames ---------------------------------------
