@@ -50,6 +50,8 @@ __all__ = [
     "evaluate_one",
     "format_report",
     "identity_coverage",
+    "identity_hits",
+    "with_mask_areas",
     "linear_assignment",
     "match_instruments",
 ]
@@ -349,6 +351,14 @@ class IdentityCoverage:
     prediction has some row of that part in that frame nearer to this instrument than
     to any other (under any name). A part hidden in the masks themselves (an occluder
     over a head: the truth comes from the clean render) is then no identity error."""
+    visible: float = math.nan
+    """The same share among the truth rows whose part keeps at least ``min_area_px``
+    pixels in the masks tracked (the truth's ``mask_area_px``: :func:`with_mask_areas`
+    of ``mistool synth``'s ``mask_areas.csv``; NaN without that column): the rows a
+    tracker can find at all, so
+    ``coverage`` is at most the share of such rows (the sequence's ceiling)."""
+    ceiling: float = math.nan
+    """The share of the truth rows (those of ``coverage``) visible in that sense."""
 
 
 def identity_coverage(
@@ -371,6 +381,60 @@ def identity_coverage(
 
     Returns:
         An :class:`IdentityCoverage`.
+    """
+    truth, hit, found = identity_hits(pred, truth, min_area_px)
+    hits: dict[str, list[bool]] = {}
+    for p, ok in zip(truth["part"], hit, strict=True):
+        hits.setdefault(str(p), []).append(bool(ok))
+    n_det = int(found.sum())
+    visible, ceiling = math.nan, math.nan
+    if "mask_area_px" in truth and len(hit):
+        shown = np.asarray(truth["mask_area_px"], dtype=np.float64) >= max(min_area_px, 1)
+        ceiling = float(shown.mean())
+        visible = float(hit[shown].mean()) if shown.any() else math.nan
+    return IdentityCoverage(
+        coverage=float(hit.mean()) if len(hit) else math.nan,
+        parts={p: sum(hits[p]) / len(hits[p]) for p in PARTS if p in hits},
+        names=len({str(x) for x in pred["instrument"]}),
+        true_names=len({str(x) for x in truth["instrument"]}),
+        detected=float(hit[found].sum()) / n_det if n_det else math.nan,
+        visible=visible,
+        ceiling=ceiling,
+    )
+
+
+def with_mask_areas(truth: TrackTable, areas: TrackTable) -> TrackTable:
+    """The truth with a ``mask_area_px`` column from ``areas`` (``frame``, ``instrument``,
+    ``part``, ``mask_area_px``: ``mask_areas.csv`` of ``mistool synth``), by row key;
+    NaN for a row ``areas`` lacks."""
+    require_columns(areas, ("frame", "instrument", "part", "mask_area_px"), "mask areas")
+    by_key = {
+        (int(f), str(i), str(p)): float(a)
+        for f, i, p, a in zip(
+            areas["frame"], areas["instrument"], areas["part"], areas["mask_area_px"], strict=True
+        )
+    }
+    col = np.array(
+        [
+            by_key.get((int(f), str(i), str(p)), math.nan)
+            for f, i, p in zip(truth["frame"], truth["instrument"], truth["part"], strict=True)
+        ],
+        dtype=np.float64,
+    )
+    return truth.with_columns(mask_area_px=col)
+
+
+def identity_hits(
+    pred: TrackTable, truth: TrackTable, min_area_px: int = 20
+) -> tuple[TrackTable, np.ndarray, np.ndarray]:
+    """Per truth row, whether :func:`identity_coverage` counts it.
+
+    Returns:
+        ``(truth, hit, detected)``: the truth rows scored (``area_px >= min_area_px``,
+        in the truth's order), and per row (bool arrays of that length) whether it is
+        found under its matched name, and whether the prediction detected it at all
+        (some row of that part in that frame nearer to this instrument than to any
+        other, under any name).
     """
     for t, what in ((pred, "prediction"), (truth, "truth")):
         require_columns(t, ("frame", "instrument", "part", "cx_px", "cy_px"), what)
@@ -404,23 +468,13 @@ def identity_coverage(
     for (f, _, p), xy in p_xy.items():
         if (f, p) in by_frame_part:
             detected.add((f, nearest(f, p, xy), p))
-    hits: dict[str, list[bool]] = {}
-    n_det = n_det_hit = 0
-    for f, i, p, _, _ in t_rows:
+    hit = np.zeros(len(t_rows), bool)
+    found = np.zeros(len(t_rows), bool)
+    for k, (f, i, p, _, _) in enumerate(t_rows):
         got = p_xy.get((f, name_of.get(i, ""), p))
-        ok = got is not None and nearest(f, p, got) == i
-        hits.setdefault(p, []).append(ok)
-        if (f, i, p) in detected:
-            n_det += 1
-            n_det_hit += ok
-    every = [h for p in hits for h in hits[p]]
-    return IdentityCoverage(
-        coverage=sum(every) / len(every) if every else math.nan,
-        parts={p: sum(hits[p]) / len(hits[p]) for p in PARTS if p in hits},
-        names=len({str(x) for x in pred["instrument"]}),
-        true_names=len({str(x) for x in truth["instrument"]}),
-        detected=n_det_hit / n_det if n_det else math.nan,
-    )
+        hit[k] = got is not None and nearest(f, p, got) == i
+        found[k] = (f, i, p) in detected
+    return truth, hit, found
 
 
 #: Frame offset between stacked runs in :func:`tag_run` (longer runs would collide).

@@ -41,6 +41,7 @@ def test_synth_writes_a_sequence_folder(tmp_path, capsys):
         "000001.png",
         "000002.png",
         "000003.png",
+        "mask_areas.csv",
         "mistool.toml",
         "synth.json",
         "truth.csv",

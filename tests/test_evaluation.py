@@ -271,6 +271,22 @@ def test_identity_coverage_is_strict_one_to_one():
     assert small.coverage == 1.0  # rows below min_area_px are left out, not missed
 
 
+def test_identity_coverage_among_the_rows_visible_in_the_masks():
+    t = _truth(10)  # 40 rows; tool 2's clasper hidden in the masks in frames 0-4
+    hidden = (t["instrument"] == "2") & (t["part"] == "clasper") & (t["frame"] < 5)
+    truth = t.with_columns(mask_area_px=np.where(hidden, 0.0, t["area_px"]))
+    pred = t[~hidden]  # the tracker finds every visible row, nothing else
+    got = identity_coverage(pred, truth)
+    assert got.coverage == pytest.approx(35 / 40) and got.ceiling == pytest.approx(35 / 40)
+    assert got.visible == 1.0
+    late = pred["frame"] >= 8  # names swapped in the last 2 frames: 8 visible rows lost
+    names = pred["instrument"].copy()
+    names[late] = np.where(names[late] == "1", "2", "1")
+    got = identity_coverage(pred.with_columns(instrument=names), truth)
+    assert got.visible == pytest.approx(27 / 35) and got.coverage == pytest.approx(27 / 40)
+    assert math.isnan(identity_coverage(t, t).visible)  # no mask_area_px: unknown
+
+
 def test_identity_coverage_of_nothing_found():
     t = _truth(4)
     got = identity_coverage(t[t["frame"] < 0], t)

@@ -11,6 +11,7 @@ import pytest
 
 from mistool.config import load_config
 from mistool.errors import ConfigError, InputPathError
+from mistool.evaluation import with_mask_areas
 from mistool.export import read_csv
 from mistool.geometry import mask_box
 from mistool.synth import (
@@ -380,6 +381,26 @@ def test_visible_fraction_counts_what_the_other_instrument_hides(tmp_path):
     v = read_csv(res.path / "truth.csv")["visible_frac"]
     assert np.all((v > 0) & (v <= 1.0))
     assert (v < 0.999).any() and (v == 1.0).mean() > 0.5  # tools cross, mostly apart
+
+
+def test_mask_area_counts_the_pixels_left_in_the_written_masks(tmp_path):
+    clean = synthesize(tmp_path / "c", frames=12, instruments=2, seed=0, preset="endovis17")
+    t = with_mask_areas(read_csv(clean.path / "truth.csv"), read_csv(clean.path / "mask_areas.csv"))
+    assert np.array_equal(t["mask_area_px"], t["area_px"])  # nothing corrupted
+    res = synthesize(
+        tmp_path / "o",
+        frames=12,
+        instruments=2,
+        seed=0,
+        preset="endovis17",
+        corruptions=Corruptions(occluders=2),
+    )
+    t = with_mask_areas(read_csv(res.path / "truth.csv"), read_csv(res.path / "mask_areas.csv"))
+    assert not np.isnan(t["mask_area_px"]).any()
+    assert np.all(t["mask_area_px"] <= t["area_px"]) and (t["mask_area_px"] < t["area_px"]).any()
+    for f in range(12):  # every written pixel is some tool's part: the rows share them all
+        labels = cv2.imread(str(res.path / f"{f:06d}.png"), cv2.IMREAD_UNCHANGED)
+        assert t["mask_area_px"][t["frame"] == f].sum() == np.count_nonzero(labels)
 
 
 def test_folder_config_and_labels(tmp_path):

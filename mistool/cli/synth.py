@@ -36,6 +36,8 @@ temporary folder and renamed, so a failure leaves nothing behind):
                    not hidden by another tool), the paper's motion of the clean
                    boxes, and extras roll_deg, wrist_deg, jaw_yaw_deg, jaw_open_deg,
                    insertion_mm. A row exists where the part has >= 1 clean pixel.
+  mask_areas.csv   per truth row (frame, instrument, part): mask_area_px, its pixels left
+                   in the written (corrupted) masks
   synth.json       the options and seed
   masks.avi        with --video: the same masks through a lossy codec
 

@@ -7,6 +7,9 @@ never leaves a half-written sequence) holds:
 - ``mistool.toml``: fps, label preset, camera, shaft diameter and clasper length, and
   ``[[instrument]]`` tables when instruments have their own label values;
 - ``truth.csv``: the motion table of the truth (see :func:`truth_rows`);
+- ``mask_areas.csv``: per truth row (``frame``, ``instrument``, ``part``) its pixels left
+  in the written masks, ``mask_area_px`` (:func:`mask_area_rows`; the corruptions change
+  it, never the truth);
 - ``synth.json``: the options and seed that produced it;
 - ``masks.avi`` (with ``video``): the same masks through a lossy video codec.
 
@@ -43,7 +46,7 @@ from mistool.config import (
     make_camera,
 )
 from mistool.errors import ConfigError, InputPathError
-from mistool.export import atomic_write, write_csv
+from mistool.export import atomic_write, write_csv, write_table_csv
 from mistool.geometry import mask_box
 from mistool.model import RotatedBox, TrackTable
 from mistool.paper import paper_motion
@@ -201,6 +204,34 @@ def truth_rows(
             )
             rows.append(row)
     return rows
+
+
+def mask_area_rows(
+    frame: int,
+    labels: np.ndarray,
+    instance: np.ndarray,
+    truth: list[dict],
+    values: list[dict[str, int]],
+    names: list[str],
+) -> list[dict]:
+    """Rows of ``mask_areas.csv`` for one frame's truth rows ``truth``: ``frame``,
+    ``instrument``, ``part`` and ``mask_area_px``, that part's pixels left in the written
+    (corrupted) label image ``labels``; ``instance``: (H, W) uint8, i + 1 where
+    instrument i was rendered."""
+    index = {name: i for i, name in enumerate(names)}
+    out = []
+    for row in truth:
+        i = index[row["instrument"]]
+        mine = (instance == i + 1) & (labels == values[i][row["part"]])
+        out.append(
+            {
+                "frame": frame,
+                "instrument": row["instrument"],
+                "part": row["part"],
+                "mask_area_px": float(np.count_nonzero(mine)),
+            }
+        )
+    return out
 
 
 def _rows_to_table(rows: list[dict]) -> TrackTable:
@@ -430,17 +461,21 @@ def synthesize(
         if video is not None:
             writer = _video_writer(tmp / "masks.avi", video, float(fps), (sc.width, sc.height))
         rows: list[dict] = []
+        areas: list[dict] = []
         for f in range(frames):
             frame_poses = [p[f] for p in poses]
             parts = [instrument_parts(p, geom) for p in frame_poses]
             buf = caster.render(parts)
             clean = lut[buf.instance, buf.part]
             alone = [lut[i + 1][a] for i, a in enumerate(buf.alone)] if instruments > 1 else []
-            rows += truth_rows(
+            frame_rows = truth_rows(
                 f, float(fps), clean, buf.instance, alone, parts, frame_poses, values, names
             )
+            rows += frame_rows
+            shown = buf.instance  # which instrument each written pixel was rendered from
             if corr.bias_px:  # the biased masks are rendered; the truth stays clean
                 bb = caster.render(parts, bias_px=float(corr.bias_px))
+                shown = bb.instance
                 labels = corruptor.apply(
                     lut[bb.instance, bb.part], bb.instance, bb.part, f, all_values, biased=True
                 )
@@ -448,6 +483,7 @@ def synthesize(
                 labels = corruptor.apply(clean, buf.instance, buf.part, f, all_values)
             else:
                 labels = clean
+            areas += mask_area_rows(f, labels, shown, frame_rows, values, names)
             _write_png(tmp / f"{f:06d}.png", labels, png_compression)
             if writer is not None:
                 writer.write(labels)
@@ -458,6 +494,8 @@ def synthesize(
             writer = None
         truth = _add_paper_motion(_rows_to_table(rows), cam.camera.fx)
         write_csv(truth, tmp / "truth.csv")
+        with atomic_write(tmp / "mask_areas.csv", "w", newline="", encoding="utf-8") as fh:
+            write_table_csv(_rows_to_table(areas).sorted(), fh)
         opts = {
             "frames": frames,
             "instruments": instruments,
