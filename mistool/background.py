@@ -16,14 +16,16 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import math
 import multiprocessing
 import signal
 import threading
 import time
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, overload
+from typing import TYPE_CHECKING, Any, overload
 
 from mistool.cache import CacheEntry, Progress
 from mistool.config import Config
@@ -31,8 +33,13 @@ from mistool.errors import MistoolError
 from mistool.model import TrackTable
 from mistool.sequence import MaskSequence
 
+if TYPE_CHECKING:
+    from mistool.parallel import FrameResult
+
 #: Frames of the first chunks: small at first so that the first picture comes at once,
-#: then growing (fewer files, less overhead), at most the last value.
+#: then growing (fewer files, less overhead), at most the last value. A chunk also ends
+#: at the sequence's first frame with an instrument drawn in 3D (often tens of frames in:
+#: the tools enter), so that it is on screen without waiting for the end of its chunk.
 CHUNK_SCHEDULE = (25, 50, 100, 200, 400, 800)
 #: Frame files stat'ed for the cache entry's frames digest per frame tracked, until every
 #: file is (a second at 100,000 frames, spread over the first few chunks instead of
@@ -190,6 +197,18 @@ def _displayed(table: TrackTable, config: Config, measured: bool) -> TrackTable:
     return api._with_status(table, config)
 
 
+def _drawn(result: FrameResult, measured: bool) -> bool:
+    """Whether the viewer draws something of this frame in 3D: an instrument with a
+    metric pose of some part (without the metric pose: any instrument, in the paper's
+    geometry)."""
+    if not measured:
+        return bool(result.instances)
+    return any(
+        metrics is not None and any(math.isfinite(p["end_x_mm"]) for p in metrics.values())
+        for metrics in result.metrics
+    )
+
+
 def _raw(table: TrackTable) -> TrackTable:
     """A stored chunk as the refinement wants it (without the displayed status)."""
     return TrackTable({c: table[c] for c in table.columns if c != "pose_status"})
@@ -304,6 +323,7 @@ def _track_chunks(
     batch = pool.batch_frames if pool is not None else 1
     work = parallel.batches(_from(seq, start), measured, batch)
     results = enumerate(parallel.ordered_results(work, pool), start)
+    stored_one = start > 0  # a frame the viewer draws is stored: chunks of any length
     try:
         for size in chunk_sizes():
             if digest is not None and stat_of is not None and stated < len(stat_of):
@@ -319,6 +339,9 @@ def _track_chunks(
                 names, result = api._identify(tracker, index, result, cfg, measured)
                 rows.add_frame(index, names, result.instances, result.metrics)
                 end = index + 1
+                if not stored_one and _drawn(result, measured):  # shown at once
+                    stored_one = True
+                    break
             if end == start:
                 break
             table = _paper(_displayed(rows.take(), cfg, measured), context, cfg)
@@ -375,6 +398,21 @@ def _child(spec: JobSpec, conn: Any) -> None:
 
 
 # -- the parent ---------------------------------------------------------------------------
+#: Threads a fork may leave behind: they hold no lock the forked child could need (they
+#: only copy bytes between file descriptors, e.g. the command line's stderr filter,
+#: :func:`mistool.cli.quiet_native_stderr`, which adds itself here).
+FORK_SAFE_THREADS: weakref.WeakSet[threading.Thread] = weakref.WeakSet()
+
+
+def fork_is_safe() -> bool:
+    """Whether this process may fork its tracking child: it runs in the main thread, and
+    every other thread is in :data:`FORK_SAFE_THREADS`."""
+    me = threading.current_thread()
+    if me is not threading.main_thread():
+        return False
+    return all(t is me or t in FORK_SAFE_THREADS for t in threading.enumerate())
+
+
 class TrackingJob:
     """A child process tracking into a cache entry; :meth:`stop` kills it at any time."""
 
@@ -383,18 +421,21 @@ class TrackingJob:
         self._process: multiprocessing.process.BaseProcess | None = None
         self._conn: Any = None  # the receiving end of the child's messages
         self.started = 0.0
+        self.method = ""  # how the child was started: "fork" or "spawn"
 
     def start(self) -> None:
         """Start the child (returns at once)."""
         # Forking a process with threads is unsafe (a lock held by another thread stays
-        # held in the child): fork only while this is the only thread (mistool serve
-        # starts tracking before its server), which spares the child the imports.
-        alone = threading.active_count() == 1
-        method = "fork" if alone and "fork" in multiprocessing.get_all_start_methods() else "spawn"
+        # held in the child): fork only while no other thread could hold one (mistool
+        # serve starts tracking before its server), which spares the child a new
+        # interpreter and its imports (about half a second before its first frame).
+        forkable = "fork" in multiprocessing.get_all_start_methods()
+        method = "fork" if forkable and fork_is_safe() else "spawn"
         ctx: Any = multiprocessing.get_context(method)
         self._conn, send = ctx.Pipe(duplex=False)
         self._process = ctx.Process(target=_child, args=(self.spec, send), name="mistool-track")
         self._process.daemon = True
+        self.method = method
         self.started = time.monotonic()
         self._process.start()
         send.close()  # the child has its own: the pipe ends when the child does

@@ -156,7 +156,7 @@ def job_start(seq: Path, cache_home: Path) -> tuple[float, float]:
     """The tracking process alone (no server, no browser), empty cache: seconds from its
     start to naming its cache entry (it has listed the frames and keyed the cache) and to
     storing its first chunk, in this process (forked, as ``mistool serve`` does)."""
-    from mistool.background import CHUNK_SCHEDULE, JobSpec, TrackingJob
+    from mistool.background import JobSpec, TrackingJob
     from mistool.sequence import resolve
 
     path, cfg = resolve(seq)
@@ -172,7 +172,7 @@ def job_start(seq: Path, cache_home: Path) -> tuple[float, float]:
         entry = said[0]
         if entry is None:
             raise RuntimeError(f"tracking failed: {said[1]}")
-        while entry.progress().done < CHUNK_SCHEDULE[0]:
+        while not entry.progress().chunks:
             time.sleep(0.002)
         return t_open, time.perf_counter() - t0
     finally:

@@ -40,6 +40,18 @@ def tracked(seq: Path) -> TrackTable:
     return api.track(seq)
 
 
+@pytest.fixture(scope="module")
+def first_chunk(seq: Path) -> int:
+    """Frames in a new run's first chunk: up to the first frame with a part in 3D (a
+    metric pose in the raw rows: frame 10 of this sequence), which is stored at once
+    rather than at the end of a full chunk."""
+    raw = next(api.iter_track(seq, chunk_frames=N))
+    posed = np.isfinite(np.asarray(raw["end_x_mm"], dtype=float))
+    end = int(np.asarray(raw["frame"])[posed].min()) + 1
+    assert end < background.CHUNK_SCHEDULE[0]
+    return end
+
+
 def _entry(seq: Path, root: Path, **options: object) -> cache.CacheEntry:
     path, cfg = resolve(seq)
     return cache.open_entry(cache.cache_key(path, cfg, list_frames(path), **options), root)
@@ -81,14 +93,14 @@ def test_cache_key_follows_frames_config_and_options(seq: Path, tmp_path: Path) 
 
 
 def test_a_stopped_run_resumes_where_it_stopped(
-    seq: Path, tracked: TrackTable, tmp_path: Path
+    seq: Path, tracked: TrackTable, first_chunk: int, tmp_path: Path
 ) -> None:
     path, cfg = resolve(seq)
     entry = _entry(seq, tmp_path)
     stop = threading.Event()
     stop.set()  # stop after the first chunk
     first = background.track_into(background.JobSpec(path, cfg, entry), stop)
-    assert first.done == background.CHUNK_SCHEDULE[0] and not first.complete
+    assert first.done == first_chunk and not first.complete
     calls: list[str] = []
     real = parallel.ordered_results
 
@@ -102,7 +114,7 @@ def test_a_stopped_run_resumes_where_it_stopped(
         done = background.track_into(background.JobSpec(path, cfg, entry))
     finally:
         parallel.ordered_results = real  # type: ignore[assignment]
-    first_name = list_frames(path)[background.CHUNK_SCHEDULE[0]].name
+    first_name = list_frames(path)[first_chunk].name
     assert done.complete and calls[0] == first_name, calls[:3]
     _assert_same(entry.read_final(mmap=False), tracked)  # as if never stopped
 
@@ -288,6 +300,40 @@ def test_a_job_forked_from_a_process_that_had_workers_starts_its_own(
     _assert_two_worker_job_tracks(seq, tracked, tmp_path)
 
 
+def test_the_command_lines_stderr_filter_does_not_stop_the_tracking_process_forking(
+    seq: Path, tmp_path: Path
+) -> None:
+    """Every command runs with a thread filtering the codecs' stderr lines; it holds no
+    lock, so ``mistool serve`` still forks its tracking process (a new interpreter cost
+    about half a second before the first frame); any other thread means spawn. In a new
+    interpreter: pytest's own process has threads of its own."""
+    script = f"""
+import threading, time
+from mistool import background
+from mistool.cli import quiet_native_stderr
+from mistool.sequence import resolve
+
+path, cfg = resolve({str(seq)!r})
+spec = background.JobSpec(path, cfg, None, root=__import__("pathlib").Path({str(tmp_path)!r}))
+with quiet_native_stderr():
+    threads = threading.active_count()
+    job = background.TrackingJob(spec)
+    job.start()
+    forked = job.method
+    while job.opened() is None:
+        time.sleep(0.01)
+    job.stop()
+    other = threading.Thread(target=time.sleep, args=(0.5,))
+    other.start()
+    print(threads, forked, background.fork_is_safe())
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["2", "fork", "False"]
+
+
 # -- mistool serve starts without listing the frames ---------------------------------------
 def _grow(feed, replay: Replay, timeout: float = 120.0) -> list[tuple[int, int]]:
     """Poll ``feed`` into ``replay`` until it is finished; the patches' frame ranges."""
@@ -307,7 +353,11 @@ def _grow(feed, replay: Replay, timeout: float = 120.0) -> list[tuple[int, int]]
 
 
 def test_background_load_lists_nothing_and_the_job_finds_the_entry(
-    seq: Path, tracked: TrackTable, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    seq: Path,
+    tracked: TrackTable,
+    first_chunk: int,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Opening a sequence for ``mistool serve`` neither lists its frames nor keys the
     cache in this process (the work that grows with the length): the tracking process
@@ -341,7 +391,7 @@ def test_background_load_lists_nothing_and_the_job_finds_the_entry(
     here = [c for c in calls if c.endswith(f" {os.getpid()}")]
     assert here == [], "the server's process listed the frames or keyed the cache"
     assert feed.status().phase == "done" and feed.total == N
-    assert ranges[0] == (0, background.CHUNK_SCHEDULE[0]), ranges  # grew chunk by chunk
+    assert ranges[0] == (0, first_chunk), ranges  # grew chunk by chunk
     # The length learnt from the job sizes the replay (not doubled past it: 64 frames).
     assert loaded.replay.expected_frames == N == loaded.replay.capacity
     assert loaded.frames.listed and loaded.frames.mask_files == list_frames(seq)
@@ -355,7 +405,9 @@ def test_background_load_lists_nothing_and_the_job_finds_the_entry(
     assert feed.stored is not None and feed.stored.done == 0
 
 
-def test_the_job_keys_the_cache_honestly_and_resumes(seq: Path, tmp_path: Path) -> None:
+def test_the_job_keys_the_cache_honestly_and_resumes(
+    seq: Path, first_chunk: int, tmp_path: Path
+) -> None:
     """With ``entry=None`` the job finds the entry from the frame names: a stopped run is
     resumed by the next job; a touched frame (its size or time: the entry's frames digest)
     or a run stopped before its digest was stored is tracked again from the start."""
@@ -374,11 +426,11 @@ def test_the_job_keys_the_cache_honestly_and_resumes(seq: Path, tmp_path: Path) 
     stop = threading.Event()
     stop.set()  # stop after the first chunk
     first = background.track_into(spec, stop, on_open)
-    assert first.done == background.CHUNK_SCHEDULE[0] and not first.complete
+    assert first.done == first_chunk and not first.complete
     done = background.track_into(spec, None, on_open)  # found again: resumed
     assert done.complete
     assert opened[1][0].key == opened[0][0].key
-    assert opened[0][1].done == 0 and opened[1][1].done == background.CHUNK_SCHEDULE[0]
+    assert opened[0][1].done == 0 and opened[1][1].done == first_chunk
     assert opened[1][0].frame_names() == [f.name for f in list_frames(copy)]
     assert opened[1][0].frames_digest() == cache.frames_digest(list_frames(copy))
     frame = list_frames(copy)[40]  # a frame of the stored table
@@ -392,7 +444,7 @@ def test_the_job_keys_the_cache_honestly_and_resumes(seq: Path, tmp_path: Path) 
     assert opened[3][1].done == 0, "rows of unknown files were reused"
     fresh = background.track_into(replace_fresh(spec), stop, on_open)
     assert opened[4][0].key == opened[2][0].key and opened[4][1].done == 0, "fresh: emptied"
-    assert fresh.done == background.CHUNK_SCHEDULE[0]
+    assert fresh.done == first_chunk
 
 
 def replace_fresh(spec: background.JobSpec) -> background.JobSpec:
@@ -475,7 +527,9 @@ class _StopAfter:
         return self.asked >= self.n
 
 
-def test_the_frames_digest_is_spread_over_the_first_chunks(seq: Path, tmp_path: Path) -> None:
+def test_the_frames_digest_is_spread_over_the_first_chunks(
+    seq: Path, first_chunk: int, tmp_path: Path
+) -> None:
     """A new run stats its files as it goes (STATS_PER_FRAME per frame tracked, each file
     before it is read), not all before its first chunk: stopped before every file is in
     the digest, nothing is reused; once it is stored, the run resumes."""
@@ -497,10 +551,11 @@ def test_the_frames_digest_is_spread_over_the_first_chunks(seq: Path, tmp_path: 
 
     background.track_into(spec, _StopAfter(1), on_open)
     entry = opened[0][0]
-    assert entry.progress().done == background.CHUNK_SCHEDULE[0]
+    assert entry.progress().done == first_chunk
     assert entry.frames_digest() is None, "every frame was stat'ed before the first chunk"
     background.track_into(spec, _StopAfter(2), on_open)
     assert opened[1][1].done == 0, "a run without its digest was resumed"
     assert entry.frames_digest() == cache.frames_digest(list_frames(long))
     background.track_into(spec, _StopAfter(1), on_open)
-    assert opened[2][1].done == sum(background.CHUNK_SCHEDULE[:2]), "not resumed"
+    # The first chunk ended at the first instrument; the second is the schedule's second.
+    assert opened[2][1].done == first_chunk + background.CHUNK_SCHEDULE[1], "not resumed"

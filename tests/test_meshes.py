@@ -118,3 +118,23 @@ def test_meshes_are_closed_solids_and_serve_starts_without_trimesh() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_a_viewer_starting_without_instruments_builds_the_meshes_before_they_come() -> None:
+    """``mistool.Viewer`` (and ``mistool serve`` tracking in the background) start with
+    no instrument: trimesh's import (0.3-0.6 s) runs in a background thread while the
+    browser loads the page, instead of delaying the first instrument's picture. In a new
+    interpreter, so that trimesh is not imported already."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, threading, mistool\n"
+        "from mistool.viewer.meshes import unit_meshes\n"
+        "with mistool.Viewer(port=0) as v:\n"
+        "    [t.join(60) for t in threading.enumerate() if t.name == 'mistool-meshes']\n"
+        "    print('trimesh' in sys.modules, unit_meshes.cache_info().currsize)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split()[-2:] == ["True", "1"], out.stdout

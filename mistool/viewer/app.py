@@ -31,6 +31,7 @@ from mistool.config import Config
 from mistool.errors import ConfigError, InputPathError, MistoolError
 from mistool.lens import undistort_view
 from mistool.model import TrackTable
+from mistool.viewer import meshes
 from mistool.viewer.bookmarks import BookmarkPanel
 from mistool.viewer.feed import CacheFeed
 from mistool.viewer.guard import AccessPolicy, guarded, with_token
@@ -369,6 +370,8 @@ def endoscope_backdrop(
 
 #: Seconds between two polls of a feed for new frames.
 FEED_POLL_S = 0.2
+#: The same until the first instrument is on screen (the first picture waits for it).
+FEED_POLL_FIRST_S = 0.05
 #: Seconds between two refreshes of the plots while the replay grows.
 PLOT_REFRESH_S = 2.0
 
@@ -452,6 +455,8 @@ class ReplayViewer:
         self.overlays = OverlayCache(self.renderer) if self.renderer else None
         first = self.overlays.get(0, opacity, True)[0] if self.overlays else None
         mode = replay.default_mode
+        if not replay.instruments:  # they come later: the meshes are ready by then
+            meshes.warm_up()
         self.scene = SceneView(server, replay, mode, overlay=first, trail_frames=trail_frames)
         gui = server.gui
         self.title = gui.add_markdown(self._title())
@@ -611,7 +616,7 @@ class ReplayViewer:
                 self.progress.content = feed.status().text()
                 if feed.finished:
                     break
-                self._feed_stop.wait(FEED_POLL_S)
+                self._feed_stop.wait(FEED_POLL_S if self._fitted else FEED_POLL_FIRST_S)
         except Exception as exc:  # a bug: keep serving what is there, and say so
             self.feed_errors.append(exc)
             self.progress.content = f"**Tracking failed**: {type(exc).__name__}: {exc}"
