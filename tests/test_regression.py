@@ -78,7 +78,9 @@ COVERAGE_CASES["4-e17-occ-s4-150"] = dict(
 #: heads in the last frames (2-e17-cross-s1 0.9913 -> 0.9804: two heads grasping in its
 #: last 3 frames; 4-e15-mild-occ-s0 0.9274 -> 0.9097: a four-tool pile-up in its last
 #: 10), while the mean over 10 four-tool and 4 two-tool occluded seeds rose
-#: (docs/tracking.md).
+#: (docs/tracking.md). Then a shaft stub entering the view gets a reference box pointing at
+#: its head, and a split's axis turns at most 30 deg from its expected direction:
+#: 4-e17-occ-leave-s3 0.7562 / 0.9798 -> 0.7812 / 0.9899, the others unchanged.
 FLOORS: dict[str, tuple[float, float]] = {
     "2-e17-cross-s1": (0.9804, 1.0),
     "2-e17-cross-s0": (0.4845, 0.4813),
@@ -86,7 +88,7 @@ FLOORS: dict[str, tuple[float, float]] = {
     "4-e17-occ-s2": (0.9209, 1.0),
     "4-e15-mild-occ-s0": (0.9097, 1.0),
     "4-e17-occ-s4-150": (0.8686, 0.9951),  # before the crowded fixes: 0.7453, 0.9118
-    "4-e17-occ-leave-s3": (0.7562, 0.9798),
+    "4-e17-occ-leave-s3": (0.7812, 0.9899),
 }
 
 #: The metric case: two tools, EndoVis'15 labels, mild corruption, offline smoothing.

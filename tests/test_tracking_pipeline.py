@@ -198,6 +198,7 @@ def test_rasterised_owner_image_matches_per_pixel_nearest_axis():
         back=np.array([math.inf, 300.0]),
         radius=np.array([11.0, 11.0]),
         limit_end=np.zeros((2, 2)),
+        start_dirs=np.zeros((2, 2)),
         margin=np.zeros(2),
     )
     got = _owner_image(part, ax)
@@ -232,6 +233,7 @@ def test_head_pixels_go_to_the_shaft_they_continue():
         back=np.array([math.inf, math.inf]),
         radius=np.array([10.0, 30.0]),  # the second shaft is wide (near the camera)
         limit_end=np.zeros((2, 2)),
+        start_dirs=np.zeros((2, 2)),
         margin=np.zeros(2),
     )
     head = np.array([[330.0, 205.0], [350.0, 200.0]])  # beyond the first shaft's end

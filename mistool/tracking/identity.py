@@ -52,6 +52,7 @@ from mistool.tracking.split import (
     border_entries,
     border_runs,
     fit_split,
+    reference_boxes,
     split_on_entries,
     split_pieces,
 )
@@ -612,7 +613,7 @@ class IdentityTracker:
             t.angle, t.elongation = _appearance(inst)
             # a split piece is no reference shape, nor a blob of two shafts entering
             if apart and "shaft" in inst.parts and len(self._runs_of(inst)) <= 1:
-                t.boxes = {p: o.box for p, o in inst.parts.items()}
+                t.boxes = reference_boxes(inst, self._runs_of(inst))
                 t.boxes_frame = frame
             self._set_entry(t, inst)
             t.state = TrackState.TRACKED
@@ -646,7 +647,7 @@ class IdentityTracker:
             size=math.sqrt(inst.area_px),
         )
         if "shaft" in inst.parts:
-            t.boxes = {p: o.box for p, o in inst.parts.items()}
+            t.boxes = reference_boxes(inst, self._runs_of(inst))
             t.boxes_frame = frame
         self._set_entry(t, inst)
         self._next += 1

@@ -27,6 +27,7 @@ __all__ = [
     "SplitFit",
     "fit_split",
     "head_distance2",
+    "reference_boxes",
     "split_instance",
     "split_on_entries",
     "split_pieces",
@@ -38,6 +39,9 @@ __all__ = [
 SPLIT_MAX_SPREAD = 0.45
 #: ... and its lines differ in direction by at least this much (deg).
 SPLIT_MIN_ANGLE_DEG = 8.0
+#: A refitted axis turns at most this far (deg) from its expected direction in one frame.
+SPLIT_MAX_TURN_DEG = 30.0
+SPLIT_MAX_TURN_COS = math.cos(math.radians(SPLIT_MAX_TURN_DEG))
 #: Rounds of "nearest axis, then refit each axis to its pixels".
 SPLIT_REFIT_ROUNDS = 6
 #: The refits use at most about this many shaft pixels (evenly subsampled).
@@ -234,6 +238,48 @@ def border_entries(
     return out if len(out) >= 2 else []
 
 
+#: A shaft box is a stub seen at the image border (the shaft entering the view, its box
+#: lying along the border) when its direction differs from the line from where it
+#: enters to its head by more than this (deg) ...
+STUB_ANGLE_DEG = 45.0
+
+
+def reference_boxes(
+    inst: InstanceObservation, runs: list[tuple[np.ndarray, int]]
+) -> dict[str, RotatedBox]:
+    """The instance's part boxes as a track's reference shape, with the shaft's box
+    redrawn when the shaft is only a stub entering the view (``runs``: its
+    :func:`border_runs`, one).
+
+    A shaft that has just entered shows a sliver along the image border: its box lies
+    along the border (:data:`STUB_ANGLE_DEG` off the line from the entry to the head),
+    across the real shaft. The shaft's box is then the square of the entry's width on
+    the line from the entry's middle towards the head's centre: a shaft as long as it is
+    wide, entering where it does.
+    """
+    boxes = {p: o.box for p, o in inst.parts.items()}
+    heads = [b for p, b in boxes.items() if p != "shaft"]
+    if "shaft" not in boxes or len(runs) != 1 or not heads:
+        return boxes
+    ends, run_px = runs[0]
+    mid = ends[1]
+    d = np.mean([[b.cx, b.cy] for b in heads], axis=0) - mid
+    norm = float(np.hypot(*d))
+    sb = boxes["shaft"]
+    angle = math.degrees(math.atan2(d[1], d[0])) % 180.0
+    diff = abs(sb.angle_deg - angle) % 180.0
+    if norm <= 0 or min(diff, 180.0 - diff) <= STUB_ANGLE_DEG:
+        return boxes
+    d /= norm
+    tangent = ends[2] - ends[0]
+    tn = float(np.hypot(*tangent))
+    sin = abs(float(tangent[0] * d[1] - tangent[1] * d[0])) / tn if tn > 0 else 1.0
+    width = max(float(run_px) * sin, sb.width, 1.0)
+    c = mid + 0.5 * width * d
+    boxes["shaft"] = RotatedBox(float(c[0]), float(c[1]), width, width, angle)
+    return boxes
+
+
 def split_on_entries(
     inst: InstanceObservation, entries: list[tuple[np.ndarray, np.ndarray, float]], min_area_px: int
 ) -> list[InstanceObservation] | None:
@@ -291,6 +337,7 @@ class _Axes:
     back: np.ndarray  # (K,) length behind the end, px (inf: half-line)
     radius: np.ndarray  # (K,) half-widths, px
     limit_end: np.ndarray  # (K, 2) expected distal ends (the end may pass it by a margin)
+    start_dirs: np.ndarray  # (K, 2) the expected directions
     margin: np.ndarray  # (K,) that margin, px
 
     def distance(self, pts: np.ndarray) -> np.ndarray:
@@ -314,6 +361,7 @@ def _initial_axes(
         back=np.array([a.back for a in axes], dtype=np.float64),
         radius=np.array([max(e["shaft"].width / 2.0, 1.0) for e in expected]),
         limit_end=ends0,
+        start_dirs=dirs.copy(),
         margin=margin,
     )
 
@@ -344,8 +392,11 @@ def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous
             q = pts[lab == j]
             if len(q) < 3 or len(q) * weight < min_area_px:
                 return False
-            c, d = _principal_direction(q)  # largest spread: along the shaft
-            ax.dirs[j] = d if d @ ax.dirs[j] >= 0 else -d
+            c, d = _principal_direction(q)  # largest spread: along the shaft ...
+            if abs(float(d @ ax.start_dirs[j])) >= SPLIT_MAX_TURN_COS:
+                ax.dirs[j] = d if d @ ax.dirs[j] >= 0 else -d
+            # ... unless it turned too far from the expected axis (the spread of a stub
+            # entering the view, or of a shaft mostly under another, is across it)
             # the distal end: the pixels' reach, never beyond the expected end + margin
             limit = float((ax.limit_end[j] + ax.margin[j] * ax.dirs[j] - c) @ ax.dirs[j])
             proj = (q - c) @ ax.dirs[j]
