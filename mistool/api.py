@@ -55,6 +55,11 @@ DEFAULT_CHUNK_FRAMES = 256
 #: a short sequence. The output is the same either way.
 POOL_MIN_FRAMES = 200
 
+#: Frames over which the most instances per frame (after the identity step) is kept: a
+#: frame with fewer, worked on in a pool, has its metric pose deferred
+#: (:func:`mistool.parallel.observe_labels`).
+DEFER_WINDOW_FRAMES = 256
+
 
 @dataclass
 class TrackResult:
@@ -118,30 +123,82 @@ def _identify(
 
     Uses :meth:`~mistool.tracking.IdentityTracker.resolve`, which splits a blob holding
     several known instruments (crossing or grasping in merged masks) into its instruments;
-    the metric pose is then measured again for the split pieces only (here, in the
-    caller's process)."""
+    the metric pose is then measured (here, in the caller's process) for the split pieces,
+    or for every instance of a frame whose pose was deferred (``result.deferred``)."""
     instances, names = tracker.resolve(index, result.instances)
-    if instances is result.instances:
+    if instances is result.instances and not result.deferred:
         return list(names), result
     metrics = [parallel.measure(inst, result.shape, config, metric) for inst in instances]
-    return list(names), parallel.FrameResult(list(instances), metrics, result.unknown, result.shape)
+    return list(names), replace(result, instances=list(instances), metrics=metrics, deferred=False)
+
+
+class _RecentInstances:
+    """The most instances per frame over the last :data:`DEFER_WINDOW_FRAMES` frames
+    identified: the ``defer_below`` of the next batches (a frame with fewer instances
+    likely holds a blob of crossing tools that the identity step will split)."""
+
+    def __init__(self) -> None:
+        self._counts: collections.deque[int] = collections.deque(maxlen=DEFER_WINDOW_FRAMES)
+
+    def add(self, count: int) -> None:
+        self._counts.append(count)
+
+    def most(self) -> int:
+        return max(self._counts, default=0)
 
 
 @dataclass
 class _Pending:
-    """A frame identified and waiting for the metric pose of its split pieces."""
+    """A frame identified, perhaps waiting for the metric pose of its instances (split
+    pieces, or a deferred frame's instances)."""
 
     index: int
     names: list[str]
     result: parallel.FrameResult
-    metrics: parallel.ResultFuture | None
-    """The pieces' metric pose being measured in the pool (None: ``result`` is final)."""
+    waiting: bool = False
+    """Its pose is to be measured in the pool (``result.metrics`` is empty)."""
+    metrics: parallel.ResultFuture | None = None
+    """The task measuring it (with other frames': its ``slot``); None: not submitted."""
+    slot: int = 0
+
+    def ready(self, force: bool) -> bool:
+        """Whether it can be yielded now (``force``: waiting for its task if need be)."""
+        if not self.waiting:
+            return True
+        return self.metrics is not None and (force or self.metrics.done())
 
     def finish(self) -> tuple[int, list[str], parallel.FrameResult]:
         if self.metrics is None:
             return self.index, self.names, self.result
-        r = self.result
-        return self.index, self.names, replace(r, metrics=list(self.metrics.result()))
+        metrics = list(self.metrics.result()[self.slot])
+        return self.index, self.names, replace(self.result, metrics=metrics)
+
+
+class _MeasureGroup:
+    """Frames waiting for their pose, submitted to the pool together as one task
+    (:func:`mistool.parallel.measure_frames`): each task costs the caller a round trip."""
+
+    def __init__(self, pool: parallel.FramePool, config: Config, metric: bool, age: int) -> None:
+        self._pool, self._config, self._metric = pool, config, metric
+        self._size = max(1, pool.batch_frames)
+        self._age = age
+        self._frames: list[_Pending] = []
+
+    def add(self, item: _Pending) -> None:
+        """Queue ``item``; submit the group once full or its first frame is ``age`` old."""
+        self._frames.append(item)
+        if len(self._frames) >= self._size or item.index - self._frames[0].index >= self._age:
+            self.submit()
+
+    def submit(self) -> None:
+        """Submit the frames queued (if any)."""
+        if not self._frames:
+            return
+        work = [(p.result.instances, p.result.shape) for p in self._frames]
+        future = self._pool.submit(parallel.measure_frames, work, self._config, self._metric)
+        for k, p in enumerate(self._frames):
+            p.metrics, p.slot = future, k
+        self._frames = []
 
 
 def identified(
@@ -150,38 +207,47 @@ def identified(
     tracker: tracking.IdentityTracker,
     metric: bool,
     pool: parallel.FramePool | None,
+    recent: _RecentInstances | None = None,
 ) -> Iterator[tuple[int, list[str], parallel.FrameResult]]:
     """``(index, instrument names, result)`` of every frame, in frame order: the identity
     step (sequential, here) on :func:`mistool.parallel.ordered_results`' frames.
 
-    When the identity step splits a blob (:func:`_identify`), the pieces' metric pose is
-    measured in ``pool`` while the following frames are identified; a frame is yielded
-    once its pieces are measured (at most ``PENDING_FRAMES_PER_WORKER`` frames per
-    worker wait). Without a pool the pieces are measured here. Same output either way:
-    the identity step sees the frames in the same order and the pose is pure."""
+    When the identity step splits a blob (:func:`_identify`), or a frame's pose was
+    deferred, the metric pose of its instances is measured in ``pool`` (several frames
+    per task) while the following frames are identified; a frame is yielded once they
+    are measured (at most ``PENDING_FRAMES_PER_WORKER`` frames per worker wait). Without
+    a pool they are measured here. Same output either way: the identity step sees the
+    frames in the same order and the pose is pure. ``recent``: told each frame's number
+    of instances."""
     cfg = seq.config
     if pool is None:
         for index, (name, result) in results:
             seq.check_shape(name, result.shape)
             names, result = _identify(tracker, index, result, cfg, metric)
+            if recent is not None:
+                recent.add(len(names))
             yield index, names, result
         return
     limit = max(1, parallel.PENDING_FRAMES_PER_WORKER * pool.workers)
     pending: collections.deque[_Pending] = collections.deque()
+    group = _MeasureGroup(pool, cfg, metric, age=limit // 2)
     try:
         for index, (name, result) in results:
             seq.check_shape(name, result.shape)
             instances, names = tracker.resolve(index, result.instances)
-            future = None
-            if instances is not result.instances:
-                instances = list(instances)
-                future = pool.submit(parallel.measure_all, instances, result.shape, cfg, metric)
-                result = replace(result, instances=instances, metrics=[])
-            pending.append(_Pending(index, list(names), result, future))
-            while pending and (
-                pending[0].metrics is None or pending[0].metrics.done() or len(pending) > limit
-            ):
+            if recent is not None:
+                recent.add(len(names))
+            item = _Pending(index, list(names), result)
+            if instances is not result.instances or result.deferred:
+                item.result = replace(result, instances=list(instances), metrics=[], deferred=False)
+                item.waiting = True
+                group.add(item)
+            pending.append(item)
+            if len(pending) > limit and pending[0].metrics is None:
+                group.submit()  # the oldest frame must go: its group with it
+            while pending and pending[0].ready(len(pending) > limit):
                 yield pending.popleft().finish()
+        group.submit()
         while pending:
             yield pending.popleft().finish()
     finally:
@@ -267,13 +333,17 @@ def iter_chunks(
     # a local worker decodes the video frames it works on (a Dask worker may not see the
     # file: the caller decodes them)
     spans = isinstance(pool, parallel.LocalPool) and seq.video is not None
-    work = parallel.batches(seq, measured, batch, video_spans=spans)
+    # in this process, the pose waits for the identity step (never measured for a blob it
+    # splits); in a pool, only frames with fewer instances than recently seen wait
+    recent = _RecentInstances()
+    defer = _defer_always if pool is None else recent.most
+    work = parallel.batches(seq, measured, batch, video_spans=spans, defer_below=defer)
     start, count, yielded = 0, 0, False
     unknown: set[int] = set()
     corrupt: list[int] = []
     index, total = 0, 0
     results = enumerate(parallel.ordered_results(work, pool))
-    for index, names, result in identified(results, seq, tracker, measured, pool):
+    for index, names, result in identified(results, seq, tracker, measured, pool, recent):
         total = index + 1
         if result.corrupt:
             corrupt.append(index)
@@ -289,6 +359,10 @@ def iter_chunks(
         finish_video(seq.video, total, corrupt)
     if count or not yielded:
         yield Chunk(rows.take(), start, count, frozenset(unknown), seq.shape)
+
+
+def _defer_always() -> int:
+    return parallel.DEFER_ALWAYS
 
 
 def _local_pool(workers: int | None, seq: MaskSequence) -> parallel.LocalPool | None:
@@ -579,7 +653,10 @@ class Tracker:
                 f"{where}: frame size changed: {shape[1]}x{shape[0]} px, "
                 f"earlier frames are {self._shape[1]}x{self._shape[0]} px"
             )
-        result = parallel.observe_labels(arr, self.config, self._metric)
+        # the pose after the identity step (never measured for a blob it splits)
+        result = parallel.observe_labels(
+            arr, self.config, self._metric, defer_below=parallel.DEFER_ALWAYS
+        )
         names, result = _identify(self._tracker, index, result, self.config, self._metric)
         rows = RowBuilder(self.config.fps)
         rows.add_frame(index, names, result.instances, result.metrics)

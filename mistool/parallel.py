@@ -68,6 +68,9 @@ IN_FLIGHT_PER_WORKER = 2
 #: Frames the caller may have identified and not yet turned into rows while the pieces of
 #: a split blob are measured in a worker, per worker (``mistool.api.identified``).
 PENDING_FRAMES_PER_WORKER = 32
+#: ``defer_below`` value that leaves every frame's metric pose to the caller (in-process
+#: runs: the pose is measured once the identity step has run, never for a blob it splits).
+DEFER_ALWAYS = 1 << 30
 
 
 def default_workers() -> int:
@@ -96,6 +99,10 @@ class FrameResult:
     corrupt: bool = False
     """A mask video frame decoded in a worker that looks like decoded garbage
     (:data:`mistool.sequence.GARBAGE_FRACTION`)."""
+    deferred: bool = False
+    """The metric pose was left to the caller (``metrics`` is empty): it measures the
+    instances the identity step keeps (:func:`measure_frames`), so the pose of a blob
+    that the identity step splits is never measured (see :func:`observe_labels`)."""
 
 
 def metric_pose(metric: bool, config: Config) -> bool:
@@ -124,9 +131,18 @@ def measure(
 def measure_all(
     instances: list[InstanceObservation], shape: tuple[int, int], config: Config, metric: bool
 ) -> list[dict[str, dict[str, float]] | None]:
-    """:func:`measure` of each instance (a task: the pieces of a blob the identity step
-    split, measured in a worker while the caller goes on with the next frames)."""
+    """:func:`measure` of each instance."""
     return [measure(inst, shape, config, metric) for inst in instances]
+
+
+def measure_frames(
+    frames: list[tuple[list[InstanceObservation], tuple[int, int]]], config: Config, metric: bool
+) -> list[list[dict[str, dict[str, float]] | None]]:
+    """:func:`measure_all` of several frames' ``(instances, shape)`` (a task: the pieces
+    of the blobs the identity step split and the instances of deferred frames, measured
+    in a worker while the caller goes on with the next frames; several frames per task,
+    since each task costs the caller an inter-process round trip)."""
+    return [measure_all(instances, shape, config, metric) for instances, shape in frames]
 
 
 def unknown_values(
@@ -158,14 +174,24 @@ def unknown_values(
 
 
 def observe_labels(
-    labels: np.ndarray, config: Config, metric: bool, lossy: bool = False
+    labels: np.ndarray, config: Config, metric: bool, lossy: bool = False, defer_below: int = 0
 ) -> FrameResult:
-    """The per-frame work on a decoded label image (pure; thread- and process-safe)."""
+    """The per-frame work on a decoded label image (pure; thread- and process-safe).
+
+    ``defer_below``: with the metric pose on, a frame with instances but fewer than this
+    many is returned ``deferred`` (no pose measured): fewer instances than instruments
+    recently seen is the sign of a blob of crossing tools, which the identity step will
+    likely split, its pose then thrown away. Only where the work is done changes: the
+    caller measures the deferred frames' instances after the identity step, with the
+    same function, so the output is the same whatever ``defer_below``."""
     bounds = foreground_bounds(labels)  # shared by the instances and the unknown values
     instances = tracking.observe_frame(labels, config, bounds=bounds)
     shape = (int(labels.shape[0]), int(labels.shape[1]))
+    unknown = unknown_values(labels, config, lossy, bounds)
+    if metric and config.camera is not None and 0 < len(instances) < defer_below:
+        return FrameResult(instances, [], unknown, shape, deferred=True)
     metrics = [measure(inst, shape, config, metric) for inst in instances]
-    return FrameResult(instances, metrics, unknown_values(labels, config, lossy, bounds), shape)
+    return FrameResult(instances, metrics, unknown, shape)
 
 
 @dataclass(frozen=True)
@@ -189,6 +215,8 @@ class Batch:
     config: Config
     metric: bool
     lossy: bool
+    defer_below: int = 0
+    """See :func:`observe_labels` (0: every frame's pose measured in the worker)."""
 
 
 # One fast-path gate per worker process and folder (the caller's gate is not shared).
@@ -219,7 +247,7 @@ def _video_span(span: VideoSpan) -> list[tuple[np.ndarray, bool]]:
 def _observe_span(batch: Batch, span: VideoSpan, metric: bool) -> list[FrameResult]:
     out = []
     for labels, corrupt in _video_span(span):
-        result = observe_labels(labels, batch.config, metric, batch.lossy)
+        result = observe_labels(labels, batch.config, metric, batch.lossy, batch.defer_below)
         result.corrupt = corrupt
         out.append(result)
     return out
@@ -240,7 +268,7 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
         try:
             assert not isinstance(item, VideoSpan)
             labels = _load(item, batch.config)
-            out.append(observe_labels(labels, batch.config, metric, batch.lossy))
+            out.append(observe_labels(labels, batch.config, metric, batch.lossy, batch.defer_below))
         except MistoolError as exc:
             where = str(item) if isinstance(item, Path) else name
             if where in str(exc):
@@ -250,7 +278,12 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
 
 
 def batches(
-    seq: MaskSequence, metric: bool, batch_frames: int, *, video_spans: bool = False
+    seq: MaskSequence,
+    metric: bool,
+    batch_frames: int,
+    *,
+    video_spans: bool = False,
+    defer_below: Callable[[], int] | None = None,
 ) -> Iterator[tuple[list[str], Batch]]:
     """The sequence's frames in batches of ``batch_frames``: ``(frame names, batch)``.
 
@@ -258,10 +291,21 @@ def batches(
     with ``video_spans`` the frames of a mask video (``seq.video``): each batch is then a
     :class:`VideoSpan` the worker decodes itself, without end (the batch holding the
     video's last frame comes back short: :func:`ordered_results` stops there; then
-    :func:`mistool.sequence.finish_video`)."""
-    if video_spans and seq.video is not None:
-        yield from _spans(seq, seq.video, metric, batch_frames)
-        return
+    :func:`mistool.sequence.finish_video`).
+
+    ``defer_below``: called as each batch is made (just before it is submitted), gives
+    the batch's ``defer_below`` (:func:`observe_labels`); None: 0, never deferred."""
+    hint = defer_below or _never
+
+    def batch(names: list[str], items: list[Path | np.ndarray | VideoSpan]) -> Batch:
+        return Batch(tuple(names), tuple(items), seq.config, metric, seq.lossy, hint())
+
+    if video_spans and seq.video is not None:  # without end: see above
+        name = seq.video.path.name
+        for start in itertools.count(0, batch_frames):
+            stop = start + batch_frames
+            span_names = [f"{name}#{i}" for i in range(start, stop)]
+            yield span_names, batch(span_names, [VideoSpan(seq.video, start, stop)])
     names: list[str] = []
     items: list[Path | np.ndarray | VideoSpan] = []
     folder = seq.path.resolve() if seq.kind == "folder" and seq.path is not None else None
@@ -269,21 +313,14 @@ def batches(
         names.append(frame.name)
         items.append(folder / frame.name if folder is not None else frame.load())
         if len(names) == batch_frames:
-            yield names, Batch(tuple(names), tuple(items), seq.config, metric, seq.lossy)
+            yield names, batch(names, items)
             names, items = [], []
     if names:
-        yield names, Batch(tuple(names), tuple(items), seq.config, metric, seq.lossy)
+        yield names, batch(names, items)
 
 
-def _spans(
-    seq: MaskSequence, video: VideoSource, metric: bool, batch_frames: int
-) -> Iterator[tuple[list[str], Batch]]:
-    name = video.path.name
-    for start in itertools.count(0, batch_frames):
-        stop = start + batch_frames
-        span = VideoSpan(video, start, stop)
-        names = [f"{name}#{i}" for i in range(start, stop)]
-        yield names, Batch(tuple(names), (span,), seq.config, metric, seq.lossy)
+def _never() -> int:
+    return 0
 
 
 def _pairs(
@@ -593,6 +630,7 @@ __all__ = [
     "in_flight_frames",
     "measure",
     "measure_all",
+    "measure_frames",
     "observe_batch",
     "observe_labels",
     "ordered_results",

@@ -170,7 +170,7 @@ def test_split_pieces_are_measured_in_the_pool_while_frames_go_on(crossing: Path
         """Runs tasks in this process, the pieces' only when their result is asked."""
 
         workers = 2
-        batch_frames = 4
+        batch_frames = 1  # one frame per task: its pieces' task is submitted at once
 
         def __init__(self) -> None:
             self.pieces = 0
@@ -178,7 +178,7 @@ def test_split_pieces_are_measured_in_the_pool_while_frames_go_on(crossing: Path
 
         def submit(self, fn, *args):  # type: ignore[no-untyped-def]
             fut: Future = Future()
-            if fn is not parallel.measure_all:
+            if fn is not parallel.measure_frames:
                 fut.set_result(fn(*args))
                 return fut
             self.pieces += 1
@@ -207,6 +207,51 @@ def test_split_pieces_are_measured_in_the_pool_while_frames_go_on(crossing: Path
     assert pool.pieces >= 1 and pool.later >= 1
     seq = open_sequence(crossing)
     assert_same(refine(TrackTable.concat(chunks), seq.config), track(crossing, workers=1))
+
+
+def test_a_blob_of_crossing_tools_has_its_pose_measured_after_the_identity_step(
+    crossing: Path,
+) -> None:
+    """A frame with fewer instances than recently seen (the crossing blob) comes back
+    from its worker without a pose (deferred): the caller has it measured once the
+    identity step has split it or kept it, so the blob's own pose is never measured in
+    vain; the rows are those of the in-process run."""
+    from concurrent.futures import Future
+
+    class InlinePool:
+        workers = 1
+        batch_frames = 1  # each frame submitted just after the one before is identified
+
+        def __init__(self) -> None:
+            self.deferred = 0
+            self.measured = 0  # frames measured by measure_frames tasks
+
+        def submit(self, fn, *args):  # type: ignore[no-untyped-def]
+            fut: Future = Future()
+            out = fn(*args)
+            if fn is parallel.observe_batch:
+                self.deferred += sum(r.deferred for r in out)
+            else:
+                self.measured += len(out)
+            fut.set_result(out)
+            return fut
+
+        def close(self) -> None:
+            pass
+
+    pool = InlinePool()
+    chunks = list(iter_track(crossing, pool=pool))
+    assert pool.deferred >= 1 and pool.measured >= pool.deferred
+    img = np.zeros((40, 60), np.uint8)
+    img[15:25, 5:40] = 160
+    cfg = open_sequence(crossing).config
+    shape = (40, 60)
+    never = parallel.observe_labels(img, cfg, True)
+    below = parallel.observe_labels(img, cfg, True, defer_below=2)
+    assert not never.deferred and len(never.metrics) == len(never.instances) == 1
+    assert below.deferred and below.metrics == [] and below.shape == shape
+    assert not parallel.observe_labels(img, cfg, False, defer_below=2).deferred
+    assert_same(refine(TrackTable.concat(chunks), cfg), track(crossing, workers=1))
 
 
 def test_a_script_without_a_main_guard_is_not_run_again_by_the_workers(
