@@ -83,3 +83,24 @@ def test_a_split_keeps_a_stubs_axis_across_the_border():
     assert fit is not None
     assert abs(float(fit.axes.dirs[1] @ np.array([0.0, 1.0]))) > math.cos(math.radians(30.0))
     assert abs(float(fit.axes.dirs[0] @ np.array([1.0, 0.0]))) > 0.99
+
+
+def test_a_cut_off_head_joins_the_shaft_it_continues_not_the_nearest():
+    """Jaws an occluder cut off from their wrist lie on their shaft's distal extension,
+    50 px from it, while another tool's jaws are 32 px away beside them: they join the
+    shaft they continue."""
+    img = _paint(
+        [
+            ((0, 150, 380, 190), 10),  # A: shaft from the left border ...
+            ((380, 160, 400, 180), 30),  # ... and its jaws
+            ((400, 350, 440, 576), 10),  # B: shaft from the bottom border ...
+            ((405, 320, 435, 350), 20),  # ... its wrist
+            ((410, 210, 430, 270), 30),  # ... and its jaws, cut off (50 px above)
+        ]
+    )
+    insts = observe_frame(img, MERGED)
+    assert len(insts) == 2
+    b = next(i for i in insts if i.parts["shaft"].box.cx > 400)
+    a = next(i for i in insts if i is not b)
+    assert b.parts["clasper"].box.cy == pytest.approx(240.0, abs=1.0)
+    assert a.parts["clasper"].area_px == 20 * 20

@@ -23,7 +23,7 @@ here is pure and per frame (it runs in worker processes).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -330,9 +330,8 @@ def _merged(
         | (stats[:, 0] + stats[:, 2] + fx >= shape[1])
         | (stats[:, 1] + stats[:, 3] + fy >= shape[0])
     )
-    groups = group_components(counts, shaft_counts, stats, max(min_area, 1), cc, border)
-    found = []
-    for group in groups:
+
+    def instance_of(group: list[int]) -> InstanceObservation | None:
         x0 = min(int(stats[i, 0]) for i in group)
         y0 = min(int(stats[i, 1]) for i in group)
         x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
@@ -340,8 +339,21 @@ def _merged(
         inside = member_mask(cc[y0:y1, x0:x1], group)
         window = {p: cv2.bitwise_and(m[y0:y1, x0:x1], inside) for p, m in masks.items()}
         parts = _parts_in(window, (fx + x0, fy + y0), min_area)
-        if parts:
-            found.append(make_instance(None, parts, shape))
+        return make_instance(None, parts, shape) if parts else None
+
+    def on_axis(piece: list[int], targets: list[list[int]]) -> int | None:
+        """The target on whose shaft's distal extension the piece lies (index), among
+        targets whose shaft is one straight shaft."""
+        insts = [instance_of(g) for g in [piece, *targets]]
+        if any(inst is None or not _one_shaft(inst) for inst in insts[1:]) or not insts[0]:
+            return None
+        host = _head_host(insts[0], [i for i in insts if i is not None], 0, shape)
+        return None if host is None else host - 1
+
+    groups = group_components(
+        counts, shaft_counts, stats, max(min_area, 1), cc, border, prefer=on_axis
+    )
+    found = [inst for inst in map(instance_of, groups) if inst is not None]
     found = join_by_axis(found, min_area, shape)
     found.sort(key=lambda inst: -inst.area_px)
     return found
@@ -427,12 +439,15 @@ def group_components(
     min_area: int,
     cc: np.ndarray,
     border: np.ndarray,
+    prefer: Callable[[list[int], list[list[int]]], int | None] | None = None,
 ) -> list[list[int]]:
     """Components (labels 1..n-1 of ``cc``) grouped into instruments by :data:`REACH_RULES`.
 
     A component smaller than ``min_area`` pixels is a speck and is dropped. Rules apply
     in order; within a rule, the nearest eligible (piece, target) pair within reach joins
-    first, the target's bounds and area growing, until no pair is within reach.
+    first, the target's bounds and area growing, until no pair is within reach. A head
+    within reach of several shafts joins the one ``prefer`` names (given the piece's and
+    the candidates' components: the index of a candidate, or None for the nearest).
 
     Args:
         counts: (n,) part pixels per component.
@@ -442,6 +457,8 @@ def group_components(
         min_area: specks and shafts below this many pixels.
         cc: (H, W) component label image.
         border: (n,) True where a component touches the image border.
+        prefer: see above (``observe_frame``: the shaft whose distal extension the head
+            lies on, :func:`_head_host`).
 
     Returns:
         Groups of component labels, largest groups' components first.
@@ -456,8 +473,37 @@ def group_components(
             best = _nearest_pair(rule, groups, gap, has_shaft, border)
             if best is None:
                 break
+            if prefer is not None and rule.target == "shaft" and not has_shaft[best[0]]:
+                best = _preferred(rule, best, groups, gap, has_shaft, border, prefer)
             groups.join(*best)
     return list(groups.members.values())
+
+
+def _preferred(
+    rule: ReachRule,
+    best: tuple[int, int],
+    groups: _Groups,
+    gap: _Gap,
+    has_shaft: dict[int, bool],
+    border: np.ndarray,
+    prefer: Callable[[list[int], list[list[int]]], int | None],
+) -> tuple[int, int]:
+    """The (piece, target) to join: ``best`` (the nearest pair), or, when the head piece
+    is within the rule's reach of several shafts, the one ``prefer`` chooses."""
+    i = best[0]
+    cands = [
+        j
+        for j in groups.members
+        if j != i
+        and rule.target in _kind(j, has_shaft, border)
+        and groups.area[i] < rule.max_area_ratio * groups.area[j]
+        and gap(i, j, rule.reach(groups.area[i], groups.area[j]))
+        <= rule.reach(groups.area[i], groups.area[j])
+    ]
+    if len(cands) < 2:
+        return best
+    k = prefer(groups.members[i], [groups.members[j] for j in cands])
+    return best if k is None else (i, cands[k])
 
 
 def _kind(root: int, has_shaft: dict[int, bool], border: np.ndarray) -> set[str]:
@@ -531,6 +577,21 @@ def _distal_sign(inst: InstanceObservation, shape: tuple[int, int]) -> float:
     plus = inside(a.cx + a.length / 2 * u[0], a.cy + a.length / 2 * u[1])
     minus = inside(a.cx - a.length / 2 * u[0], a.cy - a.length / 2 * u[1])
     return 1.0 if plus >= minus else -1.0
+
+
+#: A shaft's pixels fill at least this share of its box when it is one straight shaft
+#: (a rectangle, or a trapezoid in perspective); two crossing shafts fill much less.
+ONE_SHAFT_FILL = 0.7
+
+
+def _one_shaft(inst: InstanceObservation) -> bool:
+    """Whether the instance's shaft pixels look like one straight shaft (its box's axis
+    is that shaft's)."""
+    shaft = inst.parts.get("shaft")
+    if shaft is None:
+        return False
+    b = shaft.box
+    return shaft.area_px >= ONE_SHAFT_FILL * b.length * b.width
 
 
 def _shaft_host(piece: InstanceObservation, found: list[InstanceObservation], k: int) -> int | None:
