@@ -104,3 +104,32 @@ def test_a_cut_off_head_joins_the_shaft_it_continues_not_the_nearest():
     a = next(i for i in insts if i is not b)
     assert b.parts["clasper"].box.cy == pytest.approx(240.0, abs=1.0)
     assert a.parts["clasper"].area_px == 20 * 20
+
+
+def test_a_tool_entering_head_first_keeps_its_name_in_anothers_blob():
+    """Jaws entering from the top border (no shaft in view yet) touch another tool's
+    jaws: the blob is split, the shaft and its jaws to that tool, the entering jaws to
+    their own track (before: no split, since that track had no shaft to fit)."""
+    from mistool.tracking import IdentityTracker
+
+    top = ((290, 0, 350, 60), 30)  # H: jaws at the top border
+    tracker = IdentityTracker(MERGED)
+    for k, y in enumerate((260, 200, 140, 100)):  # A rises from the bottom border
+        img = _paint([((305, y, 325, 576), 10), ((305, y - 40, 325, y), 30), top])
+        insts = observe_frame(img, MERGED)
+        assert len(insts) == (1 if k == 3 else 2)
+        out, names = tracker.resolve(k, insts)
+        if k == 0:
+            first = {
+                n: i.parts["shaft"].box.cx if "shaft" in i.parts else None
+                for n, i in zip(names, out, strict=True)
+            }
+            a = next(n for n, x in first.items() if x is not None)
+            h = next(n for n, x in first.items() if x is None)
+    got = dict(zip(names, out, strict=True))
+    assert set(got) == {a, h}
+    assert got[a].parts["shaft"].area_px == 20 * (576 - 100)
+    assert "shaft" not in got[h].parts
+    jaws = got[h].parts["clasper"]
+    assert jaws.area_px > 0.5 * 60 * 60
+    assert jaws.box.cx == pytest.approx(320.0, abs=6.0) and jaws.box.cy < 45.0

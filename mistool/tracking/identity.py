@@ -48,13 +48,15 @@ from mistool.tracking.instances import angle_diff_deg, unit_vector
 from mistool.tracking.motion import ConstantVelocity
 from mistool.tracking.split import (
     BlobPixels,
+    HeadAnchor,
     SplitFit,
     border_entries,
     border_runs,
     fit_split,
     reference_boxes,
+    shaft_support,
     split_on_entries,
-    split_pieces,
+    split_with_heads,
 )
 
 __all__ = [
@@ -301,6 +303,9 @@ class _Frame:
     """instance -> live tracks hidden in it (crossing)."""
     pieces: dict[int, list[InstanceObservation]] = field(default_factory=dict)
     """instance -> the pieces it was split into."""
+    split_tracks: dict[int, list[Track]] = field(default_factory=dict)
+    """instance split by the crossing handler -> the track of each piece (the blob's
+    other tracks coast)."""
     piece_tracks: dict[int, list[Track]] = field(default_factory=dict)
     """instance split on border entries -> the track of each piece."""
 
@@ -461,26 +466,68 @@ class IdentityTracker:
         Two motion hypotheses (:data:`SPLIT_STOP_FRAMES`) share the blob's pixels; only
         their axes are fitted (cheap), the second only when the first fails or fits
         poorly (:data:`SPLIT_GOOD_SCORE`), and only the best-scoring fit is measured (its
-        pieces' boxes), the other only if that one yields no pieces."""
-        min_area = max(self._config.min_area_px, 1)
+        pieces' boxes), the other only if that one yields no pieces. When that fails and
+        some tracks have no shaft in the blob (none expected, or no shaft pixels where
+        it is expected: a tool entering head first), it is redone with those taking only
+        head pixels (:func:`~mistool.tracking.split.split_with_heads`)."""
         for b, hidden in fr.blob_of.items():
             group = [fr.live[fr.owner[b]]] + [fr.live[a] for a in hidden]
             pixels = BlobPixels(fr.instances[b])
-            fits: list[SplitFit] = []
-            for steps in (SPLIT_STOP_FRAMES, None):
-                expected = [self._expected_boxes(t, fr.index, steps) for t in group]
-                if any(e is None for e in expected):
-                    break
-                fit = fit_split(pixels, [e for e in expected if e], min_area)
-                if fit is not None:
-                    fits.append(fit)
-                    if fit.score <= SPLIT_GOOD_SCORE:
-                        break  # the second hypothesis only when the first is poor
-            for fit in sorted(fits, key=lambda f: f.score):
-                pieces = split_pieces(pixels, fit, min_area)
-                if pieces is not None:
-                    fr.pieces[b] = pieces
-                    break
+            got = self._split_blob(fr.index, group, pixels, set())
+            if got is None:
+                heads = self._shaftless(fr.index, group, pixels)
+                if heads and len(heads) < len(group):
+                    got = self._split_blob(fr.index, group, pixels, heads)
+            if got is not None:
+                fr.pieces[b], fr.split_tracks[b] = got
+
+    def _shaftless(self, frame: int, group: list[Track], pixels: BlobPixels) -> set[int]:
+        """Indices of the tracks in ``group`` with no shaft in the blob: none expected,
+        or fewer than ``min_area_px`` shaft pixels where it is expected."""
+        out = set()
+        for k, t in enumerate(group):
+            e = self._expected_boxes(t, frame, SPLIT_STOP_FRAMES)
+            if e is None or shaft_support(pixels, e["shaft"]) < self._config.min_area_px:
+                out.add(k)
+        return out
+
+    def _split_blob(
+        self, frame: int, group: list[Track], pixels: BlobPixels, heads: set[int]
+    ) -> tuple[list[InstanceObservation], list[Track]] | None:
+        """The blob split between the tracks of ``group`` (those in ``heads`` taking only
+        head pixels): the pieces and their tracks, or None."""
+        min_area = max(self._config.min_area_px, 1)
+        shafted = [t for k, t in enumerate(group) if k not in heads]
+        fits: list[SplitFit] = []
+        for steps in (SPLIT_STOP_FRAMES, None):
+            expected = [self._expected_boxes(t, frame, steps) for t in shafted]
+            if any(e is None for e in expected):
+                break
+            fit = fit_split(
+                pixels, [e for e in expected if e], min_area, min_tracks=1 if heads else 2
+            )
+            if fit is not None:
+                fits.append(fit)
+                if fit.score <= SPLIT_GOOD_SCORE:
+                    break  # the second hypothesis only when the first is poor
+        anchors = [self._head_anchor(group[k], frame) for k in sorted(heads)]
+        for fit in sorted(fits, key=lambda f: f.score):
+            got = split_with_heads(pixels, fit, min_area, anchors)
+            if got is not None:
+                pieces, head_pieces = got
+                tracks = list(shafted)
+                for k, piece in zip(sorted(heads), head_pieces, strict=True):
+                    if piece is not None:
+                        pieces.append(piece)
+                        tracks.append(group[k])
+                return pieces, tracks
+        return None
+
+    def _head_anchor(self, t: Track, frame: int) -> HeadAnchor:
+        """Where a track with no shaft in a blob expects its head."""
+        e = self._expected_boxes(t, frame, SPLIT_STOP_FRAMES) or {}
+        boxes = {p: b for p, b in e.items() if p != "shaft"}
+        return HeadAnchor(boxes, t.predict(frame), max(0.5 * math.sqrt(t.area), 5.0))
 
     def _split_entries(self, fr: _Frame) -> None:
         """Entry handler: a blob with more shafts entering from the border than tracks
@@ -560,11 +607,15 @@ class IdentityTracker:
                 out.extend(fr.pieces[b])
                 names.extend(t.name for t in fr.piece_tracks[b])
             elif b in fr.pieces:
-                group = [fr.live[fr.owner[b]]] + [fr.live[a] for a in fr.blob_of[b]]
-                for t, piece in zip(group, fr.pieces[b], strict=True):
+                tracks = fr.split_tracks[b]
+                for t, piece in zip(tracks, fr.pieces[b], strict=True):
                     self._update(t, piece, fr.index, merged=False, apart=False)
                     out.append(piece)
                     names.append(t.name)
+                group = [fr.live[fr.owner[b]]] + [fr.live[a] for a in fr.blob_of[b]]
+                for t in group:
+                    if all(t is not u for u in tracks):  # no piece of its own: coasts
+                        self._hide(t, fr.index)
             elif b in fr.owner:
                 t = fr.live[fr.owner[b]]
                 self._update(t, inst, fr.index, merged=b in fr.blob_of)

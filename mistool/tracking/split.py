@@ -26,12 +26,15 @@ __all__ = [
     "BlobPixels",
     "SplitFit",
     "fit_split",
+    "HeadAnchor",
     "head_distance2",
     "reference_boxes",
+    "shaft_support",
     "split_instance",
     "split_on_entries",
     "split_pieces",
     "split_scored",
+    "split_with_heads",
 ]
 
 #: A split is kept only if each piece's pixels spread across its line by at most this
@@ -585,6 +588,7 @@ def fit_split(
     min_area_px: int,
     axes: list[Axis] | None = None,
     contiguous: bool = False,
+    min_tracks: int = 2,
 ) -> SplitFit | None:
     """Fit one shaft axis per instrument to a blob's shaft pixels; None when the split is
     not shaft-like (see :func:`split_instance`).
@@ -597,9 +601,15 @@ def fit_split(
         contiguous: each shaft ends at the first gap of :data:`SPLIT_CONTIGUOUS_GAP`
             half-widths in its pixels along its axis (shafts entering from the border,
             their ends unknown).
+        min_tracks: fewer instruments than this: None (one, when others in the blob
+            take only head pixels, :func:`split_with_heads`).
     """
     inst = pixels.inst
-    if "shaft" not in inst.parts or len(expected) < 2 or any("shaft" not in e for e in expected):
+    if (
+        "shaft" not in inst.parts
+        or len(expected) < min_tracks
+        or any("shaft" not in e for e in expected)
+    ):
         return None
     pts = pixels.shaft_points()
     step = max(1, len(pts) // SPLIT_FIT_POINTS)  # the fits need no more points than this
@@ -616,9 +626,47 @@ def split_pieces(
 ) -> list[InstanceObservation] | None:
     """The blob's pixels given to the nearest fitted instrument, each piece measured
     (Algorithm 1); None when a piece has no shaft left."""
+    got = split_with_heads(pixels, fit, min_area_px, [])
+    return None if got is None else got[0]
+
+
+@dataclass
+class HeadAnchor:
+    """An instrument in a blob with no shaft of its own there (its shaft out of view or
+    never seen): it can take only head pixels, those nearest to where its head is
+    expected."""
+
+    boxes: dict[str, RotatedBox]
+    """Its expected head part boxes (may be empty) ..."""
+    centre: np.ndarray
+    """... else (2,) px where it is expected ..."""
+    radius: float
+    """... and its size there (px)."""
+
+    def distance2(self, name: str, p: np.ndarray) -> np.ndarray:
+        """(N,) squared distances of part ``name``'s pixels (N, 2) to it, in units of
+        the box's half-width (or of ``radius``)."""
+        boxes = [self.boxes[name]] if name in self.boxes else list(self.boxes.values())
+        if not boxes:
+            d = p - self.centre
+            return np.einsum("nd,nd->n", d, d) / (self.radius * self.radius)
+        u = np.array([unit_vector(b.angle_deg) for b in boxes])
+        h = np.array([0.5 * b.length for b in boxes])
+        c = np.array([[b.cx, b.cy] for b in boxes])
+        r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
+        return segment_d2(p, c + h[:, None] * u, u, 2 * h, r).min(1)
+
+
+def split_with_heads(
+    pixels: BlobPixels, fit: SplitFit, min_area_px: int, anchors: list[HeadAnchor]
+) -> tuple[list[InstanceObservation], list[InstanceObservation | None]] | None:
+    """:func:`split_pieces`, some head pixels going to ``anchors`` (instruments without a
+    shaft in the blob) when they lie nearer to them: ``(pieces, head pieces)``, one
+    head piece per anchor (None: no part of at least ``min_area_px`` pixels); None when
+    a fitted instrument's piece has no shaft left."""
     inst = pixels.inst
     k = len(fit.expected)
-    pieces: list[dict[str, PartObservation]] = [{} for _ in range(k)]
+    pieces: list[dict[str, PartObservation]] = [{} for _ in range(k + len(anchors))]
     for name, part in inst.parts.items():
         if name == "shaft":  # the large part: whole-crop label image, no pixel lists
             owner_img = _owner_image(part, fit.axes)
@@ -629,8 +677,11 @@ def split_pieces(
                     pieces[j][name] = obs
             continue
         ys, xs, p = pixels.get(name)
-        owner = _part_distance(name, p, fit.axes, fit.expected).argmin(1)
-        for j in range(k):
+        d2 = _part_distance(name, p, fit.axes, fit.expected)
+        if anchors:
+            d2 = np.concatenate([d2, np.stack([a.distance2(name, p) for a in anchors], 1)], 1)
+        owner = d2.argmin(1)
+        for j in range(len(pieces)):
             sel = owner == j
             if not sel.any():
                 continue
@@ -639,9 +690,24 @@ def split_pieces(
             obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
             if obs is not None:
                 pieces[j][name] = obs
-    if any("shaft" not in parts for parts in pieces):
+    if any("shaft" not in parts for parts in pieces[:k]):
         return None
-    return [make_instance(None, parts, inst.image_shape) for parts in pieces]
+    shape = inst.image_shape
+    return (
+        [make_instance(None, parts, shape) for parts in pieces[:k]],
+        [make_instance(None, parts, shape) if parts else None for parts in pieces[k:]],
+    )
+
+
+def shaft_support(pixels: BlobPixels, box: RotatedBox) -> int:
+    """How many of the blob's shaft pixels lie in ``box`` widened to twice its width and
+    lengthened by its width (where an expected shaft would be seen)."""
+    pts = pixels.shaft_points()
+    u = unit_vector(box.angle_deg)
+    rel = pts - (box.cx, box.cy)
+    along = np.abs(rel @ u)
+    across = np.abs(rel[:, 1] * u[0] - rel[:, 0] * u[1])
+    return int(np.count_nonzero((along <= 0.5 * box.length + box.width) & (across <= box.width)))
 
 
 def split_scored(
