@@ -1077,9 +1077,15 @@ def _field_names(obj: object) -> list[str]:
     return [f.name for f in dataclasses.fields(obj)] if dataclasses.is_dataclass(obj) else []
 
 
-def source_info(source: Path) -> tuple[int | None, tuple[int, int] | None]:
+def source_info(source: Path, count: bool = True) -> tuple[int | None, tuple[int, int] | None]:
     """``(frame count, (width, height))`` of a ``source`` video or RGB frame folder, read
     from the video's header or the folder's first frame (None where unknown).
+
+    Args:
+        source: the video or the folder.
+        count: count a folder's frames (a listing of all of them: 0.3 s at 90,000);
+            without, the count is None and the size is read from the first image the
+            folder lists (not the first in frame order).
 
     Raises:
         MaskFormatError: the video cannot be opened, or the folder's first frame does
@@ -1087,12 +1093,15 @@ def source_info(source: Path) -> tuple[int | None, tuple[int, int] | None]:
     """
     _quiet_opencv()
     if source.is_dir():
-        files = sorted(
-            (p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
-            key=lambda p: natural_key(p.name),
-        )
+        if count:
+            files = sorted(
+                (p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
+                key=lambda p: natural_key(p.name),
+            )
+        else:
+            files = _first_image_listed(source)
         if not files:
-            return 0, None
+            return (0 if count else None), None
         try:
             data = files[0].read_bytes()
             img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
@@ -1103,7 +1112,7 @@ def source_info(source: Path) -> tuple[int | None, tuple[int, int] | None]:
                 f"{files[0]}: the source frame does not decode (corrupt or not an image); "
                 "fix 'source' in mistool.toml or remove it"
             )
-        return len(files), (int(img.shape[1]), int(img.shape[0]))
+        return (len(files) if count else None), (int(img.shape[1]), int(img.shape[0]))
     cap = cv2.VideoCapture(str(source), cv2.CAP_FFMPEG)
     try:
         if not cap.isOpened() or not cap.read()[0]:
@@ -1115,6 +1124,16 @@ def source_info(source: Path) -> tuple[int | None, tuple[int, int] | None]:
         return _video_count(cap) or None, size
     finally:
         cap.release()
+
+
+def _first_image_listed(folder: Path) -> list[Path]:
+    """The first image file ``folder`` lists (not the first in frame order; empty: none),
+    without listing them all."""
+    with os.scandir(folder) as entries:
+        for e in entries:
+            if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS:
+                return [Path(e.path)]
+    return []
 
 
 def check_source(
@@ -1133,7 +1152,9 @@ def check_source(
     """
     if config.source is None or not config.source.exists():
         return []
-    count, size = source_info(config.source)
+    # Without the masks' count (mistool serve before the tracking job lists them), a
+    # source folder is not counted either: the server starts at once whatever its length.
+    count, size = source_info(config.source, count=num_frames is not None)
     said = []
     if count is not None and num_frames is not None and count < num_frames:
         said.append(

@@ -499,6 +499,65 @@ def test_overlay_of_a_frame_not_listed_yet_is_not_kept(seq: Path) -> None:
         frames.close()
 
 
+def test_a_deferred_source_folder_is_listed_after_the_server_is_up(
+    seq: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A ``source`` folder of a procedure's length (90,000 images: 0.3 s to list) is not
+    listed before the server starts: the viewer lists it in a thread once it is up; until
+    then no source frame is read and overlays are not kept, then they have it."""
+    from mistool.viewer import overlay as overlay_module
+    from mistool.viewer.app import ReplayViewer, load_sequence
+
+    here = tmp_path / "seq"  # the sequence, with a source folder
+    here.mkdir()
+    for f in list_frames(seq):
+        os.symlink(f, here / f.name)
+    toml = (seq / "mistool.toml").read_text()
+    (here / "mistool.toml").write_text('source = "src"\n' + toml)
+    src = here / "src"
+    src.mkdir()
+    for k in range(N):
+        cv2.imwrite(str(src / f"{k}.jpg"), np.full((576, 720, 3), 40 + 3 * k, np.uint8))
+    path, cfg = resolve(here)
+    assert cfg.source == src
+    frames = overlay_module.FrameStore(path, cfg, defer_listing=True)
+    frames.set_mask_names([f.name for f in list_frames(seq)])
+    assert frames.has_source and not frames.listed and frames.source(5) is None
+    frames.list_source()
+    assert frames.listed and frames.source(5) is not None
+    assert int(frames.source(12)[0, 0, 0]) == pytest.approx(40 + 3 * 12, abs=2)  # "12" > "5"
+    frames.close()
+
+    listed_by: list[str] = []
+    real = overlay_module._image_names
+
+    def listing(folder: Path) -> list[str]:
+        listed_by.append(threading.current_thread().name)
+        return real(folder)
+
+    real_iterdir = Path.iterdir
+
+    def iterdir(self: Path):  # type: ignore[no-untyped-def]
+        if self == src:  # the source's check counts its frames only when asked
+            listed_by.append(f"iterdir {threading.current_thread().name}")
+        return real_iterdir(self)
+
+    monkeypatch.setattr(overlay_module, "_image_names", listing)
+    monkeypatch.setattr(Path, "iterdir", iterdir)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    loaded = load_sequence(here, background=True)
+    assert listed_by == [] and not loaded.frames.listed
+    viewer = ReplayViewer(loaded, port=0)
+    try:
+        end = time.monotonic() + 60
+        while not loaded.frames.listed and time.monotonic() < end:
+            time.sleep(0.01)
+        assert loaded.frames.listed and listed_by == ["mistool-list-source"]
+        assert loaded.frames.source(0) is not None
+    finally:
+        viewer.close()
+
+
 def test_a_growing_replay_allocates_little_first_and_the_length_once(seq: Path) -> None:
     """The first frames of a long procedure are stored without allocating its whole
     length; storage then doubles, and takes the whole length in one step once that is at

@@ -516,6 +516,10 @@ class ReplayViewer:
         busy = replay.first_busy_frame()
         self._fitted = busy is not None
         self.timeline.seek(busy or 0)
+        if not sequence.frames.listed:  # a source folder of a procedure's length
+            threading.Thread(
+                target=sequence.frames.list_source, name="mistool-list-source", daemon=True
+            ).start()
         if feed is not None:
             self._feed_thread = threading.Thread(
                 target=self._feed_loop, name="mistool-feed", daemon=True

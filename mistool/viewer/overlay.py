@@ -196,6 +196,15 @@ def find_frame_file(folder: Path) -> Path | None:
     return None
 
 
+def _image_names(folder: Path) -> list[str]:
+    """The image files of a source folder, in frame order (names: 100,000 ``Path``
+    objects would cost a second)."""
+    with os.scandir(folder) as entries:
+        names = [e.name for e in entries if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS]
+    names.sort(key=natural_key)
+    return names
+
+
 class FrameStore:
     """Lazy, random-access frames of a sequence: label images and source video frames.
 
@@ -206,7 +215,8 @@ class FrameStore:
     images is reported at once), and the ordered frame names come later, from
     :meth:`set_mask_names` (``mistool serve``: the background job lists the folder, so the
     server starts at once whatever the procedure's length). Until then :meth:`labels`
-    returns None and :attr:`listed` is False.
+    returns None and :attr:`listed` is False. A ``source`` folder is then listed by
+    :meth:`list_source` (the viewer runs it in a thread once its server is up).
     """
 
     def __init__(
@@ -247,7 +257,9 @@ class FrameStore:
                         self.probe_file = sequence / self._mask_names[0]
             elif sequence.suffix.lower() in VIDEO_EXTENSIONS:
                 self._mask_video = _VideoReader(sequence)
-        self._source_files: list[Path] = []
+        self._source_dir: Path | None = None
+        self._source_names: list[str] = []
+        self._source_listed = True
         self._source_video: _VideoReader | None = None
         self._ahead: DecodedAhead | None = None
         src = config.source
@@ -258,12 +270,29 @@ class FrameStore:
                     "exist; fix 'source' or remove it"
                 )
             if src.is_dir():
-                self._source_files = sorted(
-                    (p for p in src.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
-                    key=lambda p: natural_key(p.name),
-                )
+                self._source_dir = src
+                if defer_listing:
+                    self._source_listed = False  # by list_source(), once the server is up
+                else:
+                    self._source_names = _image_names(src)
             else:
                 self._source_video = _VideoReader(src)
+
+    def list_source(self) -> None:
+        """List a source folder whose listing was deferred (``defer_listing``: 0.3 s at
+        90,000 frames, which the viewer spends in a thread once its server is up, not
+        before); until then :meth:`source` returns None and :attr:`listed` is False."""
+        if self._source_listed or self._source_dir is None:
+            return
+        try:
+            names = _image_names(self._source_dir)
+        except OSError:  # gone or unreadable since the start: shown without it
+            names = []
+        with self._lock:
+            self._source_names = names
+            self._source_listed = True
+            for key in [k for k in self._cache if k[0] == "source"]:
+                del self._cache[key]
 
     def set_mask_names(self, names: list[str]) -> None:
         """Give the folder's frame file names, in frame order (a deferred listing)."""
@@ -275,9 +304,9 @@ class FrameStore:
 
     @property
     def listed(self) -> bool:
-        """Whether the mask frames are known (False only until a deferred listing is
-        given with :meth:`set_mask_names`)."""
-        return self._listed
+        """Whether the mask and source frames are known (False only until a deferred
+        listing is given with :meth:`set_mask_names` or made by :meth:`list_source`)."""
+        return self._listed and self._source_listed
 
     @property
     def mask_files(self) -> list[Path]:
@@ -295,7 +324,8 @@ class FrameStore:
     @property
     def has_source(self) -> bool:
         """Whether the procedure's own video frames can be read."""
-        return bool(self._source_files) or self._source_video is not None
+        listed = self._source_listed
+        return bool(self._source_names) or not listed or self._source_video is not None
 
     def mask_shape(self) -> tuple[int, int] | None:
         """``(H, W)`` of the label images, from one of them (:attr:`probe_file`, or a mask
@@ -364,11 +394,14 @@ class FrameStore:
             hit, value = self._cached(("source", index))
             if hit:
                 return value
+            if not self._source_listed:
+                return None  # not known yet (and not cached: known later)
             img = None
             if self._source_video is not None:
                 img = self._source_video.read(index)
-        if img is None and 0 <= index < len(self._source_files):
-            img = cv2.imread(str(self._source_files[index]), cv2.IMREAD_COLOR)
+            names = self._source_names
+        if img is None and self._source_dir is not None and 0 <= index < len(names):
+            img = cv2.imread(str(self._source_dir / names[index]), cv2.IMREAD_COLOR)
         value = None
         if img is not None:
             value = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB if img.ndim == 2 else cv2.COLOR_BGR2RGB)
