@@ -558,6 +558,35 @@ def test_a_deferred_source_folder_is_listed_after_the_server_is_up(
         viewer.close()
 
 
+def test_a_viewer_closed_while_its_feed_starts_the_job_leaves_no_process(
+    seq: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Closing the viewer at once (a script, a test, Ctrl+C in the first second) while its
+    feed thread is still starting the tracking job: the job started after the feed was
+    told to stop kept running, and at exit multiprocessing's handler printed a traceback
+    ("process object is closed"). The feed thread is now joined before the job stops."""
+    import multiprocessing
+
+    from mistool.viewer.app import ReplayViewer, load_sequence
+    from mistool.viewer.feed import CacheFeed
+
+    real_start = CacheFeed.start
+
+    def slow_start(self: CacheFeed) -> None:
+        time.sleep(0.3)  # the feed thread is late: close() comes first
+        real_start(self)
+
+    monkeypatch.setattr(CacheFeed, "start", slow_start)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    loaded = load_sequence(seq, background=True, fresh=True)
+    viewer = ReplayViewer(loaded, port=0)
+    viewer.close()
+    feed = loaded.feed
+    assert feed is not None and feed.job is not None  # it did start
+    assert not feed.job.running and viewer.feed_errors == []
+    assert [p for p in multiprocessing.active_children() if p.name == "mistool-track"] == []
+
+
 def test_a_growing_replay_allocates_little_first_and_the_length_once(seq: Path) -> None:
     """The first frames of a long procedure are stored without allocating its whole
     length; storage then doubles, and takes the whole length in one step once that is at

@@ -645,10 +645,13 @@ class ReplayViewer:
         with self._lock:  # a draw in progress finishes first; later ones see _closing
             self._closing = True
         self._feed_stop.set()
-        if self.sequence.feed is not None:
-            self.sequence.feed.stop()
+        # The feed thread first: it may be starting the job, or asking whether it runs,
+        # while the job is stopped and its process closed (then a closed process object
+        # stayed in multiprocessing's list, and its exit handler printed a traceback).
         if self._feed_thread is not None:
             self._feed_thread.join(timeout=10.0)
+        if self.sequence.feed is not None:
+            self.sequence.feed.stop()
         self.timeline.stop()
         if self.overlays is not None:
             self.overlays.close()
