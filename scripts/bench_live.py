@@ -10,7 +10,8 @@ Measures (several runs, median):
    without server or browser, the tracking process's time to name its cache entry
    (listing the frames and keying the cache) and to store its first chunk. The
    sequences are a 200-frame synthetic procedure (2 instruments, camera) played forwards
-   and backwards to the length asked (frames symlinked). Ratio: each length against the
+   and backwards to the length asked (frames symlinked), each with a ``source`` folder of
+   as many endoscope frames (JPEGs, symlinked). Ratio: each length against the
    shortest, measured in the same run, the lengths taking turns (the goal: no growth).
 2. **server memory**: peak resident memory (VmHWM) of the ``mistool serve`` process for a
    procedure tracked to the end (the cache entry is filled beforehand with the tracked
@@ -74,14 +75,41 @@ def _source_index(k: int, n: int) -> int:
     return k % n if (k // n) % 2 == 0 else n - 1 - k % n
 
 
+def _endoscope_frames(base: Path) -> list[Path]:
+    """JPEG frames standing in for the endoscope video under the base's masks (tissue-like
+    background, the instruments grey), made once beside the base sequence."""
+    from mistool.sequence import list_frames
+
+    folder = base.parent / "endoscope"
+    files = list_frames(base)
+    if not folder.is_dir():
+        folder.mkdir()
+        rng = np.random.default_rng(0)
+        tissue = cv2.GaussianBlur(rng.integers(90, 200, (576, 720, 3), dtype=np.uint8), (0, 0), 9)
+        tissue[..., 2] = np.clip(tissue[..., 2].astype(int) + 50, 0, 255)  # reddish (BGR)
+        for k, f in enumerate(files):
+            img = tissue.copy()
+            labels = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+            img[labels > 0] = (150, 150, 150)
+            cv2.imwrite(str(folder / f"{k:06d}.jpg"), img)
+    return sorted(folder.glob("*.jpg"))
+
+
 def _long(base: Path, frames: int, out: Path) -> Path:
+    """The base sequence played forwards and backwards to ``frames`` frames (symlinks),
+    with a ``source`` folder of as many endoscope frames, as a recorded procedure has."""
     from mistool.sequence import list_frames
 
     out.mkdir(parents=True)
-    (out / "mistool.toml").write_bytes((base / "mistool.toml").read_bytes())
+    toml = (base / "mistool.toml").read_text()
+    (out / "mistool.toml").write_text('source = "endoscope"\n' + toml)
     files = list_frames(base)
+    video = _endoscope_frames(base)
+    (out / "endoscope").mkdir()
     for k in range(frames):
-        os.symlink(files[_source_index(k, len(files))], out / f"{k:06d}.png")
+        i = _source_index(k, len(files))
+        os.symlink(files[i], out / f"{k:06d}.png")
+        os.symlink(video[i], out / "endoscope" / f"{k:06d}.jpg")
     return out
 
 
