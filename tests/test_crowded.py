@@ -133,3 +133,26 @@ def test_a_tool_entering_head_first_keeps_its_name_in_anothers_blob():
     jaws = got[h].parts["clasper"]
     assert jaws.area_px > 0.5 * 60 * 60
     assert jaws.box.cx == pytest.approx(320.0, abs=6.0) and jaws.box.cy < 45.0
+
+
+def test_a_tools_shape_is_forgotten_once_its_shaft_has_left_the_view():
+    """A tool seen with its shaft, then for more than LOST_AFTER_FRAMES frames as jaws
+    alone (its shaft out of view): its old shaft is no expected shape for a split (it
+    would claim another tool's shaft pixels); seen with a shaft again, it is one."""
+    from mistool.tracking import IdentityTracker
+    from mistool.tracking.identity import LOST_AFTER_FRAMES
+
+    tool = [((340, 300, 380, 576), 10), ((345, 260, 375, 300), 30)]
+    jaws = [((345, 536, 375, 576), 30)]  # at the bottom border, the shaft below it
+    tracker = IdentityTracker(MERGED)
+    frames = [tool, tool] + [jaws] * (LOST_AFTER_FRAMES + 1) + [tool]
+    expected = []
+    for k, rects in enumerate(frames):
+        (inst,) = observe_frame(_paint(rects), MERGED)
+        tracker.resolve(k, [inst])
+        (t,) = tracker.tracks
+        expected.append(tracker._expected_boxes(t, k + 1, 5))
+    assert expected[1] is not None  # (frames 2 .. 2 + LOST_AFTER_FRAMES: the jaws alone)
+    assert expected[1 + LOST_AFTER_FRAMES] is not None  # jaws alone for LOST_AFTER frames
+    assert expected[2 + LOST_AFTER_FRAMES] is None  # ... and one more
+    assert expected[-1] is not None

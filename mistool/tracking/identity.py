@@ -170,6 +170,8 @@ class Track:
     """Last part boxes seen apart from others (with a shaft) ..."""
     boxes_frame: int = 0
     """... and their frame."""
+    shaftless: int = 0
+    """Frames in a row it was seen apart from others without a shaft."""
     seen: int = 1
     """Frames it was updated in."""
     entry: np.ndarray | None = None
@@ -447,8 +449,11 @@ class IdentityTracker:
     ) -> dict[str, RotatedBox] | None:
         """The track's last part boxes seen apart from others, moved to ``frame`` by at
         most ``steps`` frames of its velocity (None: all the way); the shaft is lengthened
-        by what the rest of the constant-velocity motion would add along it."""
-        if t.boxes is None:
+        by what the rest of the constant-velocity motion would add along it. None when
+        there are none, or the track was last seen apart without a shaft for more than
+        :data:`LOST_AFTER_FRAMES` frames in a row (its shaft left the view: they are
+        stale)."""
+        if t.boxes is None or t.shaftless > LOST_AFTER_FRAMES:
             return None
         gap = frame - t.boxes_frame
         move = gap if steps is None else min(gap, steps)
@@ -663,6 +668,8 @@ class IdentityTracker:
             t.size = max(t.size, math.sqrt(t.area))
             t.angle, t.elongation = _appearance(inst)
             # a split piece is no reference shape, nor a blob of two shafts entering
+            if apart:
+                t.shaftless = 0 if "shaft" in inst.parts else t.shaftless + 1
             if apart and "shaft" in inst.parts and len(self._runs_of(inst)) <= 1:
                 t.boxes = reference_boxes(inst, self._runs_of(inst))
                 t.boxes_frame = frame
@@ -697,6 +704,7 @@ class IdentityTracker:
             elongation=elong,
             size=math.sqrt(inst.area_px),
         )
+        t.shaftless = 0 if "shaft" in inst.parts else 1
         if "shaft" in inst.parts:
             t.boxes = reference_boxes(inst, self._runs_of(inst))
             t.boxes_frame = frame
