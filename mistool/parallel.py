@@ -63,6 +63,8 @@ LOCAL_BATCH_FRAMES = 8
 DASK_BATCH_FRAMES = 64
 #: Seconds to wait for a Dask scheduler to answer before giving up.
 DASK_CONNECT_TIMEOUT_S = 10.0
+#: Seconds :meth:`LocalPool.close` waits for the worker processes being started.
+_START_WAIT_S = 30.0
 #: Batches in flight per worker: one running, one queued, so no worker waits on the caller.
 IN_FLIGHT_PER_WORKER = 2
 #: Frames the caller may have identified and not yet turned into rows while the pieces of
@@ -481,7 +483,12 @@ def _unblock_results(results: Any) -> None:
 
 
 class LocalPool:
-    """A pool of ``workers`` local processes (use as a context manager, or call close)."""
+    """A pool of ``workers`` local processes (use as a context manager, or call close).
+
+    The worker processes start at once, in a thread (the first waits for the fork server
+    to start and import the per-frame code: ~0.5 s, longer on a loaded machine); until
+    they are up (:meth:`warming`), :func:`ordered_results` does the first frames' work in
+    the caller instead of waiting."""
 
     def __init__(self, workers: int, batch_frames: int = LOCAL_BATCH_FRAMES) -> None:
         if workers < 1:
@@ -492,6 +499,32 @@ class LocalPool:
         self._executor: ProcessPoolExecutor | None = ProcessPoolExecutor(
             max_workers=workers, mp_context=ctx, initializer=_init_worker
         )
+        self._closing = False
+        self._started = threading.Event()  # every worker process started (or given up)
+        self._up = threading.Event()  # ... and each has answered
+        threading.Thread(target=self._start_workers, name="mistool-pool-start", daemon=True).start()
+
+    def _start_workers(self) -> None:
+        """One trivial task per worker: the executor starts a process for each."""
+        futures = []
+        try:
+            for _ in range(self.workers):
+                ex = self._executor
+                if ex is None or self._closing:
+                    return
+                futures.append(ex.submit(os.getpid))
+            self._started.set()
+            for f in futures:
+                f.result()
+        except Exception:  # noqa: BLE001 - closed or broken meanwhile: the caller sees it
+            return
+        finally:
+            self._started.set()
+            self._up.set()
+
+    def warming(self) -> bool:
+        """Whether the worker processes are still starting."""
+        return not self._up.is_set()
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
         if self._executor is None:
@@ -500,6 +533,8 @@ class LocalPool:
 
     def close(self, *, terminate: bool = False) -> None:
         """Stop the workers (``terminate``: at once, abandoning running tasks)."""
+        self._closing = True
+        self._started.wait(timeout=_START_WAIT_S)  # no process started after the count
         ex, self._executor = self._executor, None
         if ex is None:
             return
@@ -580,7 +615,12 @@ def ordered_results(
     """``(frame name, result)`` in frame order; the work runs in ``pool`` (in this
     process when None) with at most ``IN_FLIGHT_PER_WORKER * pool.workers`` batches
     submitted and not yet consumed. Pending tasks are cancelled when the consumer stops
-    early or an error is raised."""
+    early or an error is raised.
+
+    While the pool's processes are starting (a pool with a ``warming()`` method saying
+    so, e.g. :class:`LocalPool`), the batches are worked on here, as without a pool (the
+    work is pure: the same results); a video span goes to the pool (its frames are
+    decoded where the span is read)."""
     if pool is None:
         for names, batch in work:
             pairs = _pairs(names, batch, observe_batch(batch))
@@ -588,6 +628,17 @@ def ordered_results(
             if len(pairs) < len(names):  # the end of a video
                 return
         return
+    work = iter(work)
+    warming = getattr(pool, "warming", None)
+    while warming is not None and warming():
+        item = next(work, None)
+        if item is None:
+            return
+        if item[1].items and isinstance(item[1].items[0], VideoSpan):
+            work = itertools.chain([item], work)
+            break
+        yield from _pairs(item[0], item[1], observe_batch(item[1]))
+    item = None  # (its frames are not held while the pool works: memory stays bounded)
     limit = max(1, IN_FLIGHT_PER_WORKER * pool.workers)
     pending: collections.deque[tuple[list[str], Batch, ResultFuture]] = collections.deque()
     try:

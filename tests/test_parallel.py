@@ -91,21 +91,68 @@ def _pool_children() -> list[multiprocessing.process.BaseProcess]:
     return list(multiprocessing.active_children())
 
 
+@pytest.mark.parametrize("in_caller", [False, True])
 def test_a_bad_frame_in_a_worker_names_the_frame_and_stops_the_workers(
-    tmp_path: Path,
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, in_caller: bool
 ) -> None:
+    """The same one-line error whether a worker or the caller (while the workers start)
+    decodes the bad frame."""
     img = np.zeros((40, 60), np.uint8)
     img[15:25, 5:40] = 160
     for i in range(40):
         cv2.imwrite(str(tmp_path / f"f{i:03d}.png"), img)
     (tmp_path / "f031.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    monkeypatch.setattr(parallel.LocalPool, "warming", lambda self: in_caller)
     before = set(_pool_children())
     with pytest.raises(MaskFormatError, match=r"f031\.png: cannot decode"):
         track(tmp_path, workers=2)
     assert not set(_pool_children()) - before
 
 
-def test_stopping_early_terminates_the_workers(crossing: Path) -> None:
+def test_while_the_workers_start_the_caller_works_on_the_first_frames(crossing: Path) -> None:
+    """Batches taken while the pool says it is warming are worked on in the caller, the
+    rest in the pool; the table is the same. A real pool stops warming once every
+    worker process has answered."""
+    from concurrent.futures import Future
+
+    class StartingPool:
+        workers = 2
+        batch_frames = 4
+
+        def __init__(self) -> None:
+            self.asked = 0
+            self.batches = 0
+
+        def warming(self) -> bool:
+            self.asked += 1
+            return self.asked <= 3
+
+        def submit(self, fn, *args):  # type: ignore[no-untyped-def]
+            self.batches += fn is parallel.observe_batch
+            fut: Future = Future()
+            fut.set_result(fn(*args))
+            return fut
+
+        def close(self) -> None:
+            pass
+
+    pool = StartingPool()
+    chunks = list(iter_track(crossing, pool=pool))
+    assert pool.batches == 60 // 4 - 3
+    cfg = open_sequence(crossing).config
+    assert_same(refine(TrackTable.concat(chunks), cfg), track(crossing, workers=1))
+    with parallel.LocalPool(2) as real:
+        deadline = time.monotonic() + 120
+        while real.warming() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not real.warming()
+        assert len({real.submit(os.getpid).result() for _ in range(4)} - {os.getpid()}) >= 1
+
+
+def test_stopping_early_terminates_the_workers(
+    crossing: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(parallel.LocalPool, "warming", lambda self: False)  # 2 started
     before = set(_pool_children())
     gen = iter_track(crossing, workers=2, chunk_frames=5)
     next(gen)
