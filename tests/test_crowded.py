@@ -156,3 +156,89 @@ def test_a_tools_shape_is_forgotten_once_its_shaft_has_left_the_view():
     assert expected[1 + LOST_AFTER_FRAMES] is not None  # jaws alone for LOST_AFTER frames
     assert expected[2 + LOST_AFTER_FRAMES] is None  # ... and one more
     assert expected[-1] is not None
+
+
+def test_a_head_reaches_no_farther_than_it_was_seen():
+    """A wide shaft whose short jaws were seen just past its end, and another tool's jaws
+    115 px farther on its axis, on that tool's own axis: those jaws go to their own tool
+    (a head reaches HEAD_SEEN_MARGIN x as far as it was seen, at least a shaft width;
+    not 3.5 shaft widths, 280 px here)."""
+    from mistool.tracking.split import split_pieces
+
+    shaft = _paint([((280, 0, 360, 200), 10), ((0, 310, 300, 340), 10)])
+    jaws = _paint([((305, 200, 335, 240), 30), ((300, 315, 340, 335), 30)])
+    parts = {
+        name: part_observation(name, np.where(m > 0, 255, 0).astype(np.uint8), 0, 0, 20)
+        for name, m in (("shaft", shaft), ("clasper", jaws))
+    }
+    inst = make_instance(None, {k: v for k, v in parts.items() if v is not None}, SHAPE)
+    expected = [
+        {  # A: wide, from the top, jaws 40 px long
+            "shaft": RotatedBox(320.0, 100.0, 200.0, 80.0, 90.0),
+            "clasper": RotatedBox(320.0, 220.0, 40.0, 30.0, 90.0),
+        },
+        {  # B: from the left, its jaws beyond its end (300, 325)
+            "shaft": RotatedBox(150.0, 325.0, 300.0, 30.0, 0.0),
+            "clasper": RotatedBox(320.0, 325.0, 40.0, 20.0, 0.0),
+        },
+    ]
+    pixels = BlobPixels(inst)
+    fit = fit_split(pixels, expected, 20)
+    assert fit is not None
+    a, b = split_pieces(pixels, fit, 20)
+    assert a.parts["clasper"].area_px == 30 * 40  # its own jaws, nothing of B's
+    assert b.parts["clasper"].area_px >= 0.99 * 40 * 20  # (a corner pixel or two to A)
+
+
+def test_a_tool_back_after_being_lost_has_no_old_shape():
+    """A tool unseen for longer than LOST_AFTER_FRAMES that comes back keeps its name,
+    but not its old shape as the expected one for a split (the shaft has moved since;
+    the old box, stretched by its speed over the gap, had reached thousands of px)."""
+    from mistool.tracking import IdentityTracker
+    from mistool.tracking.identity import LOST_AFTER_FRAMES
+
+    tool = [((340, 300, 380, 576), 10), ((345, 260, 375, 300), 30)]
+    tracker = IdentityTracker(MERGED)
+    k = 0
+    for k in range(2):
+        tracker.resolve(k, observe_frame(_paint(tool), MERGED))
+    k += LOST_AFTER_FRAMES + 3  # unseen meanwhile
+    back = [((345, 536, 375, 576), 30)]  # its jaws at the bottom border
+    _, names = tracker.resolve(k, observe_frame(_paint(back), MERGED))
+    (t,) = tracker.tracks
+    assert names == [t.name]
+    assert tracker._expected_boxes(t, k + 1, 5) is None
+    _, names = tracker.resolve(k + 1, observe_frame(_paint(tool), MERGED))
+    assert names == [t.name] and tracker._expected_boxes(t, k + 2, 5) is not None
+
+
+def test_a_shaft_with_no_expected_axis_is_left_out_of_the_fit():
+    """A blob holding two tools with expected shapes and a third whose shape is unknown
+    (back in view after being lost): the third's shaft pixels, far from both fitted
+    axes, are left out of the fit (which they would spoil) and given to it."""
+    from mistool.tracking.split import HeadAnchor, split_with_heads
+
+    shaft = _paint(
+        [
+            ((100, 0, 140, 250), 10),  # A from the top
+            ((0, 400, 300, 440), 10),  # B from the left
+            ((500, 300, 540, 576), 10),  # C from the bottom: no expected shape
+        ]
+    )
+    part = part_observation("shaft", np.where(shaft > 0, 255, 0).astype(np.uint8), 0, 0, 20)
+    assert part is not None
+    inst = make_instance(None, {"shaft": part}, SHAPE)
+    expected = [
+        {"shaft": RotatedBox(120.0, 125.0, 250.0, 40.0, 90.0)},
+        {"shaft": RotatedBox(150.0, 420.0, 300.0, 40.0, 0.0)},
+    ]
+    pixels = BlobPixels(inst)
+    assert fit_split(pixels, expected, 20, min_tracks=1) is None  # C spoils the fit
+    fit = fit_split(pixels, expected, 20, min_tracks=1, keep_d2=9.0)
+    assert fit is not None
+    anchor = HeadAnchor({}, np.array([520.0, 280.0]), 20.0)
+    got = split_with_heads(pixels, fit, 20, [anchor])
+    assert got is not None
+    (a, b), (c,) = got
+    assert a.parts["shaft"].area_px == 40 * 250 and b.parts["shaft"].area_px == 300 * 40
+    assert c is not None and c.parts["shaft"].area_px == 40 * 276

@@ -83,7 +83,12 @@ COVERAGE_CASES["4-e17-occ-s4-150"] = dict(
 #: 4-e17-occ-leave-s3 0.7562 / 0.9798 -> 0.7812 / 0.9899, the others unchanged. Then a
 #: cut-off head within reach of several shafts joins the one whose distal extension it
 #: lies on: 2-e17-occ-leave-s1 0.8763 -> 0.8814, 4-e17-occ-s2 0.9209 -> 0.9254,
-#: 4-e15-mild-occ-s0 0.9097 -> 0.9274, 4-e17-occ-s4-150 0.8686 -> 0.8727.
+#: 4-e15-mild-occ-s0 0.9097 -> 0.9274, 4-e17-occ-s4-150 0.8686 -> 0.8727. Then a split's
+#: heads reach as far as they were seen, a tool back after being lost has no expected
+#: shape, and shaft pixels far from every axis are left out of a split holding such a
+#: tool: 4-e17-occ-leave-s3 0.7812 -> 0.8313 (shaft 0.9899 kept); 4-e15-mild-occ-s0
+#: measured 0.9239 (its last 8 frames, a four-tool pile-up, split differently; within
+#: COVERAGE_TOL, floor kept), the others unchanged.
 FLOORS: dict[str, tuple[float, float]] = {
     "2-e17-cross-s1": (0.9804, 1.0),
     "2-e17-cross-s0": (0.4845, 0.4813),
@@ -91,7 +96,7 @@ FLOORS: dict[str, tuple[float, float]] = {
     "4-e17-occ-s2": (0.9254, 1.0),
     "4-e15-mild-occ-s0": (0.9274, 1.0),
     "4-e17-occ-s4-150": (0.8727, 0.9951),  # before the crowded fixes: 0.7453, 0.9118
-    "4-e17-occ-leave-s3": (0.7812, 0.9899),
+    "4-e17-occ-leave-s3": (0.8313, 0.9899),
 }
 
 #: The metric case: two tools, EndoVis'15 labels, mild corruption, offline smoothing.

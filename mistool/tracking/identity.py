@@ -88,6 +88,10 @@ SPLIT_STOP_FRAMES = 5
 #: of a shaft's pixels to its axis, half-widths; a full rectangle gives 0.58) is above
 #: this.
 SPLIT_GOOD_SCORE = 0.65
+#: Splitting a blob that holds tools with no expected shaft: shaft pixels farther than
+#: this (squared shaft half-widths) from every fitted axis are theirs (left out of the
+#: fit; a lone such tool takes them).
+SPLIT_OTHERS_D2 = 9.0
 #: A track seen for at most this many frames, never with a shaft, found hidden in the
 #: blob of an older track that could not be split, was a piece of it (absorbed).
 FRAGMENT_MAX_SEEN = 3
@@ -509,7 +513,11 @@ class IdentityTracker:
             if any(e is None for e in expected):
                 break
             fit = fit_split(
-                pixels, [e for e in expected if e], min_area, min_tracks=1 if heads else 2
+                pixels,
+                [e for e in expected if e],
+                min_area,
+                min_tracks=1 if heads else 2,
+                keep_d2=SPLIT_OTHERS_D2 if heads else None,
             )
             if fit is not None:
                 fits.append(fit)
@@ -662,8 +670,9 @@ class IdentityTracker:
         else:
             c = np.asarray(inst.centroid_px, dtype=np.float64)
             t.motion.update(c, gap, continuous=t.state is TrackState.TRACKED, first=t.seen == 1)
-            if gap > LOST_AFTER_FRAMES:
+            if gap > LOST_AFTER_FRAMES:  # back after being lost: its old shape is stale
                 t.motion.reset_velocity()
+                t.boxes = None
             t.area = float(inst.area_px)
             t.size = max(t.size, math.sqrt(t.area))
             t.angle, t.elongation = _appearance(inst)

@@ -342,6 +342,19 @@ class _Axes:
     limit_end: np.ndarray  # (K, 2) expected distal ends (the end may pass it by a margin)
     start_dirs: np.ndarray  # (K, 2) the expected directions
     margin: np.ndarray  # (K,) that margin, px
+    head_len: np.ndarray | None = None  # (K,) head lengths, px (None: HEAD_LENGTH_WIDTHS)
+    keep_d2: float | None = None  # points farther (squared half-widths) from every axis:
+    # another tool's (left out of the fit); None: every point is some axis's
+
+    def nearest(self, pts: np.ndarray) -> np.ndarray:
+        """(N,) index of each point's nearest axis; K for a point farther than
+        ``keep_d2`` from all (when set)."""
+        if self.keep_d2 is None:
+            return nearest_axis(pts, self.ends, self.dirs, self.back, self.radius)
+        d2 = segment_d2(pts, self.ends, self.dirs, self.back, self.radius)
+        lab = d2.argmin(1)
+        lab[d2.min(1) > self.keep_d2] = len(self.dirs)
+        return lab
 
     def distance(self, pts: np.ndarray) -> np.ndarray:
         """(N, K) distances of points to the axes, in half-widths."""
@@ -358,15 +371,41 @@ def _initial_axes(
     dirs = np.array([a.direction for a in axes], dtype=np.float64)
     ends0 = np.array([a.end for a in axes], dtype=np.float64)
     margin = np.array([SPLIT_END_MARGIN * e["shaft"].length for e in expected])
+    radius = np.array([max(e["shaft"].width / 2.0, 1.0) for e in expected])
     return _Axes(
         ends=ends0 + margin[:, None] * dirs,
         dirs=dirs,
         back=np.array([a.back for a in axes], dtype=np.float64),
-        radius=np.array([max(e["shaft"].width / 2.0, 1.0) for e in expected]),
+        radius=radius,
         limit_end=ends0,
         start_dirs=dirs.copy(),
         margin=margin,
+        head_len=np.array(
+            [
+                _head_length(e, end, d, r)
+                for e, end, d, r in zip(expected, ends0, dirs, radius, strict=True)
+            ]
+        ),
     )
+
+
+#: A head seen apart reaches at most this factor of its seen length beyond the shaft's
+#: end in a split (its jaws may open, its wrist bend).
+HEAD_SEEN_MARGIN = 1.25
+
+
+def _head_length(e: dict[str, RotatedBox], end: np.ndarray, d: np.ndarray, r: float) -> float:
+    """How far (px) the instrument's head reaches beyond its shaft's distal end along
+    ``d``: the length of its expected head boxes along ``d`` (x
+    :data:`HEAD_SEEN_MARGIN`), between one shaft width and :data:`HEAD_LENGTH_WIDTHS`
+    widths; the latter without head boxes."""
+    longest = 2.0 * HEAD_LENGTH_WIDTHS * r
+    heads = [b for p, b in e.items() if p != "shaft"]
+    if not heads:
+        return longest
+    along = np.concatenate([b.corners() @ d for b in heads])
+    reach = float(along.max() - along.min())  # the head's own length (the shaft may be
+    return min(longest, max(2.0 * r, HEAD_SEEN_MARGIN * reach))  # stretched by motion)
 
 
 def _principal_direction(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -387,7 +426,7 @@ def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous
     keeps too few points."""
     prev: np.ndarray | None = None
     for _ in range(SPLIT_REFIT_ROUNDS):
-        lab = nearest_axis(pts, ax.ends, ax.dirs, ax.back, ax.radius)
+        lab = ax.nearest(pts)
         if prev is not None and np.array_equal(lab, prev):
             break  # the same points give the same axes: converged
         prev = lab
@@ -418,6 +457,8 @@ def _score(ax: _Axes, pts: np.ndarray) -> float | None:
     piece is not shaft-like or two axes are near parallel."""
     d2 = segment_d2(pts, ax.ends, ax.dirs, ax.back, ax.radius)
     lab = d2.argmin(1)
+    if ax.keep_d2 is not None:
+        lab[d2.min(1) > ax.keep_d2] = len(ax.dirs)
     score = 0.0
     k = len(ax.dirs)
     for j in range(k):  # in units of the half-width: a full rectangle gives 0.58
@@ -478,7 +519,7 @@ def head_distance2(p: np.ndarray, ax: _Axes) -> np.ndarray:
     (from its fitted shaft's distal end forward along its axis for
     :data:`HEAD_LENGTH_WIDTHS` shaft widths), in units of its shaft's half-width: a head
     is attached to the end of its own shaft, whatever shafts pass beside it."""
-    length = 2.0 * HEAD_LENGTH_WIDTHS * ax.radius
+    length = 2.0 * HEAD_LENGTH_WIDTHS * ax.radius if ax.head_len is None else ax.head_len
     return segment_d2(p, ax.ends + length[:, None] * ax.dirs, ax.dirs, length, ax.radius)
 
 
@@ -531,7 +572,7 @@ def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
     cy = y0 + np.arange(0, h, s) + 0.5 * (s - 1)
     gx, gy = np.meshgrid(cx, cy)
     centres = np.stack([gx.ravel(), gy.ravel()], 1)
-    coarse = nearest_axis(centres, ax.ends, ax.dirs, ax.back, ax.radius)
+    coarse = ax.nearest(centres)
     coarse = coarse.reshape(len(cy), len(cx)).astype(np.uint8)
     kernel = np.ones((3, 3), np.uint8)
     mixed = cv2.dilate(coarse, kernel) != cv2.erode(coarse, kernel)
@@ -540,7 +581,7 @@ def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
     ys, xs = np.nonzero(near)
     if len(ys):
         p = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
-        owner[ys, xs] = nearest_axis(p, ax.ends, ax.dirs, ax.back, ax.radius)
+        owner[ys, xs] = ax.nearest(p)
     return owner
 
 
@@ -589,6 +630,7 @@ def fit_split(
     axes: list[Axis] | None = None,
     contiguous: bool = False,
     min_tracks: int = 2,
+    keep_d2: float | None = None,
 ) -> SplitFit | None:
     """Fit one shaft axis per instrument to a blob's shaft pixels; None when the split is
     not shaft-like (see :func:`split_instance`).
@@ -603,6 +645,8 @@ def fit_split(
             their ends unknown).
         min_tracks: fewer instruments than this: None (one, when others in the blob
             take only head pixels, :func:`split_with_heads`).
+        keep_d2: shaft pixels farther than this (squared half-widths) from every axis
+            are left out of the fit (another tool's, with no axis here); None: none.
     """
     inst = pixels.inst
     if (
@@ -615,6 +659,7 @@ def fit_split(
     step = max(1, len(pts) // SPLIT_FIT_POINTS)  # the fits need no more points than this
     fit_pts = pts[::step]
     ax = _initial_axes(expected, axes, inst.image_shape)
+    ax.keep_d2 = keep_d2
     if not _refit(ax, fit_pts, step, min_area_px, contiguous):
         return None
     score = _score(ax, fit_pts)
@@ -660,17 +705,19 @@ class HeadAnchor:
 def split_with_heads(
     pixels: BlobPixels, fit: SplitFit, min_area_px: int, anchors: list[HeadAnchor]
 ) -> tuple[list[InstanceObservation], list[InstanceObservation | None]] | None:
-    """:func:`split_pieces`, some head pixels going to ``anchors`` (instruments without a
-    shaft in the blob) when they lie nearer to them: ``(pieces, head pieces)``, one
-    head piece per anchor (None: no part of at least ``min_area_px`` pixels); None when
-    a fitted instrument's piece has no shaft left."""
+    """:func:`split_pieces`, some head pixels going to ``anchors`` (instruments without
+    an expected shaft) when they lie nearer to them, and, with one anchor, the shaft
+    pixels the fit left out (``fit.axes.keep_d2``) to it: ``(pieces, head pieces)``, one
+    per anchor (None: no part of at least ``min_area_px`` pixels); None when a fitted
+    instrument's piece has no shaft left."""
     inst = pixels.inst
     k = len(fit.expected)
     pieces: list[dict[str, PartObservation]] = [{} for _ in range(k + len(anchors))]
     for name, part in inst.parts.items():
         if name == "shaft":  # the large part: whole-crop label image, no pixel lists
             owner_img = _owner_image(part, fit.axes)
-            for j in range(k):
+            # (shaft pixels far from every axis, index k: a lone anchor's shaft)
+            for j in range(k + (len(anchors) == 1)):
                 m = np.where(part.mask & (owner_img == j), np.uint8(255), np.uint8(0))
                 obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
                 if obs is not None:
