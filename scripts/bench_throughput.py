@@ -12,12 +12,15 @@ once into ``--data`` and reused):
   --workers N [--no-metric]`` in-process (``mistool.cli.main``: reading, the per-frame
   work in N processes, identities, refinement and writing the CSV), N = 1 and
   ``--workers`` (default: the CPU cores);
+- with ``--fresh``: the same metric runs, each in a new interpreter
+  (``python -c "from mistool.cli import main; ..."``), as a user's one ``mistool track``
+  command: start-up, imports and the worker processes' start included (the in-process
+  runs above start the fork server once, in their first run);
 - per stage, in one process (``--stages``): decode, instances (Algorithm 1 +
-  grouping), metric pose, identity (``IdentityTracker.resolve``, the crossing split
-  included), split pose (the metric pose of the pieces of split blobs: in the workers
-  when there are workers), rows, refinement (paper motion + metric refinement), CSV
-  writing, in CPU ms per frame; the parent's sequential share is identity + rows +
-  refinement + CSV;
+  grouping), identity (``IdentityTracker.resolve``, the crossing split included),
+  metric pose (of the instances the identity step returns: a blob it splits is never
+  measured), rows, refinement (paper motion + metric refinement), CSV writing, in CPU
+  ms per frame; the parent's sequential share is identity + rows + refinement + CSV;
 - with ``--process-cpu``: every process's CPU per frame (workers from ``/proc``, the
   caller) of ``mistool.track`` on a reused ``LocalPool(N)``, each case;
 - with ``--video``: the crossing case as an mp4v mask video (decoded by the workers):
@@ -145,7 +148,18 @@ def stages(seq: Path, out: Path) -> dict[str, float]:
     return {k: 1e3 * v / len(files) for k, v in t.items()}
 
 
-def bench_case(name: str, seq: Path, tmp: Path, workers: list[int], runs: int) -> dict[str, float]:
+def track_fresh(seq: Path, out: Path, workers: int) -> None:
+    """``mistool track SEQ -o OUT -q --workers N`` in a new interpreter (metric pose)."""
+    import subprocess
+
+    argv = ["track", str(seq), "-o", str(out), "-q", "--workers", str(workers)]
+    code = f"from mistool.cli import main; raise SystemExit(main({argv!r}))"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def bench_case(
+    name: str, seq: Path, tmp: Path, workers: list[int], runs: int, fresh: bool = False
+) -> dict[str, float]:
     """Median seconds of decode and of each track configuration."""
     from mistool.sequence import list_frames
 
@@ -156,6 +170,11 @@ def bench_case(name: str, seq: Path, tmp: Path, workers: list[int], runs: int) -
             key = f"track {'metric' if metric else 'no-metric'} w{w}"
             out = tmp / f"{name}_{w}_{metric}.csv"
             configs[key] = lambda w=w, metric=metric, out=out: track_cli(seq, out, w, metric)
+        if fresh:
+            out = tmp / f"{name}_{w}_fresh.csv"
+            configs[f"track metric w{w}, new process"] = lambda w=w, out=out: track_fresh(
+                seq, out, w
+            )
     times: dict[str, list[float]] = {k: [] for k in configs}
     cpus: dict[str, list[float]] = {k: [] for k in configs}
     for _ in range(runs):
@@ -179,11 +198,12 @@ def print_case(name: str, n: int, med: dict[str, float], load: tuple[float, ...]
         if key == "decode" or key.startswith("cpu "):
             continue
         fps = n / secs
+        cpu = 1e3 * med["cpu " + key] / n
         print(
             f"  {key:44s} {fps:8.1f} frames/s   ratio to decode {fps / dec:5.2f}   "
-            f"CPU of the calling process {1e3 * med['cpu ' + key] / n:5.2f} ms/frame"
+            + ("" if "new process" in key else f"CPU of the calling process {cpu:5.2f} ms/frame")
         )
-    for w in sorted({int(k.rsplit("w", 1)[1]) for k in med if k.startswith("track")}):
+    for w in sorted({int(k.split()[2].strip(",")[1:]) for k in med if k.startswith("track")}):
         on, off = med[f"track metric w{w}"], med[f"track no-metric w{w}"]  # wall-clock
         print(f"  metric / no-metric time, w{w}: {on / off:.2f}")
 
@@ -355,6 +375,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=default_workers(), help="N (cores)")
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
     parser.add_argument("--stages", action="store_true", help="also time each stage")
+    parser.add_argument(
+        "--fresh", action="store_true", help="also each metric run in a new interpreter"
+    )
     parser.add_argument("--dataset-sequences", type=int, default=4)
     parser.add_argument("--dataset-frames", type=int, default=100)
     parser.add_argument("--no-dataset", action="store_true")
@@ -395,7 +418,7 @@ def main(argv: list[str] | None = None) -> int:
         tmp = Path(tmp_s)
         for name in args.cases:
             seq = synth(args.data / f"{name}_{args.frames}", args.frames, CASES[name], seed=3)
-            med = bench_case(name, seq, tmp, workers, args.runs)
+            med = bench_case(name, seq, tmp, workers, args.runs, args.fresh)
             print_case(
                 f"{name} ({CASES[name]} instrument(s), merged labels)",
                 args.frames,

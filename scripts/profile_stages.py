@@ -54,6 +54,7 @@ class StageClock:
 
     def __init__(self) -> None:
         self.total = dict.fromkeys(STAGES, 0.0)
+        self.calls = dict.fromkeys(STAGES, 0)
         self._stack: list[list[Any]] = []  # [stage, start, nested time]
 
     def wrap(self, stage: str, fn: Callable[..., Any], inside: str | None = None) -> Any:
@@ -63,6 +64,7 @@ class StageClock:
         def timed(*args: Any, **kwargs: Any) -> Any:
             if inside is not None and any(s[0] == inside for s in self._stack):
                 return fn(*args, **kwargs)
+            self.calls[stage] += 1
             self._stack.append([stage, time.process_time(), 0.0])
             try:
                 return fn(*args, **kwargs)
@@ -145,6 +147,7 @@ def main() -> int:
         )
     n = len(list_frames(args.seq))
     runs: list[dict[str, float]] = []
+    calls: dict[str, int] = {}
     base: list[float] = []
     prof = cProfile.Profile() if args.cprofile else None
     with tempfile.TemporaryDirectory() as tmp:
@@ -152,12 +155,13 @@ def main() -> int:
             base.append(decode_only(args.seq))
             clock = profiled_run(args.seq, Path(tmp) / "m.csv", prof if k == 0 else None)
             runs.append(clock.total)
+            calls = clock.calls
     med = {s: statistics.median(r[s] for r in runs) for s in STAGES}
     dec = statistics.median(base)
     print(f"\n{args.seq}: {n} frames; median of {args.runs} run(s); CPU ms per frame")
-    print(f"{'stage':<12} {'ms/frame':>9} {'x decode-only':>14}")
+    print(f"{'stage':<12} {'ms/frame':>9} {'x decode-only':>14} {'calls':>7}")
     for s in STAGES:
-        print(f"{s:<12} {1000 * med[s] / n:>9.3f} {med[s] / dec:>14.2f}")
+        print(f"{s:<12} {1000 * med[s] / n:>9.3f} {med[s] / dec:>14.2f} {calls[s]:>7}")
     total = sum(med.values())
     print(f"{'total':<12} {1000 * total / n:>9.3f} {total / dec:>14.2f}")
     print(f"{'cv2.imread':<12} {1000 * dec / n:>9.3f} {'1.00':>14}  (decode-only baseline)")
