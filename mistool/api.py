@@ -125,7 +125,7 @@ def _identify(
     several known instruments (crossing or grasping in merged masks) into its instruments;
     the metric pose is then measured (here, in the caller's process) for the split pieces,
     or for every instance of a frame whose pose was deferred (``result.deferred``)."""
-    instances, names = tracker.resolve(index, result.instances)
+    instances, names = tracker.resolve(index, result.instances, result.runs)
     if instances is result.instances and not result.deferred:
         return list(names), result
     metrics = [parallel.measure(inst, result.shape, config, metric) for inst in instances]
@@ -234,7 +234,7 @@ def identified(
     try:
         for index, (name, result) in results:
             seq.check_shape(name, result.shape)
-            instances, names = tracker.resolve(index, result.instances)
+            instances, names = tracker.resolve(index, result.instances, result.runs)
             if recent is not None:
                 recent.add(len(names))
             item = _Pending(index, list(names), result)

@@ -55,6 +55,7 @@ from mistool.sequence import (
     read_label_image,
 )
 from mistool.tracking.instances import foreground_bounds
+from mistool.tracking.split import border_runs
 
 #: Frames per task sent to a local worker process: enough to amortise the inter-process
 #: round trip (~0.2 ms) against a frame's work (~2-6 ms).
@@ -101,6 +102,10 @@ class FrameResult:
     corrupt: bool = False
     """A mask video frame decoded in a worker that looks like decoded garbage
     (:data:`mistool.sequence.GARBAGE_FRACTION`)."""
+    runs: list[list[tuple[np.ndarray, int]]] | None = None
+    """Per instance, :func:`mistool.tracking.split.border_runs` (where its shaft enters
+    the view), computed here for the caller's identity step (None when that step does
+    not need them: every instance labelled)."""
     deferred: bool = False
     """The metric pose was left to the caller (``metrics`` is empty): it measures the
     instances the identity step keeps (:func:`measure_frames`), so the pose of a blob
@@ -190,10 +195,12 @@ def observe_labels(
     instances = tracking.observe_frame(labels, config, bounds=bounds)
     shape = (int(labels.shape[0]), int(labels.shape[1]))
     unknown = unknown_values(labels, config, lossy, bounds)
+    # the identity step's border runs, here rather than in the (sequential) caller
+    runs = [border_runs(i) for i in instances] if any(i.label is None for i in instances) else None
     if metric and config.camera is not None and 0 < len(instances) < defer_below:
-        return FrameResult(instances, [], unknown, shape, deferred=True)
+        return FrameResult(instances, [], unknown, shape, runs=runs, deferred=True)
     metrics = [measure(inst, shape, config, metric) for inst in instances]
-    return FrameResult(instances, metrics, unknown, shape)
+    return FrameResult(instances, metrics, unknown, shape, runs=runs)
 
 
 @dataclass(frozen=True)

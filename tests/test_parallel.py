@@ -17,7 +17,7 @@ import pytest
 
 from mistool import parallel
 from mistool.api import iter_track, refine, run, track
-from mistool.config import Config
+from mistool.config import Config, InstrumentSpec
 from mistool.errors import MaskFormatError
 from mistool.model import TrackTable
 from mistool.sequence import open_sequence
@@ -300,6 +300,38 @@ def test_a_blob_of_crossing_tools_has_its_pose_measured_after_the_identity_step(
     assert below.deferred and below.metrics == [] and below.shape == shape
     assert not parallel.observe_labels(img, cfg, False, defer_below=2).deferred
     assert_same(refine(TrackTable.concat(chunks), cfg), track(crossing, workers=1))
+
+
+def test_the_workers_compute_the_identity_steps_border_runs(crossing: Path) -> None:
+    """Each instance's shaft border runs come with the frame's result (computed in the
+    worker, not in the sequential caller); the identity step given them returns what it
+    returns computing them itself, frame after frame."""
+    from mistool import tracking
+    from mistool.tracking.split import border_runs
+
+    seq = open_sequence(crossing)
+    cfg = seq.config
+    given, itself = tracking.IdentityTracker(cfg), tracking.IdentityTracker(cfg)
+    entering = 0
+    for i, _, labels in seq:
+        result = parallel.observe_labels(labels, cfg, False)
+        assert (result.runs is None) == (not result.instances)  # (no instance: none)
+        for inst, runs in zip(result.instances, result.runs or [], strict=True):
+            want = border_runs(inst)
+            assert len(runs) == len(want)
+            for (ends, n), (ends2, n2) in zip(runs, want, strict=True):
+                assert n == n2 and np.array_equal(ends, ends2)
+            entering += len(runs)
+        a, names_a = given.resolve(i, result.instances, result.runs)
+        b, names_b = itself.resolve(i, result.instances)
+        assert names_a == names_b and len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            assert x.parts.keys() == y.parts.keys() and x.bbox_xywh == y.bbox_xywh
+    assert entering >= 1  # the fixture's tools enter the view
+    labelled = Config(instruments=(InstrumentSpec("a", {"shaft": (10, 10)}),))
+    img = np.zeros((40, 60), np.uint8)
+    img[15:25, 5:40] = 10
+    assert parallel.observe_labels(img, labelled, False).runs is None
 
 
 def test_a_script_without_a_main_guard_is_not_run_again_by_the_workers(

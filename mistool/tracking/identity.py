@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -364,7 +365,10 @@ class IdentityTracker:
         return self._step(frame_index, instances, split=False)[1]
 
     def resolve(
-        self, frame_index: int, instances: list[InstanceObservation]
+        self,
+        frame_index: int,
+        instances: list[InstanceObservation],
+        runs: Sequence[list[tuple[np.ndarray, int]]] | None = None,
     ) -> tuple[list[InstanceObservation], list[str]]:
         """Like :meth:`assign`, but an instance holding several known instruments (two
         crossing or grasping each other in merged masks) is split between them.
@@ -377,6 +381,9 @@ class IdentityTracker:
         Args:
             frame_index: the frame's 0-based index; increasing between calls.
             instances: :func:`~mistool.tracking.observe_frame`'s result for that frame.
+            runs: optionally, :func:`~mistool.tracking.split.border_runs` of each
+                instance, computed elsewhere (a worker process): the same result, less
+                work here.
 
         Returns:
             ``(instances, names)``: the instances (split ones replaced by their pieces,
@@ -384,11 +391,16 @@ class IdentityTracker:
             nothing was split, ``instances`` is the very list passed in (so a caller can
             test ``is`` and redo per-instance work only for split frames).
         """
-        return self._step(frame_index, instances, split=True)
+        return self._step(frame_index, instances, split=True, runs=runs)
 
     # the pipeline ---------------------------------------------------------------------
     def _step(
-        self, frame_index: int, instances: list[InstanceObservation], *, split: bool
+        self,
+        frame_index: int,
+        instances: list[InstanceObservation],
+        *,
+        split: bool,
+        runs: Sequence[list[tuple[np.ndarray, int]]] | None = None,
     ) -> tuple[list[InstanceObservation], list[str]]:
         if self._config.instruments and all(i.label is not None for i in instances):
             return instances, [str(i.label) for i in instances]
@@ -399,6 +411,8 @@ class IdentityTracker:
             )
         self._last_frame = frame_index
         self._runs = {}
+        if runs is not None:  # border runs computed elsewhere: the same, cached
+            self._runs = {id(i): (i, r) for i, r in zip(instances, runs, strict=True)}
         fr = _Frame(frame_index, instances, self._predict_live(frame_index))
         self._match(fr)
         self._find_hidden(fr)
