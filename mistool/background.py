@@ -18,6 +18,7 @@ import contextlib
 import itertools
 import math
 import multiprocessing
+import os
 import signal
 import threading
 import time
@@ -252,6 +253,7 @@ def track_into(
     spec: JobSpec,
     stop: Any = None,
     on_open: Callable[[CacheEntry, Progress], None] | None = None,
+    on_shown: Callable[[], None] | None = None,
 ) -> Progress:
     """Track ``spec.sequence`` into ``spec.entry`` (found by :func:`locate` when None),
     resuming after its last stored chunk (when the tracker's state is stored with it;
@@ -263,6 +265,8 @@ def track_into(
         on_open: called once the entry is ready, before any tracking, with the entry and
             what it holds (the frame tracking resumes at: ``done``; ``complete``: nothing
             to do).
+        on_shown: called once the first chunk with a frame the viewer draws is stored
+            (the child lowers its priority then: :data:`CHILD_NICE`).
 
     Returns:
         The entry's progress at the end.
@@ -281,7 +285,8 @@ def track_into(
         if on_open is not None:
             on_open(entry, progress)
         if not progress.complete:
-            _track_chunks(spec, seq, start, tracker, stop, stat_of if start == 0 else None)
+            stats = stat_of if start == 0 else None
+            _track_chunks(spec, seq, start, tracker, stop, stats, on_shown)
     except MistoolError as exc:
         if entry is not None:
             entry.fail(str(exc))
@@ -296,6 +301,7 @@ def _track_chunks(
     tracker: Any,
     stop: Any,
     stat_of: Sequence[Any] | None,
+    on_shown: Callable[[], None] | None = None,
 ) -> None:
     """Track ``seq`` from frame ``start`` chunk by chunk into ``spec.entry``; refine and
     store the finished table after the last frame (unless ``stop`` is set before).
@@ -346,6 +352,9 @@ def _track_chunks(
                 break
             table = _paper(_displayed(rows.take(), cfg, measured), context, cfg)
             entry.add_chunk(start, end, table, tracker)
+            if stored_one and on_shown is not None:
+                on_shown()
+                on_shown = None
             if done_digest is not None:  # stored with the rows it covers
                 entry.set_frames_digest(done_digest)
                 done_digest = digest = None
@@ -364,6 +373,18 @@ def _track_chunks(
 #: Messages the tracking process sends its parent (the first one only): the entry found
 #: and what it held, or the one-line error that stopped it before.
 OPENED, FAILED = "opened", "failed"
+
+
+#: Niceness the tracking process adds to its own once its first picture is stored: the
+#: server and the browser (on 2 cores, chromium loading the page with software WebGL
+#: wants more than one) go first, the tracking takes what they leave.
+CHILD_NICE = 10
+
+
+def _yield_to_the_viewer() -> None:
+    """Lower this process's priority by :data:`CHILD_NICE` (where the OS allows)."""
+    with contextlib.suppress(OSError, AttributeError):
+        os.nice(CHILD_NICE)
 
 
 def _child(spec: JobSpec, conn: Any) -> None:
@@ -388,7 +409,7 @@ def _child(spec: JobSpec, conn: Any) -> None:
         said = True
 
     try:
-        track_into(spec, on_open=opened)
+        track_into(spec, on_open=opened, on_shown=_yield_to_the_viewer)
     except MistoolError as exc:
         if not said:
             with contextlib.suppress(OSError, ValueError):
