@@ -412,13 +412,23 @@ def test_exported_html_replays_offline(browser, sequence, tmp_path: Path) -> Non
             remote.append(r.url) if r.url.split(":", 1)[0] not in ("file", "data", "blob") else None
         ),
     )
+    # The page's frame counter follows the player's time. The recording is loaded and
+    # decoded after the canvas appears (seconds on a loaded machine: a fixed wait once
+    # took both pictures before it played), so the pictures wait for the counter.
+    frame_at_least = "n => +(document.getElementById('mistool-counter').dataset.frame || -1) >= n"
+    clip = {"x": 0, "y": 160, "width": 1000, "height": 480}
     try:
         page.goto(out.as_uri())
         page.wait_for_selector("canvas[data-engine]", timeout=20000)
-        time.sleep(1.5)
-        shots = [_shot(page, {"x": 0, "y": 160, "width": 1000, "height": 480})]
-        time.sleep(0.6)
-        shots.append(_shot(page, {"x": 0, "y": 160, "width": 1000, "height": 480}))
+        page.wait_for_function(frame_at_least, arg=12, timeout=60000)  # tools in view
+        shots = [_shot(page, clip)]
+        page.wait_for_function(
+            "n => { const f = +document.getElementById('mistool-counter').dataset.frame;"
+            " return f >= n || f < 5; }",
+            arg=int(page.get_attribute("#mistool-counter", "data-frame") or 0) + 6,
+            timeout=60000,
+        )
+        shots.append(_shot(page, clip))
         assert shots[0].std() > 10.0
         assert np.abs(shots[1].astype(int) - shots[0].astype(int)).mean() > 0.2, (
             "the recording does not play"
