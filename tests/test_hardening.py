@@ -846,3 +846,26 @@ def test_a_real_browser_gets_in_with_the_token_and_not_without(tmp_path: Path) -
                 browser.close()
     finally:
         viewer.close()
+
+
+def test_ctrl_c_inside_a_c_extensions_import_is_an_interruption() -> None:
+    """A Ctrl+C landing while a pybind11 module initialises (scipy's, imported at a run's
+    first assignment of several tracks) surfaces as "ImportError: initialization failed";
+    it was reported as an internal error with exit 1 (a fresh-clone CI run of
+    test_ctrl_c_on_the_command_line_stops_every_worker). Any error after a Ctrl+C is
+    the interruption: one line, exit 130."""
+    code = (
+        "import os, signal, sys, time\n"
+        "import mistool.cli.synth as synth\n"
+        "def run(args):\n"
+        "    try:\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"
+        "        time.sleep(5)\n"
+        "    except KeyboardInterrupt:\n"
+        "        raise ImportError('initialization failed') from None\n"
+        "synth.run = run\n"
+        "from mistool.cli import main\n"
+        "sys.exit(main(['synth', 'x']))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 130 and out.stderr == "mistool: interrupted\n", out.stderr

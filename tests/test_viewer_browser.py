@@ -425,7 +425,7 @@ def test_exported_html_replays_offline(browser, sequence, tmp_path: Path) -> Non
         page.wait_for_function(
             "n => { const f = +document.getElementById('mistool-counter').dataset.frame;"
             " return f >= n || f < 5; }",
-            arg=int(page.get_attribute("#mistool-counter", "data-frame") or 0) + 6,
+            arg=int(page.get_attribute("#mistool-counter", "data-frame") or 0) + 12,
             timeout=60000,
         )
         shots.append(_shot(page, clip))

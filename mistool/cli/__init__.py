@@ -23,6 +23,7 @@ import errno
 import os
 import re
 import select
+import signal
 import sys
 import threading
 import traceback
@@ -100,7 +101,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
-    with one_line_warnings(), contextlib.nullcontext() if debug else quiet_native_stderr():
+    interrupted = threading.Event()
+    with (
+        one_line_warnings(),
+        contextlib.nullcontext() if debug else quiet_native_stderr(),
+        _noting_ctrl_c(interrupted),
+    ):
         try:
             return int(args.func(args) or 0)
         except KeyboardInterrupt:
@@ -109,7 +115,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         except BaseException as exc:  # noqa: BLE001 - the one place errors become one line
             if isinstance(exc, SystemExit):
                 raise
+            if interrupted.is_set() and not debug:
+                # A Ctrl+C inside a C extension's import (e.g. scipy's, at a run's first
+                # assignment) surfaces as that module's "ImportError: initialization
+                # failed", not as KeyboardInterrupt: still the user's interruption.
+                print("mistool: interrupted", file=sys.stderr)
+                return 130
             return report_error(exc, debug)
+
+
+@contextlib.contextmanager
+def _noting_ctrl_c(interrupted: threading.Event) -> Iterator[None]:
+    """Set ``interrupted`` when a Ctrl+C (SIGINT) arrives, then raise KeyboardInterrupt as
+    Python's own handler does (in the main thread, when that handler is Python's)."""
+    main_thread = threading.current_thread() is threading.main_thread()
+    if not main_thread or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        interrupted.set()
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _debug_requested(args: list[str]) -> tuple[bool, list[str]]:
