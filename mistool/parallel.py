@@ -489,6 +489,43 @@ def _unblock_results(results: Any) -> None:
             writer.close()
 
 
+def _is_cancelled_future_race(args: Any) -> bool:
+    """Whether an uncaught thread exception is Python's process pool marking an already
+    cancelled future failed: its manager thread (``_ExecutorManagerThread``), finding the
+    pool broken by the workers we terminated, calls ``set_exception`` on every pending
+    future, and one cancelled meanwhile (the consumer stopping at a Ctrl+C) raises
+    ``InvalidStateError`` (Python 3.11). Nothing is lost: the run is being stopped."""
+    from concurrent.futures import InvalidStateError
+
+    if args.exc_type is not InvalidStateError or type(args.thread).__name__ != (
+        "_ExecutorManagerThread"
+    ):
+        return False
+    tb = args.exc_traceback
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is not None and tb.tb_frame.f_code.co_name in ("set_exception", "set_result")
+
+
+_previous_excepthook: Any = None
+
+
+def _quiet_cancelled_future_race() -> None:
+    """Install (once) a ``threading.excepthook`` that drops :func:`_is_cancelled_future_race`
+    (its traceback was printed under "mistool: interrupted", or after stderr was closed:
+    "lost sys.stderr") and passes everything else to the hook it replaces."""
+    global _previous_excepthook
+    if _previous_excepthook is not None:
+        return
+    _previous_excepthook = threading.excepthook
+
+    def hook(args: Any) -> None:
+        if not _is_cancelled_future_race(args):
+            _previous_excepthook(args)
+
+    threading.excepthook = hook
+
+
 class LocalPool:
     """A pool of ``workers`` local processes (use as a context manager, or call close).
 
@@ -557,6 +594,7 @@ class LocalPool:
         results = getattr(ex, "_result_queue", None)  # shutdown() forgets it
         ex.shutdown(wait=not terminate, cancel_futures=True)
         if terminate:
+            _quiet_cancelled_future_race()
             for p in procs:
                 if p.is_alive():
                     p.terminate()

@@ -9,6 +9,7 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -611,3 +612,40 @@ def test_the_fork_server_and_workers_start_with_ctrl_c_blocked() -> None:
         parents = {int(Path(f"/proc/{p}/stat").read_text().split()[3]) for p in pids}
         assert pids and all(blocked(p) for p in pids | parents)
     assert not blocked(os.getpid())
+
+
+def test_the_pools_cancelled_future_race_is_not_printed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Ctrl+C'd run: the pool's manager thread, finding the terminated workers, marked
+    every pending future failed, and one the consumer had just cancelled raised
+    InvalidStateError; its traceback was printed under "mistool: interrupted" (a fresh-
+    clone CI run of test_ctrl_c_on_the_command_line_stops_every_worker). Once a pool is
+    terminated that error is dropped, and only that one."""
+    from concurrent.futures import Future, InvalidStateError
+
+    class _ExecutorManagerThread:  # the name of Python's manager thread class
+        pass
+
+    def raised(exc_type: type[BaseException], fn: Callable[[], object]) -> object:
+        try:
+            fn()
+        except exc_type as exc:
+            return threading.ExceptHookArgs(
+                [exc_type, exc, exc.__traceback__, _ExecutorManagerThread()]
+            )
+        raise AssertionError("did not raise")
+
+    cancelled: Future[int] = Future()
+    cancelled.cancel()
+    race = raised(InvalidStateError, lambda: cancelled.set_exception(RuntimeError("broken")))
+    other = raised(ValueError, lambda: int("x"))
+    seen: list[type] = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: seen.append(args.exc_type))
+    monkeypatch.setattr(parallel, "_previous_excepthook", None)
+    threading.excepthook(race)
+    assert seen == [InvalidStateError]  # printed before a pool is terminated
+    with parallel.LocalPool(1) as pool:
+        pool.submit(abs, -1).result(timeout=60)
+        pool.close(terminate=True)
+    threading.excepthook(race)
+    threading.excepthook(other)
+    assert seen == [InvalidStateError, ValueError]
