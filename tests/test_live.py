@@ -557,7 +557,7 @@ def test_a_deferred_source_folder_is_listed_after_the_server_is_up(
     frames.close()
 
     listed_by: list[str] = []
-    real = overlay_module._image_names
+    real = overlay_module.source_frame_names
 
     def listing(folder: Path) -> list[str]:
         listed_by.append(threading.current_thread().name)
@@ -569,16 +569,13 @@ def test_a_deferred_source_folder_is_listed_after_the_server_is_up(
         listed_by.append("fitted")
         real_fit(self, busy)
 
-    real_iterdir = Path.iterdir
+    def counting(folder: Path) -> list[str]:  # the source's check, counting its frames
+        listed_by.append(f"counted {threading.current_thread().name}")
+        return real(folder)
 
-    def iterdir(self: Path):  # type: ignore[no-untyped-def]
-        if self == src:  # the source's check counts its frames only when asked
-            listed_by.append(f"iterdir {threading.current_thread().name}")
-        return real_iterdir(self)
-
-    monkeypatch.setattr(overlay_module, "_image_names", listing)
+    monkeypatch.setattr(overlay_module, "source_frame_names", listing)
     monkeypatch.setattr(ReplayViewer, "_fit", fit)
-    monkeypatch.setattr(Path, "iterdir", iterdir)
+    monkeypatch.setattr("mistool.sequence.source_frame_names", counting)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     loaded = load_sequence(here, background=True)
     assert listed_by == [] and not loaded.frames.listed

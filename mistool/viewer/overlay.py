@@ -25,8 +25,8 @@ from mistool.sequence import (
     VIDEO_EXTENSIONS,
     is_frame_file,
     list_frames,
-    natural_key,
     read_label_image,
+    source_frame_names,
 )
 from mistool.viewer.replay import PALETTE, Replay
 
@@ -196,15 +196,6 @@ def find_frame_file(folder: Path) -> Path | None:
     return None
 
 
-def _image_names(folder: Path) -> list[str]:
-    """The image files of a source folder, in frame order (names: 100,000 ``Path``
-    objects would cost a second)."""
-    with os.scandir(folder) as entries:
-        names = [e.name for e in entries if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS]
-    names.sort(key=natural_key)
-    return names
-
-
 class FrameStore:
     """Lazy, random-access frames of a sequence: label images and source video frames.
 
@@ -274,7 +265,7 @@ class FrameStore:
                 if defer_listing:
                     self._source_listed = False  # by list_source(), once the server is up
                 else:
-                    self._source_names = _image_names(src)
+                    self._source_names = source_frame_names(src)
             else:
                 self._source_video = _VideoReader(src)
 
@@ -285,7 +276,7 @@ class FrameStore:
         if self._source_listed or self._source_dir is None:
             return
         try:
-            names = _image_names(self._source_dir)
+            names = source_frame_names(self._source_dir)
         except OSError:  # gone or unreadable since the start: shown without it
             names = []
         with self._lock:
