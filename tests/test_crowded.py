@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -104,6 +105,26 @@ def test_a_cut_off_head_joins_the_shaft_it_continues_not_the_nearest():
     a = next(i for i in insts if i is not b)
     assert b.parts["clasper"].box.cy == pytest.approx(240.0, abs=1.0)
     assert a.parts["clasper"].area_px == 20 * 20
+
+
+def test_a_cut_off_head_joins_the_shaft_it_continues_beside_a_crossing_blob():
+    """Jaws cut off 50 px beyond their shaft's end lie 25 px from a blob of two crossing
+    shafts (whose box says nothing of either axis): they join the one straight shaft
+    whose distal extension they lie on, not the nearer blob."""
+    img = _paint(
+        [
+            ((420, 280, 720, 320), 10),  # A: shaft from the right border
+            ((330, 290, 370, 310), 30),  # A's jaws, cut off
+        ]
+    )
+    cv2.line(img, (40, 575), (300, 345), 10, 40)  # B and C cross: one blob
+    cv2.line(img, (40, 345), (300, 575), 10, 40)
+    insts = observe_frame(img, MERGED)
+    assert len(insts) == 2
+    a = next(i for i in insts if i.parts["shaft"].box.cx > 400)
+    blob = next(i for i in insts if i is not a)
+    assert "clasper" not in blob.parts
+    assert a.parts["clasper"].box.cx == pytest.approx(350.0, abs=1.0)
 
 
 def test_a_tool_entering_head_first_keeps_its_name_in_anothers_blob():

@@ -343,12 +343,18 @@ def _merged(
 
     def on_axis(piece: list[int], targets: list[list[int]]) -> int | None:
         """The target on whose shaft's distal extension the piece lies (index), among
-        targets whose shaft is one straight shaft."""
-        insts = [instance_of(g) for g in [piece, *targets]]
-        if any(inst is None or not _one_shaft(inst) for inst in insts[1:]) or not insts[0]:
+        targets whose shaft is one straight shaft (a blob of crossing shafts is left
+        out: its box says nothing of either axis)."""
+        head = instance_of(piece)
+        if head is None:
             return None
-        host = _head_host(insts[0], [i for i in insts if i is not None], 0, shape)
-        return None if host is None else host - 1
+        ones: list[tuple[int, InstanceObservation]] = []
+        for k, g in enumerate(targets):
+            inst = instance_of(g)
+            if inst is not None and _one_shaft(inst):
+                ones.append((k, inst))
+        host = _head_host(head, [head] + [inst for _, inst in ones], 0, shape) if ones else None
+        return None if host is None else ones[host - 1][0]
 
     groups = group_components(
         counts, shaft_counts, stats, max(min_area, 1), cc, border, prefer=on_axis
