@@ -230,6 +230,35 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer, tmp_pat
         page.close()
 
 
+def test_the_overview_is_beside_the_panel_and_shows_every_instrument(
+    browser, viewer: ReplayViewer
+) -> None:
+    """The GUI panel is docked beside the 3D view, not floating over it: the Reset view of
+    a busy frame shows every instrument's shaft on the canvas, none of it under the panel
+    (with a floating panel the fitted view put the tools under it)."""
+    replay = viewer.replay
+    busy = _busy_frames(replay)
+    frame = int(busy[len(busy) // 2])
+    page = _open(browser, viewer.url)
+    try:
+        viewer.timeline.seek(frame)
+        assert viewer.timeline.wait_shown(frame)
+        page.get_by_role("button", name="Reset").click()
+        time.sleep(1.0)
+        canvas = page.locator("canvas").first.bounding_box()
+        play = page.get_by_role("button", name="Play").bounding_box()
+        assert canvas is not None and play is not None
+        assert canvas["x"] + canvas["width"] <= play["x"], (canvas, play)
+        assert canvas["width"] > 0.5 * VIEWPORT["width"], canvas
+        clip = {k: round(canvas[k]) for k in ("x", "y", "width", "height")}
+        shot = _shot(page, clip)
+        for i, name in enumerate(replay.instruments):
+            assert _hue_pixels(shot, replay.part_colour(i, "shaft")) > 100, name
+        assert not page.errors, page.errors  # type: ignore[attr-defined]
+    finally:
+        page.close()
+
+
 def _shaft_pixels(img: np.ndarray, rgb: tuple[int, int, int]) -> np.ndarray:
     """Boolean map of pixels with the hue of a shaft colour ``rgb`` and its strong
     saturation (lit or shaded cylinder, or the overlay's blend on the dark background;
@@ -265,12 +294,17 @@ def test_endoscope_view_lines_up_with_the_mask(browser, viewer: ReplayViewer) ->
         viewer.timeline.seek(frame)
         assert viewer.timeline.wait_shown(frame) and viewer.wait_overlay(frame)
         page.get_by_role("button", name="Endoscope").click()
-        page.get_by_label("Minimize panel").click()  # the panel would hide the view
+        page.get_by_label("Collapse panel area").click()  # the docked panel narrows the view
         assert _wait(lambda: len(viewer._endoscope) == 1)
         client = next(c for c, _ in viewer._endoscope.values())
         for size in ({"width": 620, "height": 900}, {"width": 1280, "height": 640}):
             page.set_viewport_size(size)
-            w, h = size["width"], size["height"]
+            time.sleep(0.3)
+            box = page.locator("canvas").first.bounding_box()  # beside the collapsed panel
+            assert box is not None
+            clip = {k: round(box[k]) for k in ("x", "y", "width", "height")}
+            w, h = clip["width"], clip["height"]
+            assert w > 0.9 * size["width"], (box, size)
             assert _wait(
                 lambda wh=(w, h): (client.camera.image_width, client.camera.image_height) == wh
             )
@@ -278,14 +312,14 @@ def test_endoscope_view_lines_up_with_the_mask(browser, viewer: ReplayViewer) ->
             for nodes in viewer.scene.parts.values():
                 nodes.hide()
             time.sleep(1.0)
-            backdrop = _shot(page, {"x": 0, "y": 0, **size})
+            backdrop = _shot(page, clip)
             client.scene.set_background_image(None)
             viewer.scene.show(frame)
             time.sleep(1.0)
-            cylinders = _shot(page, {"x": 0, "y": 0, **size})
+            cylinders = _shot(page, clip)
             assert (cylinders.min(axis=2) > 250).mean() > 0.5  # background gone
             # Within the image (the padding is black; cylinders run on over it), below
-            # the minimised panel.
+            # the collapsed panel's handle.
             keep = (
                 cv2.erode((backdrop.max(axis=2) > 10).astype(np.uint8), np.ones((7, 7), np.uint8))
                 > 0

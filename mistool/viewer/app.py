@@ -444,6 +444,7 @@ class ReplayViewer:
     def _build(self, environment_map: bool, trail_frames: int, opacity: float) -> None:
         server, replay, sequence = self.server, self.replay, self.sequence
         server.gui.configure_theme(control_width="large", show_logo=False, titlebar_content=None)
+        server.gui.main_panel.dock_right()
         if not environment_map:
             server.scene.configure_environment_map(None)
         # Shadow maps cost extra render passes and shader variants in software WebGL.
