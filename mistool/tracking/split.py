@@ -351,9 +351,9 @@ class _Axes:
         ``keep_d2`` from all (when set)."""
         if self.keep_d2 is None:
             return nearest_axis(pts, self.ends, self.dirs, self.back, self.radius)
-        d2 = segment_d2(pts, self.ends, self.dirs, self.back, self.radius)
-        lab = d2.argmin(1)
-        lab[d2.min(1) > self.keep_d2] = len(self.dirs)
+        d2 = segment_d2_rows(pts, self.ends, self.dirs, self.back, self.radius)
+        lab = argmin_rows(d2)
+        lab[np.minimum.reduce(d2) > self.keep_d2] = len(self.dirs)
         return lab
 
     def distance(self, pts: np.ndarray) -> np.ndarray:
@@ -455,14 +455,14 @@ def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous
 def _score(ax: _Axes, pts: np.ndarray) -> float | None:
     """The worst RMS distance of an axis's points to it (half-widths), or None when a
     piece is not shaft-like or two axes are near parallel."""
-    d2 = segment_d2(pts, ax.ends, ax.dirs, ax.back, ax.radius)
-    lab = d2.argmin(1)
+    d2 = segment_d2_rows(pts, ax.ends, ax.dirs, ax.back, ax.radius)
+    lab = argmin_rows(d2)
     if ax.keep_d2 is not None:
-        lab[d2.min(1) > ax.keep_d2] = len(ax.dirs)
+        lab[np.minimum.reduce(d2) > ax.keep_d2] = len(ax.dirs)
     score = 0.0
     k = len(ax.dirs)
     for j in range(k):  # in units of the half-width: a full rectangle gives 0.58
-        rms = math.sqrt(float(d2[lab == j, j].mean()))
+        rms = math.sqrt(float(d2[j][lab == j].mean()))
         if rms > 2.0 * SPLIT_MAX_SPREAD + 0.5 / ax.radius[j]:
             return None
         score = max(score, rms)
@@ -490,11 +490,11 @@ def _side_by_side(ax: _Axes, i: int, j: int) -> bool:
 def _part_distance(
     name: str, p: np.ndarray, ax: _Axes, expected: list[dict[str, RotatedBox]]
 ) -> np.ndarray:
-    """(N, K) squared distances (in half-widths) of a head part's pixels to each
+    """(K, N) squared distances (in half-widths) of a head part's pixels to each
     instrument: to its head segment (:func:`head_distance2`), or, when it is nearer,
     to its expected box of that part moved with the shaft's distal end (its last shape
     seen apart: a bent wrist, open jaws)."""
-    out = head_distance2(p, ax)
+    out = _head_d2_rows(p, ax)
     idx = [k for k, e in enumerate(expected) if name in e]
     if not idx:
         return out
@@ -504,8 +504,8 @@ def _part_distance(
     h = np.array([0.5 * b.length for b in boxes])
     c = np.array([[b.cx, b.cy] for b in boxes]) + shift
     r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
-    box = segment_d2(p, c + h[:, None] * u, u, 2 * h, r)
-    out[:, idx] = np.minimum(out[:, idx], box)
+    box = segment_d2_rows(p, c + h[:, None] * u, u, 2 * h, r)
+    out[idx] = np.minimum(out[idx], box)
     return out
 
 
@@ -519,29 +519,58 @@ def head_distance2(p: np.ndarray, ax: _Axes) -> np.ndarray:
     (from its fitted shaft's distal end forward along its axis for
     :data:`HEAD_LENGTH_WIDTHS` shaft widths), in units of its shaft's half-width: a head
     is attached to the end of its own shaft, whatever shafts pass beside it."""
+    return _head_d2_rows(p, ax).T
+
+
+def _head_d2_rows(p: np.ndarray, ax: _Axes) -> np.ndarray:
+    """:func:`head_distance2` as (K, N) rows."""
     length = 2.0 * HEAD_LENGTH_WIDTHS * ax.radius if ax.head_len is None else ax.head_len
-    return segment_d2(p, ax.ends + length[:, None] * ax.dirs, ax.dirs, length, ax.radius)
+    return segment_d2_rows(p, ax.ends + length[:, None] * ax.dirs, ax.dirs, length, ax.radius)
 
 
 def segment_d2(
     p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
 ) -> np.ndarray:
     """(N, K) squared distances of points (N, 2) to K segments in units of each radius
-    (the square of :func:`_segment_distance`), cheaply: the coordinates along and across
-    every segment are one (N, 2) x (2, 2K) product; no (N, K, 2) temporaries, no roots."""
+    (the square of :func:`_segment_distance`): the transpose of :func:`segment_d2_rows`
+    (a view; each segment's column is contiguous)."""
+    return segment_d2_rows(p, ends, dirs, back, radius).T
+
+
+def segment_d2_rows(
+    p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
+) -> np.ndarray:
+    """(K, N) squared distances of points (N, 2) to K segments in units of each radius,
+    one contiguous row per segment, cheaply: the coordinates along and across every
+    segment are one (2K, 2) x (2, N) product; no (N, K, 2) temporaries, no roots, and
+    no elementwise work on (N, K) arrays (whose rows of K = 2 numpy walks slowly)."""
     k = len(ends)
     nrm = np.stack([-dirs[:, 1], dirs[:, 0]], 1)  # (K, 2) left normals
-    frame = np.concatenate([dirs, nrm]).T  # (2, 2K)
-    coords = p @ frame
-    coords -= np.concatenate([(ends * dirs).sum(1), (ends * nrm).sum(1)])
-    along, perp = coords[:, :k], coords[:, k:]
+    frame = np.concatenate([dirs, nrm])  # (2K, 2)
+    coords = frame @ p.T
+    coords -= np.concatenate([(ends * dirs).sum(1), (ends * nrm).sum(1)])[:, None]
+    along, perp = coords[:k], coords[k:]
     excess = np.maximum(along, 0.0)  # past the distal end
     for j in np.flatnonzero(np.isfinite(back)):  # behind a segment's proximal end
-        excess[:, j] += np.maximum(-along[:, j] - back[j], 0.0)
+        excess[j] += np.maximum(-along[j] - back[j], 0.0)
     d2 = perp * perp
     d2 += excess * excess
-    d2 *= 1.0 / (radius * radius)
+    d2 *= (1.0 / (radius * radius))[:, None]
     return d2
+
+
+def argmin_rows(d2: np.ndarray) -> np.ndarray:
+    """(N,) ``d2.argmin(0)`` of (K, N) values (the first of equal minima, the first NaN),
+    row by row: numpy's ``argmin`` over the first axis is ~20x slower for small K."""
+    best = d2[0].copy()
+    lab = np.zeros(d2.shape[1], np.intp)
+    for j in range(1, len(d2)):
+        nearer = d2[j] < best
+        lab[nearer] = j
+        np.minimum(best, d2[j], out=best)
+    if np.isnan(best).any():  # (np.minimum keeps NaN; argmin takes the first NaN)
+        return d2.argmin(0)
+    return lab
 
 
 def nearest_axis(
@@ -549,10 +578,10 @@ def nearest_axis(
 ) -> np.ndarray:
     """(N,) index of the nearest of K segments (:func:`segment_d2`; ties to the lower
     index) for points (N, 2)."""
-    d2 = segment_d2(p, ends, dirs, back, radius)
+    d2 = segment_d2_rows(p, ends, dirs, back, radius)
     if len(ends) == 2:
-        return (d2[:, 1] < d2[:, 0]).astype(np.intp)
-    return d2.argmin(1)
+        return (d2[1] < d2[0]).astype(np.intp)
+    return argmin_rows(d2)
 
 
 #: Shaft pixels are given to the nearest axis on a grid of cells this many px wide,
@@ -575,14 +604,24 @@ def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
     coarse = ax.nearest(centres)
     coarse = coarse.reshape(len(cy), len(cx)).astype(np.uint8)
     kernel = np.ones((3, 3), np.uint8)
-    mixed = cv2.dilate(coarse, kernel) != cv2.erode(coarse, kernel)
-    owner = np.repeat(np.repeat(coarse, s, 0), s, 1)[:h, :w]
-    near = np.repeat(np.repeat(mixed, s, 0), s, 1)[:h, :w] & part.mask
-    ys, xs = np.nonzero(near)
-    if len(ys):
+    mixed = (cv2.dilate(coarse, kernel) != cv2.erode(coarse, kernel)).view(np.uint8)
+    owner = _blow_up(coarse, s, h, w)
+    near = cv2.bitwise_and(_blow_up(mixed, s, h, w), part.mask.view(np.uint8))
+    nz = cv2.findNonZero(near)  # (x, y) of the mask's pixels in mixed cells
+    if nz is not None:
+        xs, ys = nz.reshape(-1, 2).T
         p = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
         owner[ys, xs] = ax.nearest(p)
     return owner
+
+
+def _blow_up(cells: np.ndarray, s: int, h: int, w: int) -> np.ndarray:
+    """(h, w) uint8: each value of ``cells`` repeated over its ``s`` x ``s`` pixels
+    (``np.repeat`` on both axes, cropped), by OpenCV's nearest-neighbour resize."""
+    big = cv2.resize(
+        cells, (cells.shape[1] * s, cells.shape[0] * s), interpolation=cv2.INTER_NEAREST
+    )
+    return big[:h, :w]
 
 
 class BlobPixels:
@@ -591,16 +630,32 @@ class BlobPixels:
     def __init__(self, inst: InstanceObservation) -> None:
         self.inst = inst
         self._cache: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._shaft_nz: np.ndarray | None = None
+        self._samples: dict[int, np.ndarray] = {}  # shaft points by step (1: all)
+
+    def _shaft_nonzero(self) -> np.ndarray:
+        """(N, 2) int32 (x, y) in the shaft's crop of its pixels, row by row (as
+        ``np.nonzero``; OpenCV's ``findNonZero`` is faster on large masks)."""
+        if self._shaft_nz is None:
+            nz = cv2.findNonZero(self.inst.parts["shaft"].mask.view(np.uint8))
+            self._shaft_nz = nz.reshape(-1, 2)
+        return self._shaft_nz
 
     def shaft_points(self) -> np.ndarray:
-        """(N, 2) float64 full-image (x, y) of the shaft's pixels, row by row (as
-        ``np.nonzero``; OpenCV's ``findNonZero`` is faster on large masks)."""
-        if "shaft!" not in self._cache:
-            part = self.inst.parts["shaft"]
-            nz = cv2.findNonZero(part.mask.view(np.uint8))
-            pts = nz.reshape(-1, 2).astype(np.float64) + part.offset
-            self._cache["shaft!"] = (np.empty(0), np.empty(0), pts)
-        return self._cache["shaft!"][2]
+        """(N, 2) float64 full-image (x, y) of the shaft's pixels, row by row."""
+        return self._sample(1)
+
+    def shaft_sample(self, max_points: int) -> tuple[np.ndarray, int]:
+        """``(shaft_points()[::step], step)`` with ``step = len // max_points`` (at
+        least 1): about ``max_points`` points, the others never converted."""
+        step = max(1, len(self._shaft_nonzero()) // max_points)
+        return self._sample(step), step
+
+    def _sample(self, step: int) -> np.ndarray:
+        if step not in self._samples:
+            nz = self._shaft_nonzero()[::step]
+            self._samples[step] = nz.astype(np.float64) + self.inst.parts["shaft"].offset
+        return self._samples[step]
 
     def get(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ys, xs) in the part's crop and (N, 2) float64 full-image (x, y) points."""
@@ -655,9 +710,8 @@ def fit_split(
         or any("shaft" not in e for e in expected)
     ):
         return None
-    pts = pixels.shaft_points()
-    step = max(1, len(pts) // SPLIT_FIT_POINTS)  # the fits need no more points than this
-    fit_pts = pts[::step]
+    # the fits need no more points than this
+    fit_pts, step = pixels.shaft_sample(SPLIT_FIT_POINTS)
     ax = _initial_axes(expected, axes, inst.image_shape)
     ax.keep_d2 = keep_d2
     if not _refit(ax, fit_pts, step, min_area_px, contiguous):
@@ -699,7 +753,7 @@ class HeadAnchor:
         h = np.array([0.5 * b.length for b in boxes])
         c = np.array([[b.cx, b.cy] for b in boxes])
         r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
-        return segment_d2(p, c + h[:, None] * u, u, 2 * h, r).min(1)
+        return np.minimum.reduce(segment_d2_rows(p, c + h[:, None] * u, u, 2 * h, r))
 
 
 def split_with_heads(
@@ -716,9 +770,11 @@ def split_with_heads(
     for name, part in inst.parts.items():
         if name == "shaft":  # the large part: whole-crop label image, no pixel lists
             owner_img = _owner_image(part, fit.axes)
+            mask = part.mask.view(np.uint8)
             # (shaft pixels far from every axis, index k: a lone anchor's shaft)
             for j in range(k + (len(anchors) == 1)):
-                m = np.where(part.mask & (owner_img == j), np.uint8(255), np.uint8(0))
+                this = cv2.compare(owner_img, j, cv2.CMP_EQ)  # type: ignore[call-overload]
+                m = cv2.bitwise_and(this, mask)  # 1 inside
                 obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
                 if obs is not None:
                     pieces[j][name] = obs
@@ -726,8 +782,8 @@ def split_with_heads(
         ys, xs, p = pixels.get(name)
         d2 = _part_distance(name, p, fit.axes, fit.expected)
         if anchors:
-            d2 = np.concatenate([d2, np.stack([a.distance2(name, p) for a in anchors], 1)], 1)
-        owner = d2.argmin(1)
+            d2 = np.concatenate([d2, np.stack([a.distance2(name, p) for a in anchors])])
+        owner = argmin_rows(d2)
         for j in range(len(pieces)):
             sel = owner == j
             if not sel.any():

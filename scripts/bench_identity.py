@@ -1,0 +1,157 @@
+#!/usr/bin/env python
+"""The sequential identity step alone: CPU time of ``IdentityTracker.resolve`` over a
+sequence's observed frames, and a digest of what it returns (A/B, bit for bit).
+
+Each sequence's frames are decoded and observed once (``observe_frame`` and the border
+runs, as a worker does: ``parallel.observe_labels`` without the pose); then a fresh
+``IdentityTracker(config).resolve`` runs over them ``--runs`` times (CPU time,
+``time.process_time``; best and median). With ``--ref DIR`` (another checkout's root, e.g.
+a commit exported with ``git archive``) both versions run alternately (A B A B ...) in
+this one process on the same observations, and their outputs are compared: every
+frame's names and returned instances (centroid, area, bounds, every part's box, corners,
+area, offset and mask bits). ``--cprofile N`` prints the N costliest functions under
+``resolve`` (this checkout, one more run). The decode-only baseline
+(``cv2.imread(path, cv2.IMREAD_UNCHANGED)``) is timed in the same run. Usage::
+
+    git archive main | tar -x -C /tmp/ref
+    python scripts/bench_identity.py /tmp/cross2500 [SEQ ...] [--ref /tmp/ref] [--runs 3]
+
+Exit status 1 when ``--ref`` gives a different output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import hashlib
+import io
+import pstats
+import statistics
+import sys
+import time
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import cv2
+import numpy as np
+
+HERE = Path(__file__).resolve().parent.parent
+
+
+def _load(root: Path) -> ModuleType:
+    """``mistool.tracking`` of the checkout at ``root`` (its own copy of the package)."""
+    for name in [m for m in sys.modules if m == "mistool" or m.startswith("mistool.")]:
+        del sys.modules[name]
+    sys.path.insert(0, str(root))
+    try:
+        from mistool import tracking
+    finally:
+        sys.path.remove(str(root))
+    assert Path(tracking.__file__).is_relative_to(root), tracking.__file__
+    return tracking
+
+
+def _observe(seq: Path) -> tuple[Any, list[tuple[list[Any], Any]], float]:
+    """(config, per frame (instances, border runs), decode-only CPU seconds)."""
+    from mistool import parallel
+    from mistool.sequence import list_frames, open_sequence, read_label_image
+    from mistool.tracking.instances import foreground_bounds
+
+    cfg = open_sequence(seq).config
+    paths = list_frames(seq)
+    t0 = time.process_time()
+    for p in paths:
+        cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    decode = time.process_time() - t0
+    frames = []
+    for p in paths:
+        labels = read_label_image(p)
+        insts = parallel.tracking.observe_frame(labels, cfg, bounds=foreground_bounds(labels))
+        runs = (
+            [parallel.border_runs(i) for i in insts]
+            if any(i.label is None for i in insts)
+            else None
+        )
+        frames.append((insts, runs))
+    return cfg, frames, decode
+
+
+def _digest_instance(h: Any, inst: Any) -> None:
+    h.update(repr((inst.label, inst.centroid_px, inst.area_px, inst.bbox_xywh)).encode())
+    for name, p in inst.parts.items():
+        b = p.box
+        h.update(repr((name, b.cx, b.cy, b.length, b.width, b.angle_deg)).encode())
+        h.update(repr((p.area_px, p.offset, p.mask.shape)).encode())
+        h.update(np.ascontiguousarray(p.corners, dtype=np.float64).tobytes())
+        h.update(np.packbits(p.mask).tobytes())
+
+
+def _run(tracking: ModuleType, cfg: Any, frames: list[Any]) -> tuple[float, list[str]]:
+    """(CPU seconds of resolve over every frame, per-frame digests)."""
+    tracker = tracking.IdentityTracker(cfg)
+    outs = []
+    t0 = time.process_time()
+    for k, (insts, runs) in enumerate(frames):
+        outs.append(tracker.resolve(k, insts, runs))
+    spent = time.process_time() - t0
+    digests = []
+    for out, names in outs:
+        h = hashlib.blake2b(digest_size=12)
+        h.update(repr(names).encode())
+        for inst in out:
+            _digest_instance(h, inst)
+        digests.append(h.hexdigest())
+    return spent, digests
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("seqs", type=Path, nargs="+", help="sequence folders (label images)")
+    ap.add_argument("--ref", type=Path, help="another checkout's root (holds mistool/)")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--cprofile", type=int, default=0, metavar="N")
+    ap.add_argument("--sort", default="tottime", help="cProfile order (e.g. cumulative)")
+    args = ap.parse_args()
+    cv2.setNumThreads(1)
+    versions = {}
+    if args.ref is not None:
+        versions["ref"] = _load(args.ref.resolve())
+    versions["this"] = _load(HERE)  # last: the observations below use this checkout
+    differ = False
+    for seq in args.seqs:
+        cfg, frames, decode = _observe(seq)
+        n = len(frames)
+        times: dict[str, list[float]] = {k: [] for k in versions}
+        digests: dict[str, list[str]] = {}
+        for _ in range(args.runs):  # alternate: A B A B ...
+            for k, tracking in versions.items():
+                spent, digests[k] = _run(tracking, cfg, frames)
+                times[k].append(spent)
+        line = [f"{seq}: {n} frames; decode-only (cv2.imread) {1e3 * decode / n:.3f} ms/frame"]
+        for k, ts in times.items():
+            med, best = statistics.median(ts), min(ts)
+            line.append(
+                f"  {k}: identity {1e3 * med / n:.3f} ms/frame median, {1e3 * best / n:.3f}"
+                f" best of {len(ts)} ({med / decode:.2f}x decode-only)"
+            )
+        if "ref" in digests:
+            bad = [i for i, (a, b) in enumerate(zip(*digests.values(), strict=True)) if a != b]
+            differ = differ or bool(bad)
+            line.append(
+                "  outputs: identical"
+                if not bad
+                else f"  outputs: {len(bad)} frames differ (first: {bad[:10]})"
+            )
+        print("\n".join(line), flush=True)
+        if args.cprofile:
+            prof = cProfile.Profile()
+            prof.runcall(_run, versions["this"], cfg, frames)
+            s = io.StringIO()
+            pstats.Stats(prof, stream=s).sort_stats(args.sort).print_stats(args.cprofile)
+            print(s.getvalue())
+    return 1 if differ else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

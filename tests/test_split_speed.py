@@ -1,0 +1,121 @@
+"""The crossing split's fast pieces equal the definitions they replace, bit for bit
+(issue 13: the sequential identity step's cost)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mistool.model import InstanceObservation, PartObservation, RotatedBox
+from mistool.tracking.split import (
+    BlobPixels,
+    _blow_up,
+    argmin_rows,
+    nearest_axis,
+    segment_d2,
+    segment_d2_rows,
+)
+
+
+def _segment_d2_before(
+    p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
+) -> np.ndarray:
+    """``split.segment_d2`` as it was (commit ddfb117): (N, 2) x (2, 2K), (N, K) work."""
+    k = len(ends)
+    nrm = np.stack([-dirs[:, 1], dirs[:, 0]], 1)
+    frame = np.concatenate([dirs, nrm]).T
+    coords = p @ frame
+    coords -= np.concatenate([(ends * dirs).sum(1), (ends * nrm).sum(1)])
+    along, perp = coords[:, :k], coords[:, k:]
+    excess = np.maximum(along, 0.0)
+    for j in np.flatnonzero(np.isfinite(back)):
+        excess[:, j] += np.maximum(-along[:, j] - back[j], 0.0)
+    d2 = perp * perp
+    d2 += excess * excess
+    d2 *= 1.0 / (radius * radius)
+    return d2
+
+
+@st.composite
+def _segments(draw: st.DrawFn) -> tuple[np.ndarray, ...]:
+    """Points (pixel centres or any floats) and K segments (some half-lines)."""
+    seed = draw(st.integers(0, 2**32 - 1))
+    n = draw(st.sampled_from([0, 1, 2, 3, 7, 64, 513, 3000]))
+    k = draw(st.integers(1, 4))
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-50, 800, (n, 2))
+    if draw(st.booleans()):
+        p = np.round(p)
+    t = rng.uniform(0, 2 * math.pi, k)
+    dirs = np.stack([np.cos(t), np.sin(t)], 1)
+    ends = rng.uniform(0, 700, (k, 2))
+    back = np.where(rng.random(k) < 0.5, math.inf, rng.uniform(0, 400, k))
+    radius = rng.uniform(1.0, 40.0, k)
+    return p, ends, dirs, back, radius
+
+
+@settings(max_examples=150, deadline=None)
+@given(_segments())
+def test_segment_distances_in_rows_equal_the_former_definition(args):
+    want = _segment_d2_before(*args)
+    assert np.array_equal(segment_d2_rows(*args), want.T)
+    assert np.array_equal(segment_d2(*args), want)
+    assert np.array_equal(nearest_axis(*args), want.argmin(1))
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.integers(1, 5),
+    st.integers(0, 200),
+    st.integers(0, 2**32 - 1),
+    st.sampled_from(["continuous", "ties", "nan"]),
+)
+def test_argmin_rows_is_argmin_over_the_first_axis(k, n, seed, kind):
+    rng = np.random.default_rng(seed)
+    d2 = rng.uniform(0, 10, (k, n))
+    if kind == "ties":
+        d2 = rng.integers(0, 3, (k, n)).astype(np.float64)
+    elif kind == "nan" and n:
+        d2[rng.integers(0, k, 3), rng.integers(0, n, 3)] = np.nan
+    assert np.array_equal(argmin_rows(d2), d2.argmin(0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.integers(1, 9), st.integers(0, 2**32 - 1))
+def test_cells_blown_up_equal_repeated_cells(ch, cw, s, seed):
+    rng = np.random.default_rng(seed)
+    cells = rng.integers(0, 4, (ch, cw)).astype(np.uint8)
+    h = int(rng.integers(max(1, (ch - 1) * s + 1), ch * s + 1))
+    w = int(rng.integers(max(1, (cw - 1) * s + 1), cw * s + 1))
+    want = np.repeat(np.repeat(cells, s, 0), s, 1)[:h, :w]
+    assert np.array_equal(_blow_up(cells, s, h, w), want)
+
+
+def _blob(mask: np.ndarray, offset: tuple[int, int]) -> InstanceObservation:
+    box = RotatedBox(0.0, 0.0, 1.0, 1.0, 0.0)
+    part = PartObservation("shaft", box, np.zeros((4, 2)), int(mask.sum()), mask, offset)
+    return InstanceObservation(None, {"shaft": part}, (0.0, 0.0), part.area_px, (0, 0, 1, 1))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 5, 300, 1000, 10**6]))
+def test_shaft_sample_is_every_step_th_shaft_pixel(seed, max_points):
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((int(rng.integers(1, 300)), int(rng.integers(1, 300))), np.uint8)
+    for _ in range(3):  # a few thick strokes
+        a, b = rng.integers(0, 300, 2), rng.integers(0, 300, 2)
+        cv2.line(mask, tuple(map(int, a)), tuple(map(int, b)), 1, int(rng.integers(1, 30)))
+    mask[int(rng.integers(0, mask.shape[0])), int(rng.integers(0, mask.shape[1]))] = 1
+    mask = mask.astype(bool)
+    offset = (int(rng.integers(0, 500)), int(rng.integers(0, 500)))
+    ys, xs = np.nonzero(mask)
+    full = np.stack([xs + offset[0], ys + offset[1]], 1).astype(np.float64)
+    pixels = BlobPixels(_blob(mask, offset))
+    pts, step = pixels.shaft_sample(max_points)
+    assert step == max(1, len(full) // max_points)
+    assert np.array_equal(pts, full[::step])
+    assert np.array_equal(pixels.shaft_points(), full)
