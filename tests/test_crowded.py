@@ -14,7 +14,8 @@ import pytest
 
 from mistool.config import config_from_dict
 from mistool.model import RotatedBox
-from mistool.tracking import observe_frame
+from mistool.tracking import IdentityTracker, observe_frame
+from mistool.tracking.heads import hand_over_heads
 from mistool.tracking.instances import make_instance, part_observation
 from mistool.tracking.split import BlobPixels, border_runs, fit_split, reference_boxes
 
@@ -296,3 +297,49 @@ def test_the_coverage_scripts_report_the_visible_rows(tmp_path):
             check=True,
         )
         assert want in proc.stdout and "nan" not in proc.stdout, proc.stdout
+
+
+def _two_tools(touching: bool) -> np.ndarray:
+    """A from the left border with its jaws; B from the bottom with its jaws. Touching:
+    an occluder hides A's shaft end and B has moved left against A's jaws."""
+    img = _paint([((0, 100, 300, 140), 10), ((300, 110, 330, 130), 30)])
+    bx = 330 if touching else 345
+    img[110:576, bx : bx + 40] = 10
+    img[60:110, bx + 10 : bx + 30] = 30
+    if touching:
+        img[90:150, 260:300] = 0
+    return img
+
+
+def test_jaws_touching_another_tool_go_back_to_their_own():
+    """A's jaws, cut off from A's shaft by an occluder, touch B's shaft: the mask makes
+    them B's. They lie where A's jaws were a frame ago, away from where B's are: they
+    are handed back to A, and B keeps only its own."""
+    tracker = IdentityTracker(MERGED)
+    for f in range(3):
+        insts, names = tracker.resolve(f, observe_frame(_two_tools(f == 2), MERGED))
+    by_name = dict(zip(names, insts, strict=True))
+    a = next(i for i in by_name.values() if i.parts["shaft"].box.cx < 300)
+    b = next(i for i in by_name.values() if i is not a)
+    assert a.parts["clasper"].area_px == 600
+    assert a.parts["clasper"].box.cx == pytest.approx(315.0, abs=1.0)
+    assert b.parts["clasper"].area_px == 1000
+    assert b.parts["clasper"].box.cy == pytest.approx(85.0, abs=1.0)
+
+
+def test_a_head_where_its_own_tool_expects_it_stays():
+    """Pixels nearer to where their own tool's head is expected stay with it, also when
+    they lie within reach of another tool's expected head; a tool showing its head where
+    expected receives nothing."""
+    img = _paint([((0, 100, 300, 140), 10), ((300, 100, 340, 140), 30)])
+    (a,) = observe_frame(img, MERGED)
+    b_img = _paint([((400, 200, 440, 576), 10), ((300, 150, 440, 200), 30)])
+    (b,) = observe_frame(b_img, MERGED)
+    a_only = make_instance(None, {"shaft": a.parts["shaft"]}, SHAPE)
+    want_a = {"clasper": RotatedBox(320.0, 160.0, 40.0, 20.0, 0.0)}  # overlaps B's head
+    want_b = {"clasper": RotatedBox(370.0, 175.0, 140.0, 50.0, 0.0)}
+    got = hand_over_heads([a_only, b], [want_a, want_b], 20)
+    assert got[0] is a_only and got[1] is b  # B's head is where B's is expected
+    got = hand_over_heads([a_only, b], [want_a, {}], 20)  # B's head not expected
+    assert got[0] is not None and got[0].parts["clasper"].area_px > 0
+    assert got[1] is not None and got[1].parts["clasper"].area_px < b.parts["clasper"].area_px

@@ -45,6 +45,7 @@ import numpy as np
 from mistool.assignment import gated_assignment
 from mistool.config import Config
 from mistool.model import InstanceObservation, RotatedBox
+from mistool.tracking.heads import HEAD_PARTS, hand_over_heads
 from mistool.tracking.instances import angle_diff_deg, unit_vector
 from mistool.tracking.motion import ConstantVelocity
 from mistool.tracking.split import (
@@ -93,6 +94,10 @@ SPLIT_GOOD_SCORE = 0.65
 #: this (squared shaft half-widths) from every fitted axis are theirs (left out of the
 #: fit; a lone such tool takes them).
 SPLIT_OTHERS_D2 = 9.0
+#: A head part seen this many frames ago or fewer is expected where it was, moved on the
+#: track's velocity (for at most :data:`SPLIT_STOP_FRAMES`), when heads are handed back
+#: to their own tool (:func:`~mistool.tracking.heads.hand_over_heads`).
+HEAD_MEMORY_FRAMES = 10
 #: A track seen for at most this many frames, never with a shaft, found hidden in the
 #: blob of an older track that could not be split, was a piece of it (absorbed).
 FRAGMENT_MAX_SEEN = 3
@@ -183,6 +188,19 @@ class Track:
     """(2,) px where its shaft last entered the view alone."""
     at_border: bool = False
     """Whether it was ever seen touching the image border (entering the view)."""
+    heads: dict[str, tuple[RotatedBox, int]] = field(default_factory=dict)
+    """Per head part, its last box seen under this name and that frame."""
+
+    def expected_heads(self, frame: int) -> dict[str, RotatedBox]:
+        """Where its head parts seen at most :data:`HEAD_MEMORY_FRAMES` ago are expected
+        at ``frame``: moved on its velocity for at most :data:`SPLIT_STOP_FRAMES`."""
+        out = {}
+        for p, (b, seen) in self.heads.items():
+            gap = frame - seen
+            if 0 < gap <= HEAD_MEMORY_FRAMES:
+                dx, dy = self.motion.velocity * min(gap, SPLIT_STOP_FRAMES)
+                out[p] = replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy))
+        return out
 
     def predict_steps(self, frame: int) -> int:
         """Frames of motion to predict at ``frame``: the gap, at most
@@ -625,8 +643,46 @@ class IdentityTracker:
                     cost[r, c] = 0.5 * self._cost(t, piece, fr.index)
         return gated_assignment(cost, self._weights.max_cost)
 
+    def _hand_over(self, fr: _Frame) -> bool:
+        """Heads handed back to their own tool among the instances and split pieces
+        given one track's name (:func:`~mistool.tracking.heads.hand_over_heads`); the
+        changed ones replaced in ``fr`` (``fr.instances`` copied first). Whether any
+        changed."""
+        slots: list[tuple[int, int]] = []  # (instance, piece index or -1)
+        insts: list[InstanceObservation | None] = []
+        tracks: list[Track] = []
+        for b, inst in enumerate(fr.instances):
+            if b in fr.piece_tracks:
+                continue  # split on entries: those tracks are updated already
+            if b in fr.pieces:
+                for k, (t, piece) in enumerate(zip(fr.split_tracks[b], fr.pieces[b], strict=True)):
+                    slots.append((b, k))
+                    insts.append(piece)
+                    tracks.append(t)
+            elif b in fr.owner and b not in fr.blob_of:
+                slots.append((b, -1))
+                insts.append(inst)
+                tracks.append(fr.live[fr.owner[b]])
+        if len(insts) < 2:
+            return False
+        expected = [t.expected_heads(fr.index) for t in tracks]
+        got = hand_over_heads(insts, expected, max(self._config.min_area_px, 1))
+        changed = False
+        for (b, k), old, new in zip(slots, insts, got, strict=True):
+            if new is old or new is None:
+                continue
+            if not changed:
+                fr.instances = list(fr.instances)
+                changed = True
+            if k < 0:
+                fr.instances[b] = new
+            else:
+                fr.pieces[b] = [new if j == k else p for j, p in enumerate(fr.pieces[b])]
+        return changed
+
     def _update_all(self, fr: _Frame) -> tuple[list[InstanceObservation], list[str]]:
         """Update the tracks, name new instances, coast the hidden tracks."""
+        handed = self._hand_over(fr)
         out: list[InstanceObservation] = []
         names: list[str] = []
         for b, inst in enumerate(fr.instances):
@@ -660,7 +716,7 @@ class IdentityTracker:
                         t.state = TrackState.ABSORBED
                     else:
                         self._hide(t, fr.index)
-        if not fr.pieces:
+        if not fr.pieces and not handed:
             return fr.instances, names  # the caller's own list: nothing was split
         return out, names
 
@@ -697,6 +753,9 @@ class IdentityTracker:
                 t.boxes = reference_boxes(inst, self._runs_of(inst))
                 t.boxes_frame = frame
             self._set_entry(t, inst)
+            for p in HEAD_PARTS:
+                if p in inst.parts:
+                    t.heads[p] = (inst.parts[p].box, frame)
             t.state = TrackState.TRACKED
         t.last_frame = frame
         t.seen += 1
@@ -732,6 +791,7 @@ class IdentityTracker:
             t.boxes = reference_boxes(inst, self._runs_of(inst))
             t.boxes_frame = frame
         self._set_entry(t, inst)
+        t.heads = {p: (inst.parts[p].box, frame) for p in HEAD_PARTS if p in inst.parts}
         self._next += 1
         self._tracks.append(t)
         return t
