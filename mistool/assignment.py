@@ -3,14 +3,21 @@
 One solver (SciPy's ``linear_sum_assignment``, the Jonker-Volgenant algorithm) behind two
 entry points: :func:`linear_assignment` (every row or column matched) and
 :func:`gated_assignment` (a pair costlier than a gate is never made; leaving a row or a
-column unmatched costs the gate).
+column unmatched costs the gate; a few rows and columns: by enumeration, without SciPy).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["gated_assignment", "linear_assignment"]
+
+#: :func:`gated_assignment` tries every partial matching (in Python, no SciPy) when the
+#: rows and the columns are at most this many (at most 34 matchings: a few tracks, a
+#: few instances, the usual frame); SciPy's solver beyond.
+ENUMERATE_MAX = 3
 
 
 def linear_sum_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -44,8 +51,10 @@ def gated_assignment(cost: np.ndarray, max_cost: float) -> list[tuple[int, int]]
     ``max_cost`` (or non-finite) is never made and each unmatched row or column costs
     ``max_cost``.
 
-    Solved as one square problem: the (n, m) costs beside an (n, n) block of "row
-    unmatched" costs and above an (m, m) block of "column unmatched" costs.
+    Up to :data:`ENUMERATE_MAX` rows and columns, every set of pairs is tried (tens of
+    microseconds, no SciPy); beyond, solved as one square problem: the (n, m) costs
+    beside an (n, n) block of "row unmatched" costs and above an (m, m) block of
+    "column unmatched" costs.
 
     Args:
         cost: (n, m) costs; ``inf`` where a pair is impossible.
@@ -58,13 +67,12 @@ def gated_assignment(cost: np.ndarray, max_cost: float) -> list[tuple[int, int]]
     n, m = c.shape
     if n == 0 or m == 0:
         return []
+    if n <= ENUMERATE_MAX and m <= ENUMERATE_MAX:
+        # a few tracks and instances (the usual frame): without the solver (nor its
+        # ~0.4 s import)
+        return _enumerated(c.tolist(), max_cost)
     big = 2.0 * max_cost * (n + m) + 1.0  # never chosen over leaving both unmatched
     gated = np.where(np.isfinite(c) & (c <= max_cost), c, big)
-    if n == 1 and m == 1:
-        # one track, one instance (the usual frame with one instrument), without the
-        # solver (nor its ~0.4 s import): the pair costs at most max_cost, leaving both
-        # unmatched 2 max_cost, so it is made exactly when it passes the gate
-        return [(0, 0)] if gated[0, 0] < big else []
     full = np.full((n + m, m + n), big)
     full[:n, :m] = gated
     full[:n, m:][np.diag_indices(n)] = max_cost
@@ -76,3 +84,33 @@ def gated_assignment(cost: np.ndarray, max_cost: float) -> list[tuple[int, int]]
         for r, k in zip(rows, cols, strict=True)
         if r < n and k < m and gated[r, k] < big
     )
+
+
+def _enumerated(cost: list[list[float]], max_cost: float) -> list[tuple[int, int]]:
+    """:func:`gated_assignment` of a small problem by trying every set of pairs (each
+    row: no pair, or a free column whose cost is finite and at most ``max_cost``); the
+    first of equal totals is kept. Sorted by row. (One row and one column: the pair
+    costs at most ``max_cost``, leaving both unmatched ``2 max_cost``, so it is made
+    exactly when it passes the gate.)"""
+    n, m = len(cost), len(cost[0])
+    ok = [[math.isfinite(x) and x <= max_cost for x in row] for row in cost]
+    best: list[tuple[int, int]] = []
+    best_total = math.inf
+    pairs: list[tuple[int, int]] = []
+
+    def walk(r: int, used: int, total_cost: float) -> None:
+        nonlocal best, best_total
+        if r == n:
+            total = total_cost + max_cost * (n + m - 2 * len(pairs))
+            if total < best_total:
+                best, best_total = list(pairs), total
+            return
+        walk(r + 1, used, total_cost)  # row r unmatched
+        for k in range(m):
+            if ok[r][k] and not used >> k & 1:
+                pairs.append((r, k))
+                walk(r + 1, used | 1 << k, total_cost + cost[r][k])
+                pairs.pop()
+
+    walk(0, 0, 0.0)
+    return best

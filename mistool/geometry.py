@@ -303,6 +303,8 @@ def fit_part(
 #: pattern repeats within this many columns (slope denominator <= 64) gets its exact gap;
 #: any other gets a gap of at most about 1/64 px, whose half is negligible.
 _GAP_WALK = 64
+_WALK_INDEX = np.arange(_GAP_WALK)
+_WALK_SECOND_HALF = _WALK_INDEX >= _GAP_WALK // 2
 
 
 def _lattice_gaps(
@@ -332,23 +334,22 @@ def _lattice_gaps(
     nx, ny = normals[:, 0], normals[:, 1]
     horiz = np.abs(ny) >= np.abs(nx)
     a = np.where(horiz, nx, ny)  # coefficient of the walked coordinate
-    b = np.where(horiz, ny, nx)  # coefficient of the solved one, |b| >= 0.707
+    b = np.abs(np.where(horiz, ny, nx))  # |coefficient of the solved one|, >= 0.707
     # the segment's extent along the walked coordinate: its end points h n + t (-ny, nx)
-    w0 = h * a + t_lo * np.where(horiz, -ny, nx)
-    w1 = h * a + t_hi * np.where(horiz, -ny, nx)
+    tangent = np.where(horiz, -ny, nx)
+    w0 = h * a + t_lo * tangent
+    w1 = h * a + t_hi * tangent
     start = np.ceil(np.minimum(w0, w1) - eps)
     full = np.maximum(np.floor(np.maximum(w0, w1) + eps) - start + 1, 1).astype(np.int64)
     count = np.minimum(full, _GAP_WALK)
-    side = np.repeat(np.arange(len(h)), count)
-    first = np.cumsum(count) - count
-    idx = np.arange(side.size) - first[side]
-    # a long side: its first and last _GAP_WALK / 2 columns (mirror-symmetric)
-    skip = np.where(idx >= _GAP_WALK // 2, (full - count)[side], 0)
-    p = start[side] + idx + skip
-    r = ((h + eps)[side] - a[side] * p) / np.abs(b)[side]
+    # one row of _GAP_WALK columns per side, those past its count left out; a long
+    # side: its first and last _GAP_WALK / 2 columns (mirror-symmetric)
+    skip = np.where(_WALK_SECOND_HALF, (full - count)[:, None], 0)
+    p = start[:, None] + _WALK_INDEX + skip
+    r = ((h + eps)[:, None] - a[:, None] * p) / b[:, None]
     frac = r - np.floor(r)
-    best = np.maximum.reduceat(frac, first)
-    return np.abs(b) * (1.0 - best) + eps
+    frac[_WALK_INDEX >= count[:, None]] = -1.0  # (frac >= 0 elsewhere)
+    return b * (1.0 - frac.max(1)) + eps
 
 
 def grow_to_pixel_edges(

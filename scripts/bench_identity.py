@@ -9,8 +9,9 @@ runs, as a worker does: ``parallel.observe_labels`` without the pose); then a fr
 a commit exported with ``git archive``) both versions run alternately (A B A B ...) in
 this one process on the same observations, and their outputs are compared: every
 frame's names and returned instances (centroid, area, bounds, every part's box, corners,
-area, offset and mask bits). ``--cprofile N`` prints the N costliest functions under
-``resolve`` (this checkout, one more run). The decode-only baseline
+area, offset and mask bits). ``--pieces`` times the step's pieces (the assignment, the
+split's fit and pixel assignment, ...) in one more run. ``--cprofile N`` prints the N
+costliest functions under ``resolve`` (this checkout, one more run). The decode-only baseline
 (``cv2.imread(path, cv2.IMREAD_UNCHANGED)``) is timed in the same run. Usage::
 
     git archive main | tar -x -C /tmp/ref
@@ -105,6 +106,61 @@ def _run(tracking: ModuleType, cfg: Any, frames: list[Any]) -> tuple[float, list
     return spent, digests
 
 
+#: ``--pieces``: (module, function) timed inside ``resolve`` (inclusive CPU time).
+PIECES = (
+    ("identity", "IdentityTracker._match"),
+    ("identity", "gated_assignment"),
+    ("identity", "track_cost"),
+    ("identity", "IdentityTracker._split_crossings"),
+    ("identity", "fit_split"),
+    ("split", "_refit"),
+    ("identity", "split_with_heads"),
+    ("split", "_owner_image"),
+    ("split", "_part_distance"),
+    ("split", "part_observation"),
+    ("split", "make_instance"),
+    ("identity", "IdentityTracker._split_entries"),
+    ("identity", "IdentityTracker._update_all"),
+)
+
+
+def _pieces(tracking: ModuleType, cfg: Any, frames: list[Any]) -> None:
+    """One more run with CPU timers around :data:`PIECES`; prints each one's calls and
+    time (per call and per frame)."""
+    mods = {"identity": sys.modules[tracking.__name__ + ".identity"]}
+    mods["split"] = sys.modules[tracking.__name__ + ".split"]
+    spent = {name: [0, 0.0] for _, name in PIECES}
+    saved = []
+    for mod_name, name in PIECES:
+        owner: Any = mods[mod_name]
+        attr = name
+        if "." in name:
+            cls, attr = name.split(".")
+            owner = getattr(owner, cls)
+        fn = getattr(owner, attr)
+        saved.append((owner, attr, fn))
+
+        def timed(*a: Any, _fn: Any = fn, _name: str = name, **k: Any) -> Any:
+            t0 = time.process_time()
+            try:
+                return _fn(*a, **k)
+            finally:
+                spent[_name][0] += 1
+                spent[_name][1] += time.process_time() - t0
+
+        setattr(owner, attr, timed)
+    try:
+        total, _ = _run(tracking, cfg, frames)
+    finally:
+        for owner, attr, fn in reversed(saved):
+            setattr(owner, attr, fn)
+    n = len(frames)
+    print(f"  pieces (inclusive CPU, timers on; resolve {1e3 * total / n:.3f} ms/frame):")
+    for name, (calls, t) in spent.items():
+        per = f"{1e6 * t / calls:9.1f} us/call" if calls else " " * 17
+        print(f"    {name:<34} {calls:6d} calls {per} {1e3 * t / n:7.3f} ms/frame")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("seqs", type=Path, nargs="+", help="sequence folders (label images)")
@@ -112,6 +168,7 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--cprofile", type=int, default=0, metavar="N")
     ap.add_argument("--sort", default="tottime", help="cProfile order (e.g. cumulative)")
+    ap.add_argument("--pieces", action="store_true", help="time the identity step's pieces")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     versions = {}
@@ -144,6 +201,8 @@ def main() -> int:
                 else f"  outputs: {len(bad)} frames differ (first: {bad[:10]})"
             )
         print("\n".join(line), flush=True)
+        if args.pieces:
+            _pieces(versions["this"], cfg, frames)
         if args.cprofile:
             prof = cProfile.Profile()
             prof.runcall(_run, versions["this"], cfg, frames)

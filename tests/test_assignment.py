@@ -1,5 +1,5 @@
-"""The shared assignment solver's shortcut for one row and one column: the same pairs as
-SciPy's solver, without importing it."""
+"""The shared assignment solver's shortcuts for a few rows and columns (one each, or
+enumeration): the same pairs as SciPy's solver, without importing it."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mistool import assignment
 
@@ -31,6 +33,81 @@ def test_one_track_one_instance_does_not_import_scipy() -> None:
         "from mistool.assignment import gated_assignment\n"
         "assert gated_assignment(np.array([[1.0]]), 2.0) == [(0, 0)]\n"
         "assert gated_assignment(np.array([[3.0]]), 2.0) == []\n"
+        "print('scipy.optimize' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def _solver_pairs(cost: np.ndarray, gate: float) -> list[tuple[int, int]]:
+    """``gated_assignment`` by SciPy's solver on the square problem, as it was for every
+    size (commit ddfb117)."""
+    n, m = cost.shape
+    big = 2.0 * gate * (n + m) + 1.0
+    gated = np.where(np.isfinite(cost) & (cost <= gate), cost, big)
+    full = np.full((n + m, m + n), big)
+    full[:n, :m] = gated
+    full[:n, m:][np.diag_indices(n)] = gate
+    full[n:, :m][np.diag_indices(m)] = gate
+    full[n:, m:] = 0.0
+    rows, cols = assignment.linear_sum_assignment(full)
+    return sorted(
+        (int(r), int(k))
+        for r, k in zip(rows, cols, strict=True)
+        if r < n and k < m and gated[r, k] < big
+    )
+
+
+def _total(cost: np.ndarray, gate: float, pairs: list[tuple[int, int]]) -> float:
+    n, m = cost.shape
+    return sum(float(cost[r, k]) for r, k in pairs) + gate * (n + m - 2 * len(pairs))
+
+
+def _all_totals(cost: np.ndarray, gate: float) -> list[float]:
+    """The total of every valid set of pairs (brute force over column choices)."""
+    import itertools
+
+    n, m = cost.shape
+    out = []
+    for choice in itertools.product(range(-1, m), repeat=n):
+        cols = [k for k in choice if k >= 0]
+        if len(cols) != len(set(cols)):
+            continue
+        pairs = [(r, k) for r, k in enumerate(choice) if k >= 0]
+        if all(np.isfinite(cost[r, k]) and cost[r, k] <= gate for r, k in pairs):
+            out.append(_total(cost, gate, pairs))
+    return sorted(out)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.integers(1, assignment.ENUMERATE_MAX),
+    st.integers(1, assignment.ENUMERATE_MAX),
+    st.integers(0, 2**32 - 1),
+    st.sampled_from([0.5, 3.0, 10.0]),
+)
+def test_small_problems_give_the_solvers_pairs_without_scipy(n, m, seed, gate):
+    rng = np.random.default_rng(seed)
+    cost = rng.uniform(-1.0, 2.0 * gate, (n, m))
+    odd = rng.random((n, m))
+    cost[odd < 0.1] = np.inf
+    cost[(odd >= 0.1) & (odd < 0.15)] = np.nan
+    cost[(odd >= 0.15) & (odd < 0.2)] = gate  # on the gate: allowed
+    got = assignment.gated_assignment(cost, gate)
+    want = _solver_pairs(cost, gate)
+    totals = _all_totals(cost, gate)
+    assert _total(cost, gate, got) == pytest.approx(totals[0], abs=1e-12)
+    if len(totals) == 1 or totals[1] - totals[0] > 1e-9:  # one best: the solver's
+        assert got == want
+
+
+def test_a_few_tracks_do_not_import_scipy() -> None:
+    code = (
+        "import sys, numpy as np\n"
+        "from mistool.assignment import gated_assignment\n"
+        "c = np.array([[0.1, 2.0, np.inf], [1.5, 0.2, 9.0], [np.nan, 2.9, 0.3]])\n"
+        "assert gated_assignment(c, 3.0) == [(0, 0), (1, 1), (2, 2)]\n"
+        "assert gated_assignment(c[:2], 3.0) == [(0, 0), (1, 1)]\n"
         "print('scipy.optimize' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -607,12 +607,21 @@ def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
     mixed = (cv2.dilate(coarse, kernel) != cv2.erode(coarse, kernel)).view(np.uint8)
     owner = _blow_up(coarse, s, h, w)
     near = cv2.bitwise_and(_blow_up(mixed, s, h, w), part.mask.view(np.uint8))
-    nz = cv2.findNonZero(near)  # (x, y) of the mask's pixels in mixed cells
-    if nz is not None:
-        xs, ys = nz.reshape(-1, 2).T
+    xs, ys = _nonzero_xy(near)  # the mask's pixels in mixed cells
+    if len(xs):
         p = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
         owner[ys, xs] = ax.nearest(p)
     return owner
+
+
+def _nonzero_xy(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(xs, ys)`` int32 of a 2-D bool or uint8 mask's non-zero pixels, row by row:
+    ``np.nonzero(mask)[::-1]`` by OpenCV's ``findNonZero``."""
+    nz = cv2.findNonZero(mask.view(np.uint8))
+    if nz is None:
+        return np.empty(0, np.int32), np.empty(0, np.int32)
+    xs, ys = nz.reshape(-1, 2).T
+    return xs, ys
 
 
 def _blow_up(cells: np.ndarray, s: int, h: int, w: int) -> np.ndarray:
@@ -658,10 +667,11 @@ class BlobPixels:
         return self._samples[step]
 
     def get(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ys, xs) in the part's crop and (N, 2) float64 full-image (x, y) points."""
+        """(ys, xs) in the part's crop and (N, 2) float64 full-image (x, y) points, row
+        by row (as ``np.nonzero``, ~10x slower on a 2-D mask than ``findNonZero``)."""
         if name not in self._cache:
             part = self.inst.parts[name]
-            ys, xs = np.nonzero(part.mask)
+            xs, ys = _nonzero_xy(part.mask)
             pts = np.stack([xs + part.offset[0], ys + part.offset[1]], 1).astype(np.float64)
             self._cache[name] = (ys, xs, pts)
         return self._cache[name]
