@@ -121,6 +121,9 @@ PIECES = (
     ("split", "make_instance"),
     ("identity", "IdentityTracker._split_entries"),
     ("identity", "IdentityTracker._update_all"),
+    ("identity", "hand_over_heads"),
+    ("heads", "_shows"),
+    ("heads", "_pixels"),
 )
 
 
@@ -128,10 +131,12 @@ def _pieces(tracking: ModuleType, cfg: Any, frames: list[Any]) -> None:
     """One more run with CPU timers around :data:`PIECES`; prints each one's calls and
     time (per call and per frame)."""
     mods = {"identity": sys.modules[tracking.__name__ + ".identity"]}
-    mods["split"] = sys.modules[tracking.__name__ + ".split"]
-    spent = {name: [0, 0.0] for _, name in PIECES}
+    for name in ("split", "heads"):
+        mods[name] = sys.modules.get(f"{tracking.__name__}.{name}")
+    pieces = [(m, name) for m, name in PIECES if mods[m] is not None]
+    spent = {name: [0, 0.0] for _, name in pieces}
     saved = []
-    for mod_name, name in PIECES:
+    for mod_name, name in pieces:
         owner: Any = mods[mod_name]
         attr = name
         if "." in name:

@@ -172,3 +172,77 @@ def test_pixel_edge_gaps_equal_the_former_definition(angle, coords, snap):
     assert np.array_equal(
         _lattice_gaps(normals, h, t_lo, t_hi), _lattice_gaps_before(normals, h, t_lo, t_hi)
     )
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.floats(0.0, 180.0, exclude_max=True),
+    st.sampled_from([1, 5, 40, 200, 600]),
+)
+def test_a_head_shown_where_expected_is_decided_as_by_every_pixel(seed, angle, min_area):
+    """heads._shows' shortcuts (pixels well inside the box, every pixel within reach)
+    give the answer of counting every pixel's distance."""
+    from mistool.tracking import heads
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(1, 70)), int(rng.integers(1, 70))
+    mask = np.zeros((h, w), np.uint8)
+    for _ in range(int(rng.integers(1, 4))):
+        a, b = rng.integers(-5, 75, 2), rng.integers(-5, 75, 2)
+        cv2.line(mask, tuple(map(int, a)), tuple(map(int, b)), 1, int(rng.integers(1, 15)))
+    mask[int(rng.integers(0, h)), int(rng.integers(0, w))] = 1
+    offset = (int(rng.integers(0, 600)), int(rng.integers(0, 400)))
+    ys, xs = np.nonzero(mask)
+    # near a pixel of the part: its pixels on both sides of the reach
+    k = int(rng.integers(0, len(xs)))
+    t = rng.uniform(0, 2 * math.pi)
+    far = rng.uniform(0, 25)
+    length = float(rng.uniform(1, 60))
+    box = RotatedBox(
+        offset[0] + xs[k] + far * math.cos(t),
+        offset[1] + ys[k] + far * math.sin(t),
+        length,
+        float(rng.uniform(1, length)),
+        angle,
+    )
+    blob = _blob(mask.astype(bool), offset)
+    xy = np.stack([xs + offset[0], ys + offset[1]], 1).astype(np.float64)
+    want = int((heads.box_distance(xy, box) <= heads.HEAD_CLAIM_PX).sum()) >= min_area
+    assert heads._shows(blob, "shaft", box, min_area) == want
+    assert np.array_equal(heads._pixels(blob, "shaft"), xy)
+
+
+def test_the_head_shortcuts_decide_only_when_sure():
+    """Every pixel within reach when ``_all_within`` says so; at most as many well
+    inside as within reach; and both shortcuts do decide often."""
+    from mistool.tracking import heads
+
+    rng = np.random.default_rng(7)
+    decided = [0, 0]
+    for _ in range(400):
+        mask = np.zeros((int(rng.integers(3, 60)), int(rng.integers(3, 60))), np.uint8)
+        a, b = rng.integers(0, 60, 2), rng.integers(0, 60, 2)
+        cv2.line(mask, tuple(map(int, a)), tuple(map(int, b)), 1, int(rng.integers(1, 12)))
+        mask[0, 0] = 1
+        offset = (int(rng.integers(0, 600)), int(rng.integers(0, 400)))
+        ys, xs = np.nonzero(mask)
+        length = float(rng.uniform(5, 60))
+        box = RotatedBox(
+            offset[0] + float(rng.uniform(0, mask.shape[1])),
+            offset[1] + float(rng.uniform(0, mask.shape[0])),
+            length,
+            float(rng.uniform(1, length)),
+            float(rng.uniform(0, 180)),
+        )
+        obs = _blob(mask.astype(bool), offset).parts["shaft"]
+        xy = np.stack([xs + offset[0], ys + offset[1]], 1).astype(np.float64)
+        d = heads.box_distance(xy, box)
+        reach = heads.HEAD_CLAIM_PX
+        if heads._all_within(obs, box, reach):
+            decided[0] += 1
+            assert d.max() <= reach
+        inside = heads._count_well_inside(obs, box)
+        assert inside <= int((d <= reach).sum())
+        decided[1] += inside > 0
+    assert min(decided) > 40, decided

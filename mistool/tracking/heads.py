@@ -12,8 +12,10 @@ it is expected. Pure (no tracker state).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 
 from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
@@ -38,10 +40,75 @@ def box_distance(xy: np.ndarray, box: RotatedBox) -> np.ndarray:
 
 
 def _pixels(inst: InstanceObservation, part: str) -> np.ndarray:
-    """(N, 2) x, y of the part's pixels (float)."""
+    """(N, 2) x, y of the part's pixels (float), row by row (``np.nonzero``'s order, by
+    OpenCV's ``findNonZero``: ~2x faster)."""
     obs = inst.parts[part]
-    ys, xs = np.nonzero(obs.mask)
-    return np.stack([xs + obs.offset[0], ys + obs.offset[1]], 1).astype(np.float64)
+    nz = cv2.findNonZero(obs.mask.view(np.uint8))
+    if nz is None:
+        return np.zeros((0, 2))
+    return nz.reshape(-1, 2).astype(np.float64) + obs.offset
+
+
+#: :func:`_all_within`'s margin (px) for rounding: far above float64's error on image
+#: coordinates, far below a pixel.
+_WITHIN_MARGIN_PX = 1e-6
+
+
+def _all_within(obs: PartObservation, box: RotatedBox, reach: float) -> bool:
+    """Whether every pixel of ``obs`` lies within ``reach`` px of ``box``, checked on
+    each mask row's first and last pixel only (the distance to a box is convex: along a
+    row it is largest at the ends); False also when too close to tell."""
+    m = obs.mask
+    h, w = m.shape
+    x0, y0 = obs.offset
+    limit = reach - _WITHIN_MARGIN_PX
+    if all(  # the crop's corner pixels (its pixels lie between): no numpy
+        _point_box_distance(x, y, box) <= limit for x in (x0, x0 + w - 1) for y in (y0, y0 + h - 1)
+    ):
+        return True
+    rows = np.flatnonzero(m.any(1))
+    if not len(rows):
+        return False
+    first = m[rows].argmax(1)
+    last = m.shape[1] - 1 - m[rows, ::-1].argmax(1)
+    x = np.concatenate([first, last]) + obs.offset[0]
+    y = np.concatenate([rows, rows]) + obs.offset[1]
+    d = box_distance(np.stack([x, y], 1).astype(np.float64), box)
+    return bool(d.max() <= limit)
+
+
+#: :func:`_count_well_inside` grows the box by this much (px) on each side: any point of
+#: the grown box, rasterised (within a pixel of it), is within HEAD_CLAIM_PX of the box.
+_INSIDE_GROW_PX = 4.0
+assert math.sqrt(2.0) * _INSIDE_GROW_PX + 1.5 < HEAD_CLAIM_PX - _WITHIN_MARGIN_PX
+
+
+def _count_well_inside(obs: PartObservation, box: RotatedBox) -> int:
+    """How many of the part's pixels lie in ``box`` grown by :data:`_INSIDE_GROW_PX`
+    (rasterised): each of them within :data:`HEAD_CLAIM_PX` of ``box``, so at most how
+    many are."""
+    h, w = obs.mask.shape
+    x0, y0 = obs.offset
+    grown = RotatedBox(
+        box.cx - x0,
+        box.cy - y0,
+        box.length + 2.0 * _INSIDE_GROW_PX,
+        box.width + 2.0 * _INSIDE_GROW_PX,
+        box.angle_deg,
+    )
+    inside = np.zeros((h, w), np.uint8)
+    cv2.fillConvexPoly(inside, np.round(grown.corners()).astype(np.int32), 1)
+    return int(cv2.countNonZero(cv2.bitwise_and(inside, obs.mask.view(np.uint8))))
+
+
+def _point_box_distance(x: float, y: float, box: RotatedBox) -> float:
+    """:func:`box_distance` of one point, in plain floats (to within rounding)."""
+    t = math.radians(box.angle_deg)
+    ux, uy = math.cos(t), math.sin(t)
+    dx, dy = x - box.cx, y - box.cy
+    along = abs(dx * ux + dy * uy) - 0.5 * box.length
+    across = abs(dy * ux - dx * uy) - 0.5 * box.width
+    return math.hypot(max(along, 0.0), max(across, 0.0))
 
 
 def _with_part(
@@ -69,6 +136,13 @@ def _shows(inst: InstanceObservation, part: str, box: RotatedBox, min_area: int)
     """Whether the instance shows ``part`` where ``box`` expects it."""
     if part not in inst.parts:
         return False
+    obs = inst.parts[part]
+    # cheap answers first (exact: they only decide when sure), the usual head where
+    # expected: enough pixels well inside the reach, or every pixel within it
+    if _count_well_inside(obs, box) >= min_area:
+        return True
+    if _all_within(obs, box, HEAD_CLAIM_PX):
+        return int(cv2.countNonZero(obs.mask.view(np.uint8))) >= min_area
     near = box_distance(_pixels(inst, part), box) <= HEAD_CLAIM_PX
     return int(near.sum()) >= min_area
 
