@@ -343,3 +343,36 @@ def test_a_head_where_its_own_tool_expects_it_stays():
     got = hand_over_heads([a_only, b], [want_a, {}], 20)  # B's head not expected
     assert got[0] is not None and got[0].parts["clasper"].area_px > 0
     assert got[1] is not None and got[1].parts["clasper"].area_px < b.parts["clasper"].area_px
+
+
+def _crossing(f: int, head: bool) -> np.ndarray:
+    """Two tools from the left and right borders, 10 deg down, their ends 25 px further
+    in each frame (crossing from frame 2); ``head``: a third tool's jaws entering from
+    the bottom border."""
+    img = np.zeros(SHAPE, np.uint8)
+    for x0, sign in ((0, 1), (719, -1)):
+        d = np.array([sign * math.cos(math.radians(10)), math.sin(math.radians(10))])
+        start = np.array([x0, 150.0])
+        end = start + (300 + 25 * f) * d
+        cv2.line(img, tuple(map(int, start)), tuple(map(int, end)), 10, 40)
+        cv2.line(img, tuple(map(int, end + 22 * d)), tuple(map(int, end + 40 * d)), 30, 16)
+    if head:
+        img[536:576, 300:420] = 30
+    return img
+
+
+def test_a_tool_in_a_blob_does_not_take_a_far_head_entering_the_view():
+    """While two tools cross (one blob, split between them), a third tool's jaws enter
+    from the bottom border, far from both: they get a new name; the crossing tools keep
+    theirs (one of them, not matched to the blob, took the jaws' name before)."""
+    tracker = IdentityTracker(MERGED)
+    for f in range(9):
+        insts, names = tracker.resolve(f, observe_frame(_crossing(f, False), MERGED))
+    before = {n: i.centroid_px[0] < 360 for n, i in zip(names, insts, strict=True)}
+    insts, names = tracker.resolve(9, observe_frame(_crossing(9, True), MERGED))
+    assert len(names) == 3
+    for n, inst in zip(names, insts, strict=True):
+        if "shaft" in inst.parts:
+            assert before[n] == (inst.centroid_px[0] < 360)
+        else:
+            assert n not in before

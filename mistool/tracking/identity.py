@@ -190,6 +190,9 @@ class Track:
     """Whether it was ever seen touching the image border (entering the view)."""
     heads: dict[str, tuple[RotatedBox, int]] = field(default_factory=dict)
     """Per head part, its last box seen under this name and that frame."""
+    in_blob: bool = False
+    """Whether it was last updated inside a blob shared with others (a split's piece,
+    or coasting)."""
 
     def expected_heads(self, frame: int) -> dict[str, RotatedBox]:
         """Where its head parts seen at most :data:`HEAD_MEMORY_FRAMES` ago are expected
@@ -285,6 +288,15 @@ def _more_shafts(n_entries: int, n_group: int, known: bool) -> bool:
     if n_entries < max(2, n_group):
         return False
     return not (n_entries == n_group and known)
+
+
+def _far_head(t: Track, inst: InstanceObservation, frame: int) -> bool:
+    """Whether ``inst`` is a head alone (no shaft) farther than the track's size from
+    where a track coasting in a blob is expected: that track is still in its blob (a
+    tool entering head first elsewhere is another)."""
+    if not (t.in_blob or t.state.coasting) or "shaft" in inst.parts:
+        return False
+    return float(np.hypot(*(np.asarray(inst.centroid_px) - t.predict(frame)))) > t.size
 
 
 def _fragment_of(t: Track, host: Track | None) -> bool:
@@ -462,6 +474,8 @@ class IdentityTracker:
         entries = [_one_entry(self._runs_of(inst)) for inst in fr.instances]
         for a, t in enumerate(fr.live):
             for b, inst in enumerate(fr.instances):
+                if _far_head(t, inst, fr.index):
+                    continue
                 cost[a, b] = self._cost(t, inst, fr.index, entries[b])
         fr.owner = {b: a for a, b in gated_assignment(cost, self._weights.max_cost)}
 
@@ -727,6 +741,7 @@ class IdentityTracker:
         t.motion.coast(t.predict_steps(frame))
         t.last_frame = frame
         t.state = TrackState.HIDDEN
+        t.in_blob = True
 
     def _update(
         self, t: Track, inst: InstanceObservation, frame: int, *, merged: bool, apart: bool = True
@@ -734,6 +749,7 @@ class IdentityTracker:
         """Update a track with the instance given its name (``merged``: a blob holding
         others too, whose centroid is not this instrument's: it coasts)."""
         gap = frame - t.last_frame
+        t.in_blob = merged or not apart
         if merged:
             t.motion.coast(t.predict_steps(frame))
             t.state = TrackState.COASTING
