@@ -174,8 +174,15 @@ def main() -> int:
     ap.add_argument("--cprofile", type=int, default=0, metavar="N")
     ap.add_argument("--sort", default="tottime", help="cProfile order (e.g. cumulative)")
     ap.add_argument("--pieces", action="store_true", help="time the identity step's pieces")
+    ap.add_argument(
+        "--cv-threads",
+        type=int,
+        default=None,
+        help="OpenCV threads (default: OpenCV's own, as in the caller of mistool track)",
+    )
     args = ap.parse_args()
-    cv2.setNumThreads(1)
+    if args.cv_threads is not None:
+        cv2.setNumThreads(args.cv_threads)
     versions = {}
     if args.ref is not None:
         versions["ref"] = _load(args.ref.resolve())

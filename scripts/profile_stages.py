@@ -17,7 +17,11 @@ stage's own time, nested stages excluded):
 Beside it, the decode-only baseline (``cv2.imread(path, cv2.IMREAD_UNCHANGED)`` over the
 same files) measured in the same run. The sequence is made with ``mistool synth`` when
 missing (default: 2,500 frames, two instruments, EndoVis'17 merged labels, crossing).
-``--cprofile N`` also prints the N costliest functions under ``resolve`` (cProfile).
+``--cprofile N`` also prints the N costliest functions under ``resolve`` (cProfile; that
+first run's stage times then include cProfile's own overhead: compare runs without it).
+OpenCV runs on ``--cv-threads`` threads (default 1, as in the worker processes; with
+OpenCV's default pool, its threads spinning after one stage's calls are counted in the
+next stage's CPU time: identity 1.39-1.45 against 0.98 ms/frame at commit 097b037).
 
 Usage::
 
@@ -135,7 +139,16 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--cprofile", type=int, default=0, metavar="N")
+    ap.add_argument(
+        "--cv-threads",
+        type=int,
+        default=1,
+        help="OpenCV threads (default 1, as in the worker processes: with more, a stage's "
+        "CPU time includes the OpenCV pool's threads still spinning after the stages "
+        "before it)",
+    )
     args = ap.parse_args()
+    cv2.setNumThreads(args.cv_threads)
     if not (args.seq / "synth.json").exists():
         print(f"making {args.seq} with mistool synth ({args.frames} frames) ...", flush=True)
         synthesize(
