@@ -290,8 +290,8 @@ def fit_part(
     else:
         pts = np.concatenate(contours, axis=0).reshape(-1, 2)
     # the tight crop of the kept pixels: the bounds of their outer contours
-    x, y = (int(v) for v in pts.min(axis=0))
-    x1, y1 = (int(v) + 1 for v in pts.max(axis=0))
+    x, y, bw, bh = cv2.boundingRect(pts)  # (numpy's min/max over axis 0: ~15x slower)
+    x1, y1 = x + bw, y + bh
     kept = kept[y:y1, x:x1]
     ox, oy = offset[0] + x, offset[1] + y
     pts = pts + np.asarray(offset, np.int32)
@@ -383,8 +383,8 @@ def grow_to_pixel_edges(
     pf = pts.astype(np.float64)
     p1 = pf @ e1
     p2 = pf @ e2
-    a_lo, a_hi = float(p1.min()), float(p1.max())
-    b_lo, b_hi = float(p2.min()), float(p2.max())
+    a_lo, a_hi = cv2.minMaxLoc(p1)[:2]
+    b_lo, b_hi = cv2.minMaxLoc(p2)[:2]
     # sides with outward normals +e2, -e2 (spanning e1), +e1, -e1 (spanning e2); the
     # tangent of normal n is (-n_y, n_x): for +e2 it is -e1, for +e1 it is +e2.
     normals = np.stack([e2, -e2, e1, -e1])

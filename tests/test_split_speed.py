@@ -246,3 +246,64 @@ def test_the_head_shortcuts_decide_only_when_sure():
         assert inside <= int((d <= reach).sum())
         decided[1] += inside > 0
     assert min(decided) > 40, decided
+
+
+def _fit_part_before(mask: np.ndarray, min_area_px: int, offset: tuple[int, int]):
+    """``geometry.fit_part`` as it was (commit ddfb117): numpy's min/max of the points,
+    the former pixel-edge gaps."""
+    from mistool import geometry
+
+    kept, area, contours = geometry._clean(mask, min_area_px)
+    if area == 0:
+        return None
+    pts = (
+        geometry.mask_points(kept)
+        if contours is None
+        else np.concatenate(contours, axis=0).reshape(-1, 2)
+    )
+    x, y = (int(v) for v in pts.min(axis=0))
+    x1, y1 = (int(v) + 1 for v in pts.max(axis=0))
+    pts = pts + np.asarray(offset, np.int32)
+    (_, _), (_, _), angle = cv2.minAreaRect(pts)
+    t = math.radians(float(angle))
+    c, s = math.cos(t), math.sin(t)
+    e1, e2 = np.array([c, s]), np.array([-s, c])
+    pf = pts.astype(np.float64)
+    p1, p2 = pf @ e1, pf @ e2
+    a_lo, a_hi = float(p1.min()), float(p1.max())
+    b_lo, b_hi = float(p2.min()), float(p2.max())
+    normals = np.stack([e2, -e2, e1, -e1])
+    h = np.array([b_hi, -b_lo, a_hi, -a_lo])
+    t_lo = np.array([-a_hi, a_lo, b_lo, -b_hi])
+    t_hi = np.array([-a_lo, a_hi, b_hi, -b_lo])
+    g = _lattice_gaps_before(normals, h, t_lo, t_hi) / 2.0
+    b_hi, b_lo, a_hi, a_lo = b_hi + g[0], b_lo - g[1], a_hi + g[2], a_lo - g[3]
+    ca, cb = (a_lo + a_hi) / 2.0, (b_lo + b_hi) / 2.0
+    rect = ((ca * c - cb * s, ca * s + cb * c), (a_hi - a_lo, b_hi - b_lo), float(angle))
+    box = geometry._canonical(rect)
+    return box, geometry.box_points(rect), area, kept[y:y1, x:x1], (offset[0] + x, offset[1] + y)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 30, 400]))
+def test_algorithm_1_of_a_mask_equals_the_former_definition(seed, min_area):
+    """fit_part (speck removal, tight crop, box grown to the pixel edges), bit for bit."""
+    from mistool.geometry import fit_part
+
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((int(rng.integers(1, 120)), int(rng.integers(1, 120))), np.uint8)
+    for _ in range(int(rng.integers(1, 5))):
+        a, b = rng.integers(-10, 130, 2), rng.integers(-10, 130, 2)
+        cv2.line(mask, tuple(map(int, a)), tuple(map(int, b)), 255, int(rng.integers(1, 25)))
+    for _ in range(int(rng.integers(0, 6))):  # specks
+        mask[int(rng.integers(0, mask.shape[0])), int(rng.integers(0, mask.shape[1]))] = 255
+    offset = (int(rng.integers(0, 600)), int(rng.integers(0, 400)))
+    got = fit_part(mask, min_area, offset)
+    want = _fit_part_before(mask, min_area, offset)
+    if want is None:
+        assert got is None
+        return
+    box, corners, area, kept, off = want
+    assert got is not None
+    assert got.box == box and np.array_equal(got.corners, corners) and got.area_px == area
+    assert np.array_equal(got.mask, kept) and got.offset == off
