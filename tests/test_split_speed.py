@@ -307,3 +307,26 @@ def test_algorithm_1_of_a_mask_equals_the_former_definition(seed, min_area):
     assert got is not None
     assert got.box == box and np.array_equal(got.corners, corners) and got.area_px == area
     assert np.array_equal(got.mask, kept) and got.offset == off
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(-1e4, 1e4),
+    st.floats(-1e4, 1e4),
+    st.floats(0.0, 1e3),
+    st.floats(0.0, 1.0),
+    st.floats(0.0, 180.0, exclude_max=True),
+)
+def test_box_corners_equal_the_former_definition(cx, cy, length, frac, angle):
+    box = RotatedBox(cx, cy, length, length * frac, angle)
+    t = math.radians(angle)
+    u = np.array([math.cos(t), math.sin(t)])
+    v = np.array([-math.sin(t), math.cos(t)])
+    hl, hw = box.length / 2.0, box.width / 2.0
+    c = np.array([cx, cy])
+    want = np.stack(
+        [c - hl * u - hw * v, c + hl * u - hw * v, c + hl * u + hw * v, c - hl * u + hw * v]
+    )
+    got = box.corners()
+    assert got.dtype == np.float64 and got.shape == (4, 2)
+    assert np.array_equal(got, want)

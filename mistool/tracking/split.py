@@ -545,14 +545,17 @@ def segment_d2_rows(
     segment are one (2K, 2) x (2, N) product; no (N, K, 2) temporaries, no roots, and
     no elementwise work on (N, K) arrays (whose rows of K = 2 numpy walks slowly)."""
     k = len(ends)
-    nrm = np.stack([-dirs[:, 1], dirs[:, 0]], 1)  # (K, 2) left normals
-    frame = np.concatenate([dirs, nrm])  # (2K, 2)
+    d, e = dirs.tolist(), ends.tolist()  # (the K-sized set-up in plain floats: cheaper)
+    nrm = [(-dy, dx) for dx, dy in d]  # left normals
+    frame = np.array(d + nrm)  # (2K, 2)
+    offsets = [ex * dx + ey * dy for (ex, ey), (dx, dy) in zip(e + e, d + nrm, strict=True)]
     coords = frame @ p.T
-    coords -= np.concatenate([(ends * dirs).sum(1), (ends * nrm).sum(1)])[:, None]
+    coords -= np.array(offsets)[:, None]
     along, perp = coords[:k], coords[k:]
     excess = np.maximum(along, 0.0)  # past the distal end
-    for j in np.flatnonzero(np.isfinite(back)):  # behind a segment's proximal end
-        excess[j] += np.maximum(-along[j] - back[j], 0.0)
+    for j, b in enumerate(back.tolist()):
+        if math.isfinite(b):  # behind a segment's proximal end
+            excess[j] += np.maximum(-along[j] - b, 0.0)
     d2 = perp * perp
     d2 += excess * excess
     d2 *= (1.0 / (radius * radius))[:, None]
