@@ -330,3 +330,38 @@ def test_box_corners_equal_the_former_definition(cx, cy, length, frac, angle):
     got = box.corners()
     assert got.dtype == np.float64 and got.shape == (4, 2)
     assert np.array_equal(got, want)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 3000), st.booleans())
+def test_principal_direction_equals_the_former_definition(seed, n, pixels):
+    from mistool.tracking.split import _centred_direction, _principal_direction
+
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(n, 2)) * rng.uniform(0.1, 50, 2) + rng.uniform(0, 700, 2)
+    if pixels:
+        q = np.round(q)
+    c = q.mean(0)
+    r = q - c
+    sxx, syy, sxy = float(r[:, 0] @ r[:, 0]), float(r[:, 1] @ r[:, 1]), float(r[:, 0] @ r[:, 1])
+    t = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    got_c, got_r, got_d = _centred_direction(q)
+    assert np.array_equal(got_c, c) and np.array_equal(got_r, r)
+    assert np.array_equal(got_d, [math.cos(t), math.sin(t)])
+    pc, pd = _principal_direction(q)
+    assert np.array_equal(pc, c) and np.array_equal(pd, got_d)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 9))
+def test_pixels_in_cells_are_the_masks_pixels_there(seed, s):
+    from mistool.tracking.split import _pixels_in_cells
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(1, 90)), int(rng.integers(1, 90))
+    mask = rng.random((h, w)) < rng.uniform(0, 1)
+    cells = (rng.random((-(-h // s), -(-w // s))) < rng.uniform(0, 1)).astype(np.uint8)
+    inside = np.repeat(np.repeat(cells, s, 0), s, 1)[:h, :w].astype(bool) & mask
+    xs, ys = _pixels_in_cells(mask, s, cells)
+    want = sorted(zip(*np.nonzero(inside)[::-1], strict=True))
+    assert sorted(zip(xs.tolist(), ys.tolist(), strict=True)) == [tuple(map(int, p)) for p in want]

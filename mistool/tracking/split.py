@@ -411,13 +411,19 @@ def _head_length(e: dict[str, RotatedBox], end: np.ndarray, d: np.ndarray, r: fl
 def _principal_direction(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(centroid (2,), unit direction of largest spread (2,)) of points (N, 2), in
     closed form (the 2x2 covariance's major axis)."""
-    c = q.mean(0)
+    c, _, d = _centred_direction(q)
+    return c, d
+
+
+def _centred_direction(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_principal_direction` as ``(centroid, q - centroid, direction)``."""
+    c = np.add.reduce(q, 0) / len(q)  # q.mean(0), without its Python-level overhead
     r = q - c
     sxx = float(r[:, 0] @ r[:, 0])
     syy = float(r[:, 1] @ r[:, 1])
     sxy = float(r[:, 0] @ r[:, 1])
     t = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
-    return c, np.array([math.cos(t), math.sin(t)])
+    return c, r, np.array([math.cos(t), math.sin(t)])
 
 
 def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous: bool) -> bool:
@@ -434,14 +440,14 @@ def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous
             q = pts[lab == j]
             if len(q) < 3 or len(q) * weight < min_area_px:
                 return False
-            c, d = _principal_direction(q)  # largest spread: along the shaft ...
+            c, r, d = _centred_direction(q)  # largest spread: along the shaft ...
             if abs(float(d @ ax.start_dirs[j])) >= SPLIT_MAX_TURN_COS:
                 ax.dirs[j] = d if d @ ax.dirs[j] >= 0 else -d
             # ... unless it turned too far from the expected axis (the spread of a stub
             # entering the view, or of a shaft mostly under another, is across it)
             # the distal end: the pixels' reach, never beyond the expected end + margin
             limit = float((ax.limit_end[j] + ax.margin[j] * ax.dirs[j] - c) @ ax.dirs[j])
-            proj = (q - c) @ ax.dirs[j]
+            proj = r @ ax.dirs[j]
             reach = float(proj.max())
             if contiguous:  # up to the first gap along the axis: beyond is another's
                 sp = np.sort(proj)
@@ -609,12 +615,28 @@ def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
     kernel = np.ones((3, 3), np.uint8)
     mixed = (cv2.dilate(coarse, kernel) != cv2.erode(coarse, kernel)).view(np.uint8)
     owner = _blow_up(coarse, s, h, w)
-    near = cv2.bitwise_and(_blow_up(mixed, s, h, w), part.mask.view(np.uint8))
-    xs, ys = _nonzero_xy(near)  # the mask's pixels in mixed cells
+    xs, ys = _pixels_in_cells(part.mask, s, mixed)
     if len(xs):
         p = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
         owner[ys, xs] = ax.nearest(p)
     return owner
+
+
+def _pixels_in_cells(mask: np.ndarray, s: int, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(xs, ys)`` of the mask's (h, w) non-zero pixels in the ``s`` x ``s`` cells where
+    ``cells`` (ceil(h / s), ceil(w / s)) is non-zero (cell by cell): only those cells'
+    blocks of the mask are looked at."""
+    ci, cj = np.nonzero(cells)
+    if not len(ci):
+        return np.empty(0, np.intp), np.empty(0, np.intp)
+    ch, cw = cells.shape
+    h, w = mask.shape
+    padded = np.zeros((ch * s, cw * s), np.uint8)
+    padded[:h, :w] = mask
+    blocks = padded.reshape(ch, s, cw, s)[ci, :, cj, :]  # (M, s, s)
+    xs, rows = _nonzero_xy(blocks.reshape(-1, s))  # row = block * s + dy
+    block = rows // s
+    return cj[block] * s + xs, ci[block] * s + rows % s
 
 
 def _nonzero_xy(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
