@@ -16,8 +16,15 @@ from mistool.config import config_from_dict
 from mistool.model import RotatedBox
 from mistool.tracking import IdentityTracker, observe_frame
 from mistool.tracking.heads import hand_over_heads
+from mistool.tracking.identity import distinct_lanes
 from mistool.tracking.instances import make_instance, part_observation
-from mistool.tracking.split import BlobPixels, border_runs, fit_split, reference_boxes
+from mistool.tracking.split import (
+    BlobPixels,
+    border_entries,
+    border_runs,
+    fit_split,
+    reference_boxes,
+)
 
 MERGED = config_from_dict({"labels": "endovis17", "fps": 25.0})
 SHAPE = (576, 720)
@@ -376,3 +383,45 @@ def test_a_tool_in_a_blob_does_not_take_a_far_head_entering_the_view():
             assert before[n] == (inst.centroid_px[0] < 360)
         else:
             assert n not in before
+
+
+def _stub_beside(b: bool) -> np.ndarray:
+    """A from the left border, 22 deg down; ``b``: B's shaft entering from the top
+    border 50 px deep, its wrist against A."""
+    img = np.zeros(SHAPE, np.uint8)
+    cv2.line(img, (0, 60), (420, 228), 10, 70)
+    if b:
+        img[0:50, 240:320] = 10
+        img[50:140, 250:310] = 20
+    return img
+
+
+def test_a_stub_entering_beside_another_shaft_is_split_on_its_own_lane():
+    """B enters from the top against A: one blob, two shafts entering. The pixels near
+    B's entry are mostly A's, so B's fitted direction lay along the border and the
+    split on entries failed (the blob kept A's name); B's direction from its own lane
+    splits it: A keeps its name, B gets a new one."""
+    tracker = IdentityTracker(MERGED)
+    for f in range(2):
+        tracker.resolve(f, observe_frame(_stub_beside(False), MERGED))
+    insts, names = tracker.resolve(2, observe_frame(_stub_beside(True), MERGED))
+    assert len(names) == 2
+    a = next(i for n, i in zip(names, insts, strict=True) if n == "1")
+    b = next(i for n, i in zip(names, insts, strict=True) if n != "1")
+    assert a.parts["shaft"].box.cx < b.parts["shaft"].box.cx
+    assert "wrist" in b.parts and "wrist" not in a.parts
+
+
+def test_one_shaft_whose_border_contact_a_hole_cut_is_not_two_lanes():
+    """A shaft entering from the top with a hole where it meets the border: two border
+    runs, whose lanes are alike and side by side (one shaft: no lane split); B's stub
+    beside A (above) gives two distinct lanes."""
+    img = _paint([((300, 0, 380, 300), 10), ((320, 300, 360, 340), 20)])
+    img[0:30, 330:350] = 0
+    (one,) = observe_frame(img, MERGED)
+    runs = border_runs(one)
+    assert len(runs) == 2
+    assert not distinct_lanes(border_entries(one, runs, lanes=True), runs)
+    (two,) = observe_frame(_stub_beside(True), MERGED)
+    runs = border_runs(two)
+    assert distinct_lanes(border_entries(two, runs, lanes=True), runs)

@@ -66,6 +66,7 @@ __all__ = [
     "IdentityTracker",
     "Track",
     "TrackState",
+    "distinct_lanes",
     "shaft_entry",
     "track_cost",
 ]
@@ -288,6 +289,33 @@ def _more_shafts(n_entries: int, n_group: int, known: bool) -> bool:
     if n_entries < max(2, n_group):
         return False
     return not (n_entries == n_group and known)
+
+
+#: Entering shafts fitted on their lanes are one shaft whose border contact a hole cut
+#: in two when two of them differ by less than this (deg) and enter closer than their
+#: widths together ...
+LANE_SAME_DEG = 40.0
+#: ... and a lane entering at less than this sine to the border (its width less than
+#: this share of its run) runs along the border: no shaft's.
+LANE_MIN_SIN = 0.5
+
+
+def distinct_lanes(
+    lanes: list[tuple[np.ndarray, np.ndarray, float]], runs: list[tuple[np.ndarray, int]]
+) -> bool:
+    """Whether shafts entering the view, fitted on their own lanes
+    (:func:`~mistool.tracking.split.border_entries` ``lanes``; ``runs``: the border runs
+    they come from), are as many shafts: none along the border, no two alike side by
+    side."""
+    length = {(float(e[1][0]), float(e[1][1])): n for e, n in runs}
+    for k, (p, d, w) in enumerate(lanes):
+        if w < LANE_MIN_SIN * length.get((float(p[0]), float(p[1])), 0.0):
+            return False
+        for p2, d2, w2 in lanes[k + 1 :]:
+            alike = abs(float(d @ d2)) >= math.cos(math.radians(LANE_SAME_DEG))
+            if alike and float(np.hypot(*(p - p2))) < w + w2:
+                return False
+    return True
 
 
 def _far_head(t: Track, inst: InstanceObservation, frame: int) -> bool:
@@ -607,7 +635,7 @@ class IdentityTracker:
             if not _more_shafts(len(entries), len(group), known):
                 continue
             # (a blob the crossing handler split, holding one more tool entering: redone)
-            got = split_on_entries(inst, entries, max(self._config.min_area_px, 1))
+            got = self._entry_split(inst, runs, entries)
             if got is None:
                 continue
             cands = group + [a for a in spare if a not in group]
@@ -632,6 +660,25 @@ class IdentityTracker:
                     self._hide(fr.live[a], fr.index)
             fr.pieces[b] = got
             fr.piece_tracks[b] = tracks
+
+    def _entry_split(
+        self,
+        inst: InstanceObservation,
+        runs: list[tuple[np.ndarray, int]],
+        entries: list[tuple[np.ndarray, np.ndarray, float]],
+    ) -> list[InstanceObservation] | None:
+        """The instance split on its shafts' entries; when that fails, again with each
+        entering shaft's direction taken from its own lane
+        (:func:`~mistool.tracking.split.border_entries` ``lanes``: another tool's shaft
+        passing near a stub's entry had turned the stub's direction along the border)."""
+        min_area = max(self._config.min_area_px, 1)
+        got = split_on_entries(inst, entries, min_area)
+        if got is not None:
+            return got
+        lanes = border_entries(inst, runs, lanes=True)
+        if len(lanes) != len(entries) or not distinct_lanes(lanes, runs):
+            return None
+        return split_on_entries(inst, lanes, min_area)
 
     def _match_entries(
         self,

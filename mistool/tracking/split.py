@@ -203,13 +203,39 @@ def border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
 ENTRY_FIT_POINTS = 4000
 
 
+#: Directions tried for a shaft entering the view (every this many degrees).
+ENTRY_STEP_DEG = 5.0
+_ENTRY_DIRS = np.stack(
+    [
+        np.cos(np.radians(np.arange(0.0, 360.0, ENTRY_STEP_DEG))),
+        np.sin(np.radians(np.arange(0.0, 360.0, ENTRY_STEP_DEG))),
+    ]
+)  # (2, K)
+
+
+def _entry_lane(pts: np.ndarray, mid: np.ndarray, half: float) -> np.ndarray:
+    """The points (N, 2) inside the straight lane from ``mid`` (a run's middle on the
+    border), ``2 * half`` px wide, that holds the most of them (of the directions every
+    :data:`ENTRY_STEP_DEG`): a shaft entering the view fills its own lane, while
+    another tool's shaft passing near the entry only crosses it."""
+    rel = pts - mid
+    along = rel @ _ENTRY_DIRS  # (N, K)
+    across = rel @ np.stack([-_ENTRY_DIRS[1], _ENTRY_DIRS[0]])
+    inside = (along >= 0.0) & (np.abs(across) <= half)
+    return pts[inside[:, int(np.argmax(inside.sum(axis=0)))]]
+
+
 def border_entries(
-    inst: InstanceObservation, runs: list[tuple[np.ndarray, int]] | None = None
+    inst: InstanceObservation,
+    runs: list[tuple[np.ndarray, int]] | None = None,
+    *,
+    lanes: bool = False,
 ) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """The shafts entering the view at the image border (:func:`border_runs`, or
     ``runs`` when already computed), as ``(point, inward direction, width)``, px: the
-    direction is the principal axis of the shaft pixels near the run, the width the
-    run's length across it. Empty unless there are two entries or more (one instrument
+    direction is the principal axis of the shaft pixels near the run (``lanes``: of
+    those in its fullest lane, :func:`_entry_lane`), the width the run's length across
+    it. Empty unless there are two entries or more (one instrument
     per entry, unless two touch at the border)."""
     runs = border_runs(inst) if runs is None else runs
     if len(runs) < 2:
@@ -231,6 +257,9 @@ def border_entries(
         near = box[np.einsum("nd,nd->n", rel, rel) <= r * r]
         if len(near) < 3:
             continue
+        if lanes:
+            lane = _entry_lane(near, mid, 0.5 * length)
+            near = lane if len(lane) >= 3 else near
         c, d = _principal_direction(near)
         if d @ (c - mid) < 0:
             d = -d
