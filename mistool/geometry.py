@@ -308,7 +308,10 @@ _WALK_SECOND_HALF = _WALK_INDEX >= _GAP_WALK // 2
 
 
 def _lattice_gaps(
-    normals: np.ndarray, h: np.ndarray, t_lo: np.ndarray, t_hi: np.ndarray
+    normals: np.ndarray | list[tuple[float, float]],
+    h: np.ndarray | list[float],
+    t_lo: np.ndarray | list[float],
+    t_hi: np.ndarray | list[float],
 ) -> np.ndarray:
     """Distance from each box side to the next row of pixel centres beyond it.
 
@@ -331,25 +334,32 @@ def _lattice_gaps(
         (S,) gaps, px.
     """
     eps = 1e-4  # lattice points this close to a side are on it (float32 angle)
-    nx, ny = normals[:, 0], normals[:, 1]
-    horiz = np.abs(ny) >= np.abs(nx)
-    a = np.where(horiz, nx, ny)  # coefficient of the walked coordinate
-    b = np.abs(np.where(horiz, ny, nx))  # |coefficient of the solved one|, >= 0.707
-    # the segment's extent along the walked coordinate: its end points h n + t (-ny, nx)
-    tangent = np.where(horiz, -ny, nx)
-    w0 = h * a + t_lo * tangent
-    w1 = h * a + t_hi * tangent
-    start = np.ceil(np.minimum(w0, w1) - eps)
-    full = np.maximum(np.floor(np.maximum(w0, w1) + eps) - start + 1, 1).astype(np.int64)
-    count = np.minimum(full, _GAP_WALK)
+    sides = []  # per side: start, columns skipped, h + eps, a, |b|, columns walked
+    for (nx, ny), hs, lo, hi in zip(
+        np.asarray(normals).tolist(),
+        np.asarray(h).tolist(),
+        np.asarray(t_lo).tolist(),
+        np.asarray(t_hi).tolist(),
+        strict=True,
+    ):  # (a few sides: plain floats, the same values as numpy's)
+        horiz = abs(ny) >= abs(nx)
+        # a: coefficient of the walked coordinate, b: of the solved one (|b| >= 0.707)
+        a, b, tangent = (nx, abs(ny), -ny) if horiz else (ny, abs(nx), nx)
+        # the segment's extent along the walked coordinate: its end points h n + t (-ny, nx)
+        w0 = hs * a + lo * tangent
+        w1 = hs * a + hi * tangent
+        start = float(math.ceil(min(w0, w1) - eps))
+        full = int(max(math.floor(max(w0, w1) + eps) - start + 1, 1))
+        count = min(full, _GAP_WALK)
+        sides.append((start, full - count, hs + eps, a, b, count))
+    start_, skipped, he, a_, b_, count_ = np.array(sides, np.float64).T[:, :, None]
     # one row of _GAP_WALK columns per side, those past its count left out; a long
     # side: its first and last _GAP_WALK / 2 columns (mirror-symmetric)
-    skip = np.where(_WALK_SECOND_HALF, (full - count)[:, None], 0)
-    p = start[:, None] + _WALK_INDEX + skip
-    r = ((h + eps)[:, None] - a[:, None] * p) / b[:, None]
+    p = start_ + _WALK_INDEX + np.where(_WALK_SECOND_HALF, skipped, 0.0)
+    r = (he - a_ * p) / b_
     frac = r - np.floor(r)
-    frac[_WALK_INDEX >= count[:, None]] = -1.0  # (frac >= 0 elsewhere)
-    return b * (1.0 - frac.max(1)) + eps
+    frac[_WALK_INDEX >= count_] = -1.0  # (frac >= 0 elsewhere)
+    return b_[:, 0] * (1.0 - frac.max(1)) + eps
 
 
 def grow_to_pixel_edges(
@@ -387,12 +397,12 @@ def grow_to_pixel_edges(
     b_lo, b_hi = cv2.minMaxLoc(p2)[:2]
     # sides with outward normals +e2, -e2 (spanning e1), +e1, -e1 (spanning e2); the
     # tangent of normal n is (-n_y, n_x): for +e2 it is -e1, for +e1 it is +e2.
-    normals = np.stack([e2, -e2, e1, -e1])
-    h = np.array([b_hi, -b_lo, a_hi, -a_lo])
-    t_lo = np.array([-a_hi, a_lo, b_lo, -b_hi])
-    t_hi = np.array([-a_lo, a_hi, b_hi, -b_lo])
-    g = _lattice_gaps(normals, h, t_lo, t_hi) / 2.0
-    b_hi, b_lo, a_hi, a_lo = b_hi + g[0], b_lo - g[1], a_hi + g[2], a_lo - g[3]
+    normals = [(-s, c), (s, -c), (c, s), (-c, -s)]  # e2, -e2, e1, -e1
+    h = [b_hi, -b_lo, a_hi, -a_lo]
+    t_lo = [-a_hi, a_lo, b_lo, -b_hi]
+    t_hi = [-a_lo, a_hi, b_hi, -b_lo]
+    g0, g1, g2, g3 = (_lattice_gaps(normals, h, t_lo, t_hi) / 2.0).tolist()
+    b_hi, b_lo, a_hi, a_lo = b_hi + g0, b_lo - g1, a_hi + g2, a_lo - g3
     ca, cb = (a_lo + a_hi) / 2.0, (b_lo + b_hi) / 2.0
     rect = ((ca * c - cb * s, ca * s + cb * c), (a_hi - a_lo, b_hi - b_lo), float(angle))
     return _canonical(rect), box_points(rect)
