@@ -425,3 +425,27 @@ def test_one_shaft_whose_border_contact_a_hole_cut_is_not_two_lanes():
     (two,) = observe_frame(_stub_beside(True), MERGED)
     runs = border_runs(two)
     assert distinct_lanes(border_entries(two, runs, lanes=True), runs)
+
+
+def _stub_over(b: bool) -> np.ndarray:
+    """A from the right border; ``b``: B's shaft entering from the top, 40 px deep, its
+    wrist and jaws lying on A."""
+    img = _paint([((330, 90, 720, 180), 10), ((300, 150, 330, 170), 30)])
+    if b:
+        img[0:40, 420:500] = 10
+        img[40:90, 430:490] = 20
+        img[60:90, 400:430] = 30
+    return img
+
+
+def test_a_lane_split_leaving_an_entering_stub_headless_is_refused():
+    """B's stub enters from the top over A: its fullest lane runs diagonally on into A's
+    shaft (the wrist between them is no shaft pixel), and the split on those lanes
+    leaves B's piece a shaft without a head: refused (the blob keeps A's name, as
+    before the lanes), rather than naming a piece of A's shaft B."""
+    tracker = IdentityTracker(MERGED)
+    for f in range(2):
+        tracker.resolve(f, observe_frame(_stub_over(False), MERGED))
+    insts, names = tracker.resolve(2, observe_frame(_stub_over(True), MERGED))
+    assert names == ["1"]
+    assert insts[0].parts["shaft"].area_px == 390 * 90 + 80 * 40

@@ -300,6 +300,11 @@ LANE_SAME_DEG = 40.0
 LANE_MIN_SIN = 0.5
 
 
+def _run_lengths(runs: list[tuple[np.ndarray, int]]) -> dict[tuple[float, float], int]:
+    """Border runs' lengths (px) by their middle point."""
+    return {(float(e[1][0]), float(e[1][1])): n for e, n in runs}
+
+
 def distinct_lanes(
     lanes: list[tuple[np.ndarray, np.ndarray, float]], runs: list[tuple[np.ndarray, int]]
 ) -> bool:
@@ -307,7 +312,7 @@ def distinct_lanes(
     (:func:`~mistool.tracking.split.border_entries` ``lanes``; ``runs``: the border runs
     they come from), are as many shafts: none along the border, no two alike side by
     side."""
-    length = {(float(e[1][0]), float(e[1][1])): n for e, n in runs}
+    length = _run_lengths(runs)
     for k, (p, d, w) in enumerate(lanes):
         if w < LANE_MIN_SIN * length.get((float(p[0]), float(p[1])), 0.0):
             return False
@@ -678,7 +683,17 @@ class IdentityTracker:
         lanes = border_entries(inst, runs, lanes=True)
         if len(lanes) != len(entries) or not distinct_lanes(lanes, runs):
             return None
-        return split_on_entries(inst, lanes, min_area)
+        got = split_on_entries(inst, lanes, min_area)
+        if got is None:
+            return None
+        # a stub whose first fit lay along the border is a tool entering: its head hangs
+        # in the view beyond it (none: its lane ran into another tool's shaft)
+        length = _run_lengths(runs)
+        for (p, _, w), piece in zip(entries, got, strict=True):
+            stub = w < LANE_MIN_SIN * length.get((float(p[0]), float(p[1])), 0.0)
+            if stub and not any(h in piece.parts for h in HEAD_PARTS):
+                return None
+        return got
 
     def _match_entries(
         self,
