@@ -365,3 +365,66 @@ def test_pixels_in_cells_are_the_masks_pixels_there(seed, s):
     xs, ys = _pixels_in_cells(mask, s, cells)
     want = sorted(zip(*np.nonzero(inside)[::-1], strict=True))
     assert sorted(zip(xs.tolist(), ys.tolist(), strict=True)) == [tuple(map(int, p)) for p in want]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 3), st.booleans())
+def test_label_bounds_hold_every_pixel_of_that_label(seed, k, keep):
+    """The shaft pieces are cut from windows of the owner image: each window holds every
+    pixel the owner image gives that piece."""
+    from mistool.tracking.split import _Axes, _label_bounds, _owner_cells
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(5, 160)), int(rng.integers(5, 160))
+    mask = rng.random((h, w)) < 0.7
+    t = rng.uniform(0, 2 * math.pi, k)
+    offset = (int(rng.integers(0, 300)), int(rng.integers(0, 300)))
+    ax = _Axes(
+        ends=rng.uniform(0, 160, (k, 2)) + offset,
+        dirs=np.stack([np.cos(t), np.sin(t)], 1),
+        back=np.where(rng.random(k) < 0.5, math.inf, rng.uniform(5, 100, k)),
+        radius=rng.uniform(2, 15, k),
+        limit_end=np.zeros((k, 2)),
+        start_dirs=np.zeros((k, 2)),
+        margin=np.zeros(k),
+        keep_d2=float(rng.uniform(1, 30)) if keep else None,
+    )
+    part = _blob(mask, offset).parts["shaft"]
+    owner, coarse, mixed = _owner_cells(part, ax)
+    for j in range(k + 1):
+        ys, xs = np.nonzero(mask & (owner == j))
+        bounds = _label_bounds(coarse, mixed, j, h, w)
+        if bounds is None:
+            assert len(ys) == 0
+            continue
+        x, y, bw, bh = bounds
+        assert 0 <= x and 0 <= y and x + bw <= w and y + bh <= h
+        assert np.all((xs >= x) & (xs < x + bw) & (ys >= y) & (ys < y + bh))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 30]))
+def test_algorithm_1_of_a_window_equals_that_of_the_whole_crop(seed, min_area):
+    """fit_part of a window holding every pixel (at any margin, pixels on its edges) is
+    fit_part of the whole crop, bit for bit: the split cuts its pieces from windows."""
+    from mistool.geometry import fit_part
+
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((int(rng.integers(1, 100)), int(rng.integers(1, 100))), np.uint8)
+    for _ in range(int(rng.integers(1, 4))):
+        a, b = rng.integers(-10, 110, 2), rng.integers(-10, 110, 2)
+        cv2.line(mask, tuple(map(int, a)), tuple(map(int, b)), 1, int(rng.integers(1, 15)))
+    mask[int(rng.integers(0, mask.shape[0])), int(rng.integers(0, mask.shape[1]))] = 1
+    x, y, bw, bh = cv2.boundingRect(mask)
+    x0, y0 = int(rng.integers(0, x + 1)), int(rng.integers(0, y + 1))
+    x1 = int(rng.integers(x + bw, mask.shape[1] + 1))
+    y1 = int(rng.integers(y + bh, mask.shape[0] + 1))
+    whole = fit_part(mask, min_area, (100, 50))
+    window = fit_part(mask[y0:y1, x0:x1], min_area, (100 + x0, 50 + y0))
+    if whole is None:
+        assert window is None
+        return
+    assert window is not None
+    assert whole.box == window.box and np.array_equal(whole.corners, window.corners)
+    assert whole.area_px == window.area_px and whole.offset == window.offset
+    assert np.array_equal(whole.mask, window.mask)

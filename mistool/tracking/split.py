@@ -632,6 +632,27 @@ def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
     :func:`nearest_axis`), rasterised: the nearest axis of each cell's centre, refined
     per pixel only in the cells that border a cell of another axis (the regions are
     bounded by bisectors and parabolas, smooth on the scale of a cell)."""
+    return _owner_cells(part, ax)[0]
+
+
+def _label_bounds(
+    coarse: np.ndarray, mixed: np.ndarray, j: int, h: int, w: int
+) -> tuple[int, int, int, int] | None:
+    """``(x, y, w, h)`` px of the (h, w) crop holding every pixel that
+    :func:`_owner_cells`' image gives index ``j``: the bounds of its cells and the
+    mixed ones (None: none)."""
+    s = OWNER_CELL_PX
+    cells = cv2.bitwise_or(cv2.compare(coarse, j, cv2.CMP_EQ), mixed)  # type: ignore[call-overload]
+    cx, cy, cw, ch = cv2.boundingRect(cells)
+    if cw == 0 or ch == 0:
+        return None
+    x, y = cx * s, cy * s
+    return x, y, min((cx + cw) * s, w) - x, min((cy + ch) * s, h) - y
+
+
+def _owner_cells(part: PartObservation, ax: _Axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_owner_image`, its cells' nearest axes and where its cells are mixed
+    (uint8, one per :data:`OWNER_CELL_PX` cell)."""
     h, w = part.mask.shape
     s = OWNER_CELL_PX
     x0, y0 = part.offset
@@ -648,7 +669,7 @@ def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
     if len(xs):
         p = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
         owner[ys, xs] = ax.nearest(p)
-    return owner
+    return owner, coarse, mixed
 
 
 def _pixels_in_cells(mask: np.ndarray, s: int, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -833,13 +854,19 @@ def split_with_heads(
     pieces: list[dict[str, PartObservation]] = [{} for _ in range(k + len(anchors))]
     for name, part in inst.parts.items():
         if name == "shaft":  # the large part: whole-crop label image, no pixel lists
-            owner_img = _owner_image(part, fit.axes)
+            owner_img, coarse, mixed = _owner_cells(part, fit.axes)
             mask = part.mask.view(np.uint8)
             # (shaft pixels far from every axis, index k: a lone anchor's shaft)
             for j in range(k + (len(anchors) == 1)):
-                this = cv2.compare(owner_img, j, cv2.CMP_EQ)  # type: ignore[call-overload]
-                m = cv2.bitwise_and(this, mask)  # 1 inside
-                obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
+                bounds = _label_bounds(coarse, mixed, j, *mask.shape)
+                if bounds is None:
+                    continue
+                bx, by, bw, bh = bounds  # the piece's window of the crop (half of it, typically)
+                win = owner_img[by : by + bh, bx : bx + bw]
+                this = cv2.compare(win, j, cv2.CMP_EQ)  # type: ignore[call-overload]
+                m = cv2.bitwise_and(this, mask[by : by + bh, bx : bx + bw])  # 1 inside
+                x0, y0 = part.offset[0] + bx, part.offset[1] + by
+                obs = part_observation(name, m, x0, y0, min_area_px)
                 if obs is not None:
                     pieces[j][name] = obs
             continue
