@@ -116,6 +116,7 @@ PIECES = (
     ("split", "_refit"),
     ("identity", "split_with_heads"),
     ("split", "_owner_image"),
+    ("split", "_owner_cells"),
     ("split", "_part_distance"),
     ("split", "part_observation"),
     ("split", "make_instance"),
@@ -133,7 +134,11 @@ def _pieces(tracking: ModuleType, cfg: Any, frames: list[Any]) -> None:
     mods = {"identity": sys.modules[tracking.__name__ + ".identity"]}
     for name in ("split", "heads"):
         mods[name] = sys.modules.get(f"{tracking.__name__}.{name}")
-    pieces = [(m, name) for m, name in PIECES if mods[m] is not None]
+    pieces = [
+        (m, name)
+        for m, name in PIECES
+        if mods[m] is not None and hasattr(mods[m], name.split(".")[0])
+    ]
     spent = {name: [0, 0.0] for _, name in pieces}
     saved = []
     for mod_name, name in pieces:
