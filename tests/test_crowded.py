@@ -449,3 +449,22 @@ def test_a_lane_split_leaving_an_entering_stub_headless_is_refused():
     insts, names = tracker.resolve(2, observe_frame(_stub_over(True), MERGED))
     assert names == ["1"]
     assert insts[0].parts["shaft"].area_px == 390 * 90 + 80 * 40
+
+
+def test_a_head_expected_under_anothers_takes_none_of_it():
+    """Two tools crossing, B's wrist gone under A's (A on top): B's expected wrist lies
+    inside where A's is expected. The pixels of A's wrist nearer to B's expected box
+    than to A's stay A's: a head hidden under another is not handed the other's (a
+    2,500-frame two-tool crossing lost 15 points of identity coverage to this)."""
+    a_img = _paint([((410, 150, 720, 210), 10), ((350, 150, 410, 205), 20)])
+    (a,) = observe_frame(a_img, MERGED)
+    b_img = _paint([((0, 300, 300, 340), 10)])
+    (b,) = observe_frame(b_img, MERGED)
+    want_a = {"wrist": RotatedBox(380.0, 179.0, 60.0, 50.0, 0.0)}
+    want_b = {"wrist": RotatedBox(383.0, 166.0, 40.0, 30.0, 0.0)}
+    got = hand_over_heads([a, b], [want_a, want_b], 20)
+    assert got[0] is a and got[1] is b
+    # the same wrist expected for B beside A's (not under it) is handed over
+    beside = {"wrist": RotatedBox(383.0, 140.0, 40.0, 30.0, 0.0)}
+    got = hand_over_heads([a, b], [want_a, beside], 20)
+    assert got[1] is not None and "wrist" in got[1].parts

@@ -39,6 +39,24 @@ def box_distance(xy: np.ndarray, box: RotatedBox) -> np.ndarray:
     return np.hypot(np.maximum(along, 0.0), np.maximum(across, 0.0))
 
 
+#: A tool whose head is expected at least this share under where another's same part
+#: is expected receives none of it (its head went under the other's).
+HEAD_UNDER_FRAC = 0.5
+
+
+def _covered(a: RotatedBox, b: RotatedBox, n: int = 5) -> float:
+    """The share of box ``a`` lying inside box ``b`` (on an n x n grid of points)."""
+    u = unit_vector(a.angle_deg)
+    v = np.array([-u[1], u[0]])
+    s, t = np.meshgrid(np.linspace(-0.5, 0.5, n), np.linspace(-0.5, 0.5, n))
+    pts = (
+        np.array([a.cx, a.cy])
+        + (s.ravel() * a.length)[:, None] * u
+        + (t.ravel() * a.width)[:, None] * v
+    )
+    return float((box_distance(pts, b) <= 0.0).mean())
+
+
 def _pixels(inst: InstanceObservation, part: str) -> np.ndarray:
     """(N, 2) x, y of the part's pixels (float), row by row (``np.nonzero``'s order, by
     OpenCV's ``findNonZero``: ~2x faster)."""
@@ -163,7 +181,9 @@ def hand_over_heads(
     A tool receives a head part when its instance does not show it where expected
     (fewer than ``min_area`` pixels within :data:`HEAD_CLAIM_PX` of the box): another
     instance's pixels of that part within that reach of the box, and nearer to it than
-    to where the other's own head is expected, are moved to it (at least ``min_area``),
+    to where the other's own head is expected, are moved to it (at least ``min_area``;
+    none when the tool's box lies at least :data:`HEAD_UNDER_FRAC` inside where the
+    other's is expected: its head went under the other's),
     and its own pixels of that part lying where the other's is expected go the other
     way. A hand-over that would leave either instance empty is not made; a tool with no
     instance receives nothing.
@@ -185,6 +205,8 @@ def hand_over_heads(
                 xy = _pixels(donor, part)
                 to_me = box_distance(xy, want)
                 own = expected[d].get(part)
+                if own is not None and _covered(want, own) >= HEAD_UNDER_FRAC:
+                    continue  # expected under the other's head: hidden by it
                 to_own = box_distance(xy, own) if own is not None else np.full(len(xy), np.inf)
                 move = (to_me <= HEAD_CLAIM_PX) & (to_me < to_own)
                 if int(move.sum()) < min_area:
