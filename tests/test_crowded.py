@@ -352,19 +352,21 @@ def test_a_head_where_its_own_tool_expects_it_stays():
     assert got[1] is not None and got[1].parts["clasper"].area_px < b.parts["clasper"].area_px
 
 
-def _crossing(f: int, head: bool) -> np.ndarray:
-    """Two tools from the left and right borders, 10 deg down, their ends 25 px further
-    in each frame (crossing from frame 2); ``head``: a third tool's jaws entering from
-    the bottom border."""
+def _crossing(f: int, head: bool, y0: float = 150.0) -> np.ndarray:
+    """Two tools from the left and right borders at ``y0``, 10 deg down, their ends 25 px
+    further in each frame (crossing from frame 2); ``head``: a third tool's jaws entering
+    from the bottom border (``y0`` 150) or the top border (else)."""
     img = np.zeros(SHAPE, np.uint8)
     for x0, sign in ((0, 1), (719, -1)):
         d = np.array([sign * math.cos(math.radians(10)), math.sin(math.radians(10))])
-        start = np.array([x0, 150.0])
+        start = np.array([x0, y0])
         end = start + (300 + 25 * f) * d
         cv2.line(img, tuple(map(int, start)), tuple(map(int, end)), 10, 40)
         cv2.line(img, tuple(map(int, end + 22 * d)), tuple(map(int, end + 40 * d)), 30, 16)
-    if head:
+    if head and y0 == 150.0:
         img[536:576, 300:420] = 30
+    elif head:
+        img[0:20, 300:330] = 30
     return img
 
 
@@ -383,6 +385,22 @@ def test_a_tool_in_a_blob_does_not_take_a_far_head_entering_the_view():
             assert before[n] == (inst.centroid_px[0] < 360)
         else:
             assert n not in before
+
+
+def test_a_tool_in_a_blob_does_not_take_a_head_entering_near_it():
+    """The same with the jaws entering from the top border 110 px from the left tool's
+    centre (less than its size, 151 px, more than half of it): a new name."""
+    tracker = IdentityTracker(MERGED)
+    for f in range(9):
+        insts, names = tracker.resolve(f, observe_frame(_crossing(f, False, 60.0), MERGED))
+    before = {n: i.centroid_px[0] < 360 for n, i in zip(names, insts, strict=True)}
+    insts, names = tracker.resolve(9, observe_frame(_crossing(9, True, 60.0), MERGED))
+    assert len(names) == 3
+    for n, inst in zip(names, insts, strict=True):
+        if "shaft" in inst.parts:
+            assert before[n] == (inst.centroid_px[0] < 360)
+        else:
+            assert n not in before and inst.area_px == 600
 
 
 def _stub_beside(b: bool) -> np.ndarray:

@@ -323,13 +323,24 @@ def distinct_lanes(
     return True
 
 
-def _far_head(t: Track, inst: InstanceObservation, frame: int) -> bool:
-    """Whether ``inst`` is a head alone (no shaft) farther than the track's size from
-    where a track coasting in a blob is expected: that track is still in its blob (a
-    tool entering head first elsewhere is another)."""
+#: A track last seen in a blob takes no head-only instance farther than this many of its
+#: sizes from its prediction (but where its shaft enters the view).
+FAR_HEAD_SIZES = 0.5
+
+
+def _far_head(t: Track, inst: InstanceObservation, frame: int, entry_reach: float) -> bool:
+    """Whether ``inst`` is a head alone (no shaft) that a track last seen in a blob
+    cannot be: farther than half the track's size from where it is expected, unless at
+    the image border within ``entry_reach`` px of where its shaft entered the view (its
+    shaft left the view there). That track is still in its blob; a tool entering head
+    first elsewhere is another."""
     if not (t.in_blob or t.state.coasting) or "shaft" in inst.parts:
         return False
-    return float(np.hypot(*(np.asarray(inst.centroid_px) - t.predict(frame)))) > t.size
+    c = np.asarray(inst.centroid_px)
+    if float(np.hypot(*(c - t.predict(frame)))) <= FAR_HEAD_SIZES * t.size:
+        return False
+    near_entry = t.entry is not None and float(np.hypot(*(c - t.entry))) <= entry_reach
+    return not (near_entry and _touches_border(inst))
 
 
 def _fragment_of(t: Track, host: Track | None) -> bool:
@@ -507,10 +518,16 @@ class IdentityTracker:
         entries = [_one_entry(self._runs_of(inst)) for inst in fr.instances]
         for a, t in enumerate(fr.live):
             for b, inst in enumerate(fr.instances):
-                if _far_head(t, inst, fr.index):
+                if _far_head(t, inst, fr.index, self._entry_reach(inst)):
                     continue
                 cost[a, b] = self._cost(t, inst, fr.index, entries[b])
         fr.owner = {b: a for a, b in gated_assignment(cost, self._weights.max_cost)}
+
+    def _entry_reach(self, inst: InstanceObservation) -> float:
+        """How far (px) from where a shaft last entered the view it may enter now
+        (:attr:`CostWeights.entry_scale_frac` of the image diagonal)."""
+        shape = inst.image_shape or (1000, 1000)
+        return self._weights.entry_scale_frac * math.hypot(*shape)
 
     def _find_hidden(self, fr: _Frame) -> None:
         """Unmatched recent tracks whose prediction lies in a matched, grown blob."""
