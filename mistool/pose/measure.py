@@ -51,6 +51,8 @@ from mistool.pose.silhouette import (
     boundary_points,
     fit_line_robust,
     make_canvas,
+    sum_rows,
+    take_rows,
 )
 from mistool.pose.status import AUX_STATUS, reason_code
 
@@ -151,6 +153,14 @@ def _outline(
         mom = {k: m[k] for k in mom}
     pts += offset
     return pts, mom
+
+
+def _mean_rows(v: np.ndarray, select: np.ndarray) -> np.ndarray:
+    """``v[select].mean(axis=0)`` of (N, 2) points, bit for bit, faster; NaN for no row."""
+    rows = take_rows(v, select)
+    if not len(rows):
+        return rows.mean(axis=0)
+    return sum_rows(rows) / len(rows)
 
 
 def _median_rows(v: np.ndarray) -> np.ndarray:
@@ -288,17 +298,19 @@ def _fit_limbs(
     stats: list[_LineStats | None] = []
     for side in (q < 0, q > 0):
         sel = keep & side
-        fit = fit_line_robust(pts[sel], s[sel], rng) if sel.sum() >= _MIN_LINE_POINTS else None
+        enough = np.count_nonzero(sel) >= _MIN_LINE_POINTS
+        fit = fit_line_robust(take_rows(pts, sel), s[sel], rng) if enough else None
         if fit is not None:
             line, inl, sig = fit
             idx = np.flatnonzero(sel)[inl]
             n_in = len(idx)
-            span = float(np.ptp(s[idx])) if n_in else 0.0
+            s_in = s[idx]
+            span = float(s_in.max() - s_in.min()) if n_in else 0.0
             if n_in >= _MIN_LINE_POINTS and span >= _MIN_LINE_SPAN_PX:
                 if line[:2] @ centre + line[2] < 0:
                     line = -line
                 lines.append(line)
-                stats.append(_LineStats(pts[idx].mean(axis=0), span, n_in, sig))
+                stats.append(_LineStats(sum_rows(take_rows(pts, idx)) / n_in, span, n_in, sig))
                 continue
         lines.append(None)
         stats.append(None)
@@ -601,7 +613,7 @@ def _initial_direction(sp: _ShaftPoints, centre: np.ndarray, mu: tuple[float, ..
         d0 = _median_rows(sp.bnd.other) - centre
     elif tr / 2.0 + disc < 9.0 * max(tr / 2.0 - disc, 1e-9):
         if sp.border.any():
-            d0 = centre - sp.pix[sp.border].mean(axis=0)
+            d0 = centre - _mean_rows(sp.pix, sp.border)
     nd0 = math.hypot(d0[0], d0[1]) if d0 is not None else 0.0
     if d0 is not None and nd0 > 2.0:
         e = d0 / nd0
@@ -628,13 +640,16 @@ def _shaft_frame(sp: _ShaftPoints) -> _ShaftFrame:
     mu11 = mom["m11"] / mom["m00"] - xm * ym
     centre = sp.centre
     e = _initial_direction(sp, centre, (mu20, mu02, mu11))
-    s_pix = (sp.pix - centre) @ e
+    rel = sp.pix - centre
+    s_pix = rel @ e
     distal = _distal_sign(sp, centre, e, s_pix)
     if distal < 0:
         e = -e
         s_pix = -s_pix
     s_min, s_max = float(s_pix.min()), float(s_pix.max())
     eperp = np.array([-e[1], e[0]])
+    across = rel @ eperp
+    at_border = sp.border.any()
     return _ShaftFrame(
         centre=centre,
         e=e,
@@ -643,10 +658,10 @@ def _shaft_frame(sp: _ShaftPoints) -> _ShaftFrame:
         s_min=s_min,
         s_max=s_max,
         distal_seen=distal != 0,
-        prox_at_border=bool(np.any(sp.border & (s_pix <= s_min + 2.0))),
-        dist_at_border=bool(np.any(sp.border & (s_pix >= s_max - 2.0))),
+        prox_at_border=bool(at_border and (sp.border & (s_pix <= s_min + 2.0)).any()),
+        dist_at_border=bool(at_border and (sp.border & (s_pix >= s_max - 2.0)).any()),
         med_other=_median_rows(sp.bnd.other) if len(sp.bnd.other) >= 3 else None,
-        width=float(np.ptp((sp.pix - centre) @ eperp)),
+        width=float(across.max() - across.min()),
     )
 
 
@@ -658,25 +673,43 @@ def _limb_points(sp: _ShaftPoints, fr: _ShaftFrame) -> _LimbPoints:
     # the cap's points that curve away)
     zone = min(0.6 * fr.width + 2.0, max(3.0, 0.15 * (fr.s_max - fr.s_min)))
     pts = sp.bnd.bg
-    s = (pts - fr.centre) @ fr.e
+    rel = pts - fr.centre
+    s = rel @ fr.e
     keep_base = np.ones(len(pts), dtype=bool)
     if not fr.prox_at_border:
         keep_base &= s > fr.s_min + zone
     other = sp.bnd.other
     if len(other):  # leave out points within 2 px of another part
-        lo, hi = other.min(axis=0) - 2.0, other.max(axis=0) + 2.0
-        box = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
-        if len(box):
-            d2 = ((pts[box, None, :] - other[None, ::2, :]) ** 2).sum(axis=2)
-            keep_base[box[d2.min(axis=1) < 4.0]] = False
+        keep_base[_near(pts, other)] = False
     return _LimbPoints(
         pts=pts,
         s=s,
-        q=(pts - fr.centre) @ fr.eperp,
+        q=rel @ fr.eperp,
         keep_base=keep_base,
         keep=keep_base & (s < fr.s_max - zone),
         zone=zone,
     )
+
+
+def _near(pts: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """Indices of the points (N, 2) within 2 px (strictly) of one of every other point
+    of ``other`` (M, 2), M >= 1."""
+    x, y = pts[:, 0], pts[:, 1]
+    ox, oy = other[:, 0], other[:, 1]
+    lo_x, lo_y, hi_x, hi_y = ox.min() - 2.0, oy.min() - 2.0, ox.max() + 2.0, oy.max() + 2.0
+    inside = x >= lo_x
+    inside &= x <= hi_x
+    inside &= y >= lo_y
+    inside &= y <= hi_y
+    box = np.flatnonzero(inside)
+    if not len(box):
+        return box
+    dx = np.subtract.outer(x[box], ox[::2])
+    dy = np.subtract.outer(y[box], oy[::2])
+    dx *= dx
+    dy *= dy
+    dx += dy  # squared distances
+    return box[dx.min(axis=1) < 4.0]
 
 
 def _joint_pixel(sp: _ShaftPoints, fr: _ShaftFrame) -> np.ndarray | None:
@@ -684,7 +717,7 @@ def _joint_pixel(sp: _ShaftPoints, fr: _ShaftFrame) -> np.ndarray | None:
     if fr.med_other is not None:
         return fr.med_other
     if fr.distal_seen and not fr.dist_at_border:
-        return sp.pix[fr.s_pix >= fr.s_max - 1.0].mean(axis=0)
+        return _mean_rows(sp.pix, fr.s_pix >= fr.s_max - 1.0)
     return None
 
 
@@ -751,12 +784,12 @@ def _joint(
     if not fr.distal_seen or (fr.dist_at_border and len(other) < 3):
         return None, "joint out of view"
     near = np.flatnonzero(lp.s >= fr.s_max - lp.zone)
-    pn = lp.pts[near]
+    pn = take_rows(lp.pts, near)
     d1 = np.abs(pn @ lines[0][:2] + lines[0][2])
     d2 = np.abs(pn @ lines[1][:2] + lines[1][2])
     tol = max(1.0, 2.5 * max(st.sigma for st in stats))
     cap = near[(d1 > tol) & (d2 > tol)]
-    end_pts = np.concatenate([other, lp.pts[cap]])
+    end_pts = np.concatenate([other, take_rows(lp.pts, cap)])
     is_other = np.zeros(len(end_pts), dtype=bool)
     is_other[: len(other)] = True
     if len(end_pts) < 3:
@@ -837,7 +870,7 @@ def _shaft_row(
     the joint's uncertainty is too large for any pose (the reason recorded on every row)."""
     row = out["shaft"]
     p0, a, joint = sol.p0, sol.a, sol.joint
-    prox = sp.pix[fr.s_pix <= fr.s_min + 1.0].mean(axis=0)
+    prox = _mean_rows(sp.pix, fr.s_pix <= fr.s_min + 1.0)
     row["aux_su_px"], row["aux_sv_px"] = float(prox[0]), float(prox[1])
     # uncertainty of the joint (or the centroid's axis point) and of the direction
     ref = joint if joint is not None else sol.xc
@@ -858,7 +891,7 @@ def _shaft_row(
     # proximal end: where the shaft leaves the view (or its proximal end)
     t_start = _closest1(prox, K, p0, a)
     start = p0 + t_start * a
-    far = sp.pix[fr.s_pix >= fr.s_max - 1.0].mean(axis=0)
+    far = _mean_rows(sp.pix, fr.s_pix >= fr.s_max - 1.0)
     t_far = _closest1(far, K, p0, a)
     t_end = float((joint - p0) @ a) if joint is not None else t_far
     start_ok = start[2] > 0 and t_end > t_start
@@ -941,11 +974,11 @@ def measure_instance(
         or shaft is None
         or shaft_diameter_mm is None
         or not shaft_diameter_mm > 0
-        or not np.any(shaft.mask)
+        or not shaft.mask.any()
     ):
         if camera is None:
             _why(out, "no camera")
-        elif shaft is None or not np.any(shaft.mask):
+        elif shaft is None or not shaft.mask.any():
             _why(out, "not visible")
         else:
             _why(out, "no shaft diameter")
@@ -1021,7 +1054,9 @@ def _jaw_tips(
     contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return [], [], [], []
-    c = max(contours, key=len).reshape(-1, 2).astype(np.float64) + offset
+    ci = max(contours, key=len).reshape(-1, 2)  # outline pixels (crop px, integers)
+    c = ci.astype(np.float64)
+    c += offset
     dj = c - jpx
     d = np.sqrt(np.einsum("ij,ij->i", dj, dj))
     n = len(c)
@@ -1030,24 +1065,31 @@ def _jaw_tips(
     local = _window_max(padded, 2 * win + 1)
     cand = np.flatnonzero((d >= local) & (d >= 0.5 * d.max()))
     cand = cand[np.argsort(-d[cand])]
+    sep = _JAW_SEP * width_px
     picks: list[int] = []
-    for i in cand:
-        if all(math.hypot(*(c[i] - c[j])) > _JAW_SEP * width_px for j in picks):
-            picks.append(int(i))
+    at: list[tuple[float, float]] = []
+    for i, (xi, yi) in zip(cand.tolist(), take_rows(c, cand).tolist(), strict=True):
+        if all(math.hypot(xi - xj, yi - yj) > sep for xj, yj in at):
+            picks.append(i)
+            at.append((xi, yi))
         if len(picks) == 2:
             break
     rad = _JAW_RAD * width_px
     if len(picks) == 2:
-        rad = min(rad, 0.5 * math.hypot(*(c[picks[0]] - c[picks[1]])))
+        (xa, ya), (xb, yb) = at
+        rad = min(rad, 0.5 * math.hypot(xa - xb, ya - yb))
     ends: list[np.ndarray] = []
     nears: list[np.ndarray] = []
     dirs: list[np.ndarray] = []
     halfw: list[float] = []
     for k in picks:
-        nb = _pixels_within(mask_u8, offset, c[k], rad)
+        nb, sx, sy = _pixels_within(mask_u8, (int(ci[k, 0]), int(ci[k, 1])), rad)
         if len(nb) < 3:
             continue
-        m = nb.mean(axis=0)
+        nb += offset
+        cnt = len(nb)
+        # the pixels' mean: their coordinates are integers, so their sums are exact
+        m = np.array([(sx + cnt * offset[0]) / cnt, (sy + cnt * offset[1]) / cnt])
         dd = nb - m
         cov = dd.T @ dd
         phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
@@ -1056,28 +1098,36 @@ def _jaw_tips(
             e = -e
         ends.append(m + (float((dd @ e).max()) + 0.5) * e)
         dirs.append(e)
-        halfw.append(min(0.5 * float(np.ptp(dd @ np.array([-e[1], e[0]]))) + 0.5, width_px))
-        dc = c - c[k]
-        nears.append(c[np.einsum("ij,ij->i", dc, dc) <= rad * rad])
+        across = dd @ np.array([-e[1], e[0]])
+        halfw.append(min(0.5 * float(across.max() - across.min()) + 0.5, width_px))
+        dc = ci - ci[k]
+        nears.append(take_rows(c, np.einsum("ij,ij->i", dc, dc) <= rad * rad))
     return ends, nears, dirs, halfw
 
 
 def _pixels_within(
-    mask_u8: np.ndarray, offset: tuple[int, int], centre: np.ndarray, rad: float
-) -> np.ndarray:
-    """(M, 2) full-image px of the mask's pixels within ``rad`` px of ``centre`` (2,), in
-    row-major order (as ``np.nonzero`` over the whole crop, only the window around
-    ``centre`` examined)."""
+    mask_u8: np.ndarray, centre: tuple[int, int], rad: float
+) -> tuple[np.ndarray, int, int]:
+    """The mask's pixels within ``rad`` px of the pixel ``centre`` (crop px, integers):
+    (M, 2) float crop px in row-major order (as ``np.nonzero`` over the whole crop, only
+    the window around ``centre`` examined), and the sums of their x and of their y."""
     h, w = mask_u8.shape
-    cx, cy = float(centre[0]) - offset[0], float(centre[1]) - offset[1]
+    cx, cy = centre
     x0, y0 = max(int(math.floor(cx - rad)), 0), max(int(math.floor(cy - rad)), 0)
     x1, y1 = min(int(math.ceil(cx + rad)) + 1, w), min(int(math.ceil(cy + rad)) + 1, h)
     if x0 >= x1 or y0 >= y1:
-        return np.zeros((0, 2))
+        return np.zeros((0, 2)), 0, 0
     ys, xs = np.nonzero(mask_u8[y0:y1, x0:x1])
-    area = np.stack([xs + float(offset[0] + x0), ys + float(offset[1] + y0)], axis=1)
-    dc = area - centre
-    return area[np.einsum("ij,ij->i", dc, dc) <= rad * rad]
+    dx, dy = xs - (cx - x0), ys - (cy - y0)
+    dx *= dx
+    dy *= dy
+    dx += dy  # squared distances, exact in integers
+    inside = dx <= rad * rad
+    xs, ys = xs[inside], ys[inside]
+    out = np.empty((len(xs), 2))
+    np.add(xs, float(x0), out=out[:, 0])
+    np.add(ys, float(y0), out=out[:, 1])
+    return out, int(xs.sum()) + len(xs) * x0, int(ys.sum()) + len(ys) * y0
 
 
 def _tip(

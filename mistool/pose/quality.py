@@ -20,20 +20,22 @@ import numpy as np
 
 from mistool.config import Camera
 from mistool.lens import distort_points, ideal_bounds
-from mistool.pose.cylinder import cross3, project
+from mistool.pose.cylinder import project
 
 __all__ = ["hull_of_cylinder", "image_polygon", "iou_polygon_mask", "perpendicular_basis"]
 
 _THETA = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
-_COS, _SIN = np.cos(_THETA), np.sin(_THETA)
+_COS_COL, _SIN_COL = np.cos(_THETA)[:, None], np.sin(_THETA)[:, None]
 
 
 def perpendicular_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (3,) completing the unit vector ``a`` to an orthonormal basis."""
-    ref = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = cross3(a, ref)
+    ax, ay, az = a.tolist()
+    # e1 = a x ref, ref = +x (or +y when a is near +-x); plain floats (3-vectors)
+    e1 = np.array([0.0, az, -ay] if abs(ax) < 0.9 else [-az, 0.0, ax])
     e1 /= math.sqrt(float(e1 @ e1))
-    return e1, cross3(a, e1)
+    x, y, z = e1.tolist()
+    return e1, np.array([ay * z - az * y, az * x - ax * z, ax * y - ay * x])
 
 
 def hull_of_cylinder(
@@ -55,12 +57,16 @@ def hull_of_cylinder(
     if not math.isfinite(nd) or nd < 1e-6:
         return None
     e1, e2 = perpendicular_basis(d / nd)
-    ring = _COS[:, None] * e1 + _SIN[:, None] * e2
-    pts = np.concatenate([p_a + r_a * ring, p_b + r_b * ring])
+    ring = _COS_COL * e1
+    ring += _SIN_COL * e2
+    pts = np.empty((2 * len(ring), 3))
+    np.multiply(r_a, ring, out=pts[: len(ring)])
+    np.multiply(r_b, ring, out=pts[len(ring) :])
+    pts[: len(ring)] += p_a
+    pts[len(ring) :] += p_b
     if pts[:, 2].min() < min_z_mm:
         return None
-    uv = project(pts, K).astype(np.float32)
-    return cv2.convexHull(uv).reshape(-1, 2)
+    return cv2.convexHull(project(pts, K).astype(np.float32)).reshape(-1, 2)
 
 
 def iou_polygon_mask(
@@ -95,30 +101,35 @@ def iou_polygon_mask(
     H, W = image_shape
     ox, oy = offset
     mh, mw = mask.shape
-    x0 = int(max(0, min(ox, np.floor(poly[:, 0].min()))))
-    y0 = int(max(0, min(oy, np.floor(poly[:, 1].min()))))
-    x1 = int(min(W, max(ox + mw, np.ceil(poly[:, 0].max()) + 1)))
-    y1 = int(min(H, max(oy + mh, np.ceil(poly[:, 1].max()) + 1)))
+    (lx, ly), (hx, hy) = np.floor(poly.min(axis=0)).tolist(), np.ceil(poly.max(axis=0)).tolist()
+    x0 = int(max(0, min(ox, lx)))
+    y0 = int(max(0, min(oy, ly)))
+    x1 = int(min(W, max(ox + mw, hx + 1)))
+    y1 = int(min(H, max(oy + mh, hy + 1)))
     if x1 <= x0 or y1 <= y0:
         return float("nan")
     st = 1 if (x1 - x0) * (y1 - y0) <= max_pixels else 2
     x0, y0 = x0 - x0 % st, y0 - y0 % st
     hc, wc = -(-(y1 - y0) // st), -(-(x1 - x0) // st)
     canvas = np.zeros((hc, wc), dtype=np.uint8)
-    shifted = np.round((poly - np.array([x0, y0], dtype=np.float64)) * (16.0 / st)).astype(np.int32)
+    shifted = poly - np.array([x0, y0], dtype=np.float64)
+    shifted *= 16.0 / st
+    shifted = np.round(shifted, out=shifted).astype(np.int32)
     if convex:
         cv2.fillConvexPoly(canvas, shifted, 1, lineType=cv2.LINE_8, shift=4)
     else:
         cv2.fillPoly(canvas, [shifted], 1, lineType=cv2.LINE_8, shift=4)
     rend = canvas.view(bool)
-    obs = np.zeros_like(rend)
+    n_rend = int(np.count_nonzero(rend))
     ia, ja = max(0, -(-(oy - y0) // st)), max(0, -(-(ox - x0) // st))
     ib, jb = min(hc, -(-(oy + mh - y0) // st)), min(wc, -(-(ox + mw - x0) // st))
-    if ia < ib and ja < jb:
-        sub = mask[y0 + st * ia - oy :: st, x0 + st * ja - ox :: st]
-        obs[ia:ib, ja:jb] = sub[: ib - ia, : jb - ja]
-    inter = np.count_nonzero(rend & obs)
-    union = np.count_nonzero(rend | obs)
+    inter = n_obs = 0
+    if ia < ib and ja < jb:  # the mask's samples within the canvas
+        sub = mask[y0 + st * ia - oy :: st, x0 + st * ja - ox :: st][: ib - ia, : jb - ja]
+        sub = sub.astype(bool, copy=False)
+        n_obs = int(np.count_nonzero(sub))
+        inter = int(np.count_nonzero(rend[ia:ib, ja:jb] & sub))
+    union = n_rend + n_obs - inter
     return inter / union if union else float("nan")
 
 

@@ -1,0 +1,127 @@
+#!/usr/bin/env python
+"""A/B: CPU time of the per-frame metric pose of another mistool checkout (REF, e.g.
+``git worktree add /tmp/pose-before <sha>``) against this one, on the very calls
+``mistool track`` makes, with their outputs compared bit for bit.
+
+For each sequence, ``mistool.api.iter_track(seq, workers=1)`` runs once with this
+checkout and every call of ``parallel.measure`` (the worker's pose of an instance, a
+split piece's or a deferred frame's) is recorded. Both versions are then imported into
+this one process (REF's modules first, then this checkout's) and run over the recorded
+calls alternately (A B A B ...), ``--runs`` times each; the CPU time
+(``time.process_time``) per call and per frame is the median. OpenCV runs on one thread,
+as in the worker processes. Every cell of every output must be equal (NaN equal to
+NaN), else the script says which and exits with 1.
+
+Usage::
+
+    git worktree add /tmp/pose-before main
+    python scripts/ab_pose.py /tmp/pose-before SEQ [SEQ ...] [--runs 7]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import cv2
+
+HERE = Path(__file__).resolve().parent.parent
+
+
+def _load(root: Path) -> ModuleType:
+    """``mistool.parallel`` of the checkout at ``root``."""
+    for name in [m for m in sys.modules if m == "mistool" or m.startswith("mistool.")]:
+        del sys.modules[name]
+    sys.path.insert(0, str(root))
+    try:
+        from mistool import parallel
+    finally:
+        sys.path.remove(str(root))
+    assert Path(parallel.__file__).is_relative_to(root), parallel.__file__
+    return parallel
+
+
+def _record(parallel: ModuleType, seq: Path) -> tuple[Any, list[tuple[Any, tuple[int, int]]], int]:
+    """The config, the recorded ``(instance, shape)`` calls and the frame count."""
+    from mistool import api
+    from mistool.config import load_config
+    from mistool.sequence import list_frames
+
+    calls: list[tuple[Any, tuple[int, int]]] = []
+    real = parallel.measure
+
+    def spy(inst: Any, shape: tuple[int, int], config: Any, metric: bool) -> Any:
+        if metric and config.camera is not None:
+            calls.append((inst, shape))
+        return real(inst, shape, config, metric)
+
+    cfg = load_config(seq)
+    parallel.measure = spy
+    try:
+        for _ in api.iter_track(seq, cfg, workers=1):
+            pass
+    finally:
+        parallel.measure = real
+    return cfg, calls, len(list_frames(seq))
+
+
+def _run(parallel: ModuleType, cfg: Any, calls: list[tuple[Any, tuple[int, int]]]) -> list[Any]:
+    return [parallel.measure(inst, shape, cfg, True) for inst, shape in calls]
+
+
+def _differences(ref: list[Any], got: list[Any]) -> list[str]:
+    bad = []
+    for k, (a, b) in enumerate(zip(ref, got, strict=True)):
+        if a.keys() != b.keys():
+            bad.append(f"call {k}: parts {sorted(a)} != {sorted(b)}")
+            continue
+        for part, row in a.items():
+            for col, x in row.items():
+                y = b[part].get(col)
+                same = y is not None and (x == y or (math.isnan(x) and math.isnan(y)))
+                if not same:
+                    bad.append(f"call {k} {part} {col}: {x!r} != {y!r}")
+    return bad
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("ref", type=Path, help="the other checkout's root (holds mistool/)")
+    ap.add_argument("seqs", type=Path, nargs="+", help="sequence folders")
+    ap.add_argument("--runs", type=int, default=7)
+    args = ap.parse_args()
+    cv2.setNumThreads(1)
+    versions = {"ref": _load(args.ref.resolve()), "this": _load(HERE)}
+    status = 0
+    for seq in args.seqs:
+        cfg, calls, frames = _record(versions["this"], seq)
+        outs = {k: _run(par, cfg, calls) for k, par in versions.items()}  # warm up
+        bad = _differences(outs["ref"], outs["this"])
+        cpu: dict[str, list[float]] = {k: [] for k in versions}
+        for _ in range(args.runs):
+            for k, par in versions.items():
+                t0 = time.process_time()
+                _run(par, cfg, calls)
+                cpu[k].append(time.process_time() - t0)
+        med = {k: statistics.median(v) for k, v in cpu.items()}
+        print(
+            f"{seq.name}: {frames} frames, {len(calls)} calls; pose CPU (median of "
+            f"{args.runs}, alternating) ref {1e3 * med['ref'] / len(calls):.3f} -> this "
+            f"{1e3 * med['this'] / len(calls):.3f} ms/call, {1e3 * med['ref'] / frames:.3f} -> "
+            f"{1e3 * med['this'] / frames:.3f} ms/frame (x{med['ref'] / med['this']:.2f}); "
+            + ("outputs identical" if not bad else f"{len(bad)} cells differ")
+        )
+        for line in bad[:20]:
+            print("  " + line)
+        status |= bool(bad)
+    return status
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
