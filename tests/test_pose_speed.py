@@ -11,13 +11,15 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mistool.pose.cylinder import cross3, project
+from mistool.pose.cylinder import cross3, project, quat_from_z
 from mistool.pose.measure import _jaw_tips, _mean_rows, _near, _window_max
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask, perpendicular_basis
 from mistool.pose.silhouette import (
     Boundary,
     Canvas,
+    _tls_moments,
     boundary_points,
+    fit_line_robust,
     make_canvas,
     sum_rows,
     take_rows,
@@ -324,3 +326,107 @@ def test_perpendicular_basis_hull_and_iou_as_before(seed: int, axis_like: bool) 
         got = iou_polygon_mask(poly, mask, offset, (576, 720), None, max_pixels)
         want = _iou_before(poly, mask, offset, (576, 720), max_pixels)
         assert got == want or (math.isnan(got) and math.isnan(want))
+
+
+def _quat_before(z: np.ndarray) -> np.ndarray:
+    c = float(z[2])
+    if c < -1.0 + 1e-12:
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    q = np.array([1.0 + c, -float(z[1]), float(z[0]), 0.0])
+    return q / np.linalg.norm(q)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_quaternion_as_before(seed: int) -> None:
+    z = np.random.default_rng(seed).normal(size=3)
+    z /= np.linalg.norm(z)
+    assert _same(quat_from_z(z), _quat_before(z))
+
+
+def _fit_before(
+    pts: np.ndarray,
+    along: np.ndarray,
+    thresh_px: float = 1.5,
+    iters: int = 12,
+    max_points: int = 192,
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """``fit_line_robust`` (fixed draws) as it was."""
+    n = len(pts)
+    if n < 8:
+        return None
+    keep = None
+    if n > max_points:
+        keep = np.arange(max_points) * (n - 1) // (max_points - 1)
+        pts, along = pts[keep], along[keep]
+        n = max_points
+    ox, oy = (pts.sum(axis=0) * (1.0 / n)).tolist()
+    X = np.empty((3, n))
+    X[:2] = (pts - (ox, oy)).T
+    X[2] = 1.0
+    x, y = X[0], X[1]
+    order = np.argsort(along)
+    half = n // 2
+    draws = np.random.default_rng(12345).random((2, 64))
+    pick_i = (draws[0, :iters] * half).astype(np.int64)
+    pick_j = n - half + (draws[1, :iters] * half).astype(np.int64)
+    i = order[pick_i]
+    j = order[pick_j]
+    H = np.empty((len(i), 3))
+    H[:, 0] = y[i] - y[j]
+    H[:, 1] = x[j] - x[i]
+    ln = np.sqrt(H[:, 0] * H[:, 0] + H[:, 1] * H[:, 1])
+    if ln.min() <= 1e-9:
+        ok = ln > 1e-9
+        if not ok.any():
+            return None
+        H, ln, i = H[ok], ln[ok], i[ok]
+    H[:, :2] /= ln[:, None]
+    H[:, 2] = -(H[:, 0] * x[i] + H[:, 1] * y[i])
+    res = np.abs(H @ X)
+    best = int(np.argmin(np.minimum(res, thresh_px).sum(axis=1)))
+    inl = res[best] < thresh_px
+    if np.count_nonzero(inl) < 6:
+        return None
+    line = _tls_moments(X[:, inl] @ X[:, inl].T)
+    scale = thresh_px
+    r = line @ X
+    for _ in range(2):
+        u = r * (1.0 / (2.5 * scale))
+        w = np.maximum(1.0 - u * u, 0.0)
+        w *= w
+        if w.sum() < 6:
+            break
+        line = _tls_moments((X * w) @ X.T)
+        r = line @ X
+        ra = np.abs(r)
+        core = ra[ra < 2.5 * scale]
+        if len(core):
+            scale = min(
+                max(1.4826 * float(np.partition(core, len(core) // 2)[len(core) // 2]), 0.3),
+                thresh_px,
+            )
+    inl = np.flatnonzero(np.abs(r) < max(2.5 * scale, 0.75))
+    ri = r[inl]
+    sigma = math.sqrt(float(ri @ ri) / len(inl)) if len(inl) else float("inf")
+    line[2] -= line[0] * ox + line[1] * oy
+    return line, (inl if keep is None else keep[inl]), sigma
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([8, 9, 30, 191, 192, 193, 700]), st.booleans())
+def test_robust_line_fit_as_before(seed: int, n: int, pixels: bool) -> None:
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.uniform(0.0, 300.0, n))
+    phi = rng.uniform(0.0, math.pi)
+    pts = np.stack([100 + t * math.cos(phi), 200 + t * math.sin(phi)], axis=1)
+    pts += rng.normal(0.0, 0.4, pts.shape)
+    out = rng.random(n) < 0.2
+    pts[out] += rng.normal(0.0, 8.0, (int(out.sum()), 2))  # outliers
+    if pixels:
+        pts = np.round(2.0 * pts) / 2.0
+    along = pts @ np.array([math.cos(phi), math.sin(phi)])
+    got, ref = fit_line_robust(pts, along), _fit_before(pts, along)
+    assert (got is None) == (ref is None)
+    if got is not None and ref is not None:
+        assert _same(got[0], ref[0]) and _same(got[1], ref[1]) and got[2] == ref[2]

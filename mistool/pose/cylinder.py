@@ -266,4 +266,4 @@ def quat_from_z(z: np.ndarray) -> np.ndarray:
         return np.array([0.0, 1.0, 0.0, 0.0])
     # axis = e_z x z = (-z_y, z_x, 0); q = (1 + c, axis) normalised
     q = np.array([1.0 + c, -float(z[1]), float(z[0]), 0.0])
-    return q / np.linalg.norm(q)
+    return q / math.sqrt(float(q @ q))  # np.linalg.norm(q), without its overhead

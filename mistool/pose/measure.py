@@ -38,7 +38,6 @@ from mistool.pose.cylinder import (
     axis_from_image_lines,
     closest_on_axis,
     pixel_rays,
-    project,
     quat_from_z,
     ray_cylinder,
 )
@@ -234,6 +233,12 @@ def ideal_outline(pix: np.ndarray, bnd: Boundary, camera: Camera) -> tuple[np.nd
     n, m = len(pix), len(bnd.bg)
     ideal = undistort_points(np.concatenate([pix, bnd.bg, bnd.other]), camera)
     return ideal[:n], Boundary(bg=ideal[n : n + m], other=ideal[n + m :])
+
+
+def _ideal_px(px: np.ndarray, camera: Camera) -> np.ndarray:
+    """One pixel (2,) of the camera's image in its ideal image (``undistort_points``; the
+    pixel itself for an undistorted lens)."""
+    return undistort_points(px[None], camera)[0] if camera.distorted else px
 
 
 def _fill_pose(
@@ -585,7 +590,7 @@ def _shaft_points(
     centre = (mom["m10"] / mom["m00"] + shaft.offset[0], mom["m01"] / mom["m00"] + shaft.offset[1])
     return _ShaftPoints(
         pix=ideal_pix,
-        centre=undistort_points(np.array([centre]), camera)[0],
+        centre=_ideal_px(np.array(centre), camera),
         moments=mom,
         offset=shaft.offset,
         bnd=bnd,
@@ -595,13 +600,17 @@ def _shaft_points(
     )
 
 
-def _initial_direction(sp: _ShaftPoints, centre: np.ndarray, mu: tuple[float, ...]) -> np.ndarray:
+def _initial_direction(
+    sp: _ShaftPoints, centre: np.ndarray, mu: tuple[float, ...], med_other: np.ndarray | None
+) -> np.ndarray:
     """(2,) unit image direction of the axis (sign not yet distal).
 
     The principal axis of the region, except where it fails: on a short visible stretch (as
     wide as long, or wider) the joint is on the axis, so the direction toward the
     shaft-clasper boundary is the axis' direction whatever the shape; without a clasper, a
     short stretch uses the direction away from where the shaft leaves the view.
+    ``med_other``: the median of the boundary points next to other parts (at least 3),
+    or None.
     """
     mu20, mu02, mu11 = mu
     theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
@@ -609,8 +618,8 @@ def _initial_direction(sp: _ShaftPoints, centre: np.ndarray, mu: tuple[float, ..
     tr, det = mu20 + mu02, mu20 * mu02 - mu11 * mu11
     disc = math.sqrt(max(tr * tr / 4.0 - det, 0.0))
     d0: np.ndarray | None = None
-    if len(sp.bnd.other) >= 3:
-        d0 = _median_rows(sp.bnd.other) - centre
+    if med_other is not None:
+        d0 = med_other - centre
     elif tr / 2.0 + disc < 9.0 * max(tr / 2.0 - disc, 1e-9):
         if sp.border.any():
             d0 = centre - _mean_rows(sp.pix, sp.border)
@@ -639,7 +648,8 @@ def _shaft_frame(sp: _ShaftPoints) -> _ShaftFrame:
     mu02 = mom["m02"] / mom["m00"] - ym * ym
     mu11 = mom["m11"] / mom["m00"] - xm * ym
     centre = sp.centre
-    e = _initial_direction(sp, centre, (mu20, mu02, mu11))
+    med_other = _median_rows(sp.bnd.other) if len(sp.bnd.other) >= 3 else None
+    e = _initial_direction(sp, centre, (mu20, mu02, mu11), med_other)
     rel = sp.pix - centre
     s_pix = rel @ e
     distal = _distal_sign(sp, centre, e, s_pix)
@@ -660,7 +670,7 @@ def _shaft_frame(sp: _ShaftPoints) -> _ShaftFrame:
         distal_seen=distal != 0,
         prox_at_border=bool(at_border and (sp.border & (s_pix <= s_min + 2.0)).any()),
         dist_at_border=bool(at_border and (sp.border & (s_pix >= s_max - 2.0)).any()),
-        med_other=_median_rows(sp.bnd.other) if len(sp.bnd.other) >= 3 else None,
+        med_other=med_other,
         width=float(across.max() - across.min()),
     )
 
@@ -891,9 +901,10 @@ def _shaft_row(
     # proximal end: where the shaft leaves the view (or its proximal end)
     t_start = _closest1(prox, K, p0, a)
     start = p0 + t_start * a
-    far = _mean_rows(sp.pix, fr.s_pix >= fr.s_max - 1.0)
-    t_far = _closest1(far, K, p0, a)
-    t_end = float((joint - p0) @ a) if joint is not None else t_far
+    if joint is not None:
+        t_end = float((joint - p0) @ a)
+    else:  # the distal end of the outline
+        t_end = _closest1(_mean_rows(sp.pix, fr.s_pix >= fr.s_max - 1.0), K, p0, a)
     start_ok = start[2] > 0 and t_end > t_start
     _fill_pose(row, joint, a, start if start_ok else None)
     if start_ok:
@@ -916,7 +927,7 @@ def _clasper_rows(
     """Fill the clasper's row (tip, clasper axis, quality) and the wrist's (its axis)."""
     clasper = parts.get("clasper")
     c_axis = None
-    if clasper is not None and np.any(clasper.mask):
+    if clasper is not None and clasper.mask.any():
         tip, c_axis, tip_px = _tip(
             clasper, joint, a, K, image_shape, clasper_length_mm, 2.0 * radius, camera
         )
@@ -1155,15 +1166,16 @@ def _tip(
     bent direction that projects along the clasper's image direction.
     """
     mask_u8 = _as_u8(clasper.mask)
-    jpx = project(joint[None], K)[0]
+    jx, jy, jz = joint.tolist()
+    jpx = np.array([K[0, 0] * jx / jz + K[0, 2], K[1, 1] * jy / jz + K[1, 2]])  # project()
     jpx_image = distort_points(jpx[None], camera)[0] if camera.distorted else jpx
     width_px = K[0, 0] * 0.25 * diameter / max(float(joint[2]), 1.0)
     ends, nears, dirs, halfw = _jaw_tips(mask_u8, clasper.offset, jpx_image, max(width_px, 2.0))
     if not ends:
         return None, None, None
     tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
-    hidden = any(bool(np.any(_on_border(nb, image_shape))) for nb in nears)
-    tip_px = undistort_points(tip_px[None], camera)[0]
+    hidden = any(bool(_on_border(nb, image_shape).any()) for nb in nears)
+    tip_px = _ideal_px(tip_px, camera)
     tip, c_axis, tip_px = _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
     if tip is None or hidden or not _TIP_CAP:
         return tip, c_axis, tip_px
@@ -1173,7 +1185,7 @@ def _tip(
     cos_v = abs(float(c_axis @ tip)) / math.sqrt(float(tip @ tip))
     ends = [e - _TIP_CAP * hw * cos_v * dr for e, dr, hw in zip(ends, dirs, halfw, strict=True)]
     tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
-    tip_px = undistort_points(tip_px[None], camera)[0]
+    tip_px = _ideal_px(tip_px, camera)
     return _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
 
 

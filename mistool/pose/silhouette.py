@@ -259,7 +259,8 @@ def fit_line_robust(
     inl = res[best] < thresh_px
     if np.count_nonzero(inl) < 6:
         return None
-    line = _tls_moments(X[:, inl] @ X[:, inl].T)
+    xi = X[:, inl]
+    line = _tls_moments(xi @ xi.T)
     scale = thresh_px
     r = line @ X  # signed residuals of the current line
     for _ in range(2):
