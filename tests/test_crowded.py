@@ -486,3 +486,34 @@ def test_a_head_expected_under_anothers_takes_none_of_it():
     beside = {"wrist": RotatedBox(383.0, 140.0, 40.0, 30.0, 0.0)}
     got = hand_over_heads([a, b], [want_a, beside], 20)
     assert got[1] is not None and "wrist" in got[1].parts
+
+
+def _shaft_from_left(x1: int, y: int, jaws: bool = True) -> np.ndarray:
+    """One tool from the left border along row ``y``: shaft to ``x1``, jaws beyond."""
+    img = np.zeros(SHAPE, np.uint8)
+    img[y - 20 : y + 20, 0:x1] = 10
+    if jaws:
+        img[y - 8 : y + 8, x1 : x1 + 40] = 30
+    return img
+
+
+def test_a_crowded_pieces_slide_along_its_shaft_is_not_motion():
+    """A tool seen apart moving 2 px a frame across its shaft (down), then given a piece
+    of a blob split between three tools whose centroid lies 100 px further along its
+    shaft (the cut between tools moved): its velocity along the shaft stays as slow as
+    before, across it follows the piece; a piece of a two-tool split is measured as is."""
+
+    def velocity_after_piece(crowded: bool) -> np.ndarray:
+        tracker = IdentityTracker(MERGED)
+        for f in range(4):
+            tracker.resolve(f, observe_frame(_shaft_from_left(300, 200 + 2 * f), MERGED))
+        (t,) = tracker.tracks
+        (piece,) = observe_frame(_shaft_from_left(500, 210, jaws=False), MERGED)
+        tracker._update(t, piece, 4, merged=False, apart=False, crowded=crowded)
+        return t.motion.velocity
+
+    vx, vy = velocity_after_piece(crowded=True)
+    assert abs(vx) < 1.0  # the tool did not move along its shaft before
+    assert vy == pytest.approx(0.5 * 2.0 + 0.5 * (210 - 206), abs=0.5)  # across: measured
+    vx2, _ = velocity_after_piece(crowded=False)
+    assert vx2 > 40.0  # two tools: as measured (their pieces are cut across the shafts)

@@ -92,15 +92,19 @@ COVERAGE_CASES["4-e17-occ-s4-150"] = dict(
 #: the mask handed back to their own (tracking/heads.py): 4-e17-occ-s2 0.9254 -> 0.9469,
 #: 4-e15-mild-occ-s0 0.9239 -> 0.9434, 4-e17-occ-s4-150 0.8727 -> 0.9020, the others
 #: unchanged. Then a failed split on border entries redone with each entry's direction
-#: from its own lane: 4-e17-occ-s4-150 0.9020 / 0.9951 -> 0.9143 / 1.0.
+#: from its own lane: 4-e17-occ-s4-150 0.9020 / 0.9951 -> 0.9143 / 1.0. Then a piece of a
+#: blob split between three or more tools measures no motion along its shaft faster
+#: than its tool's before: 4-e17-occ-leave-s3 0.8313 / 0.9899 -> 0.8562 / 1.0,
+#: 4-e17-occ-s4-150 0.9143 -> 0.9184; 4-e15-mild-occ-s0 measured 0.9416 (within
+#: COVERAGE_TOL, floor kept), the others unchanged.
 FLOORS: dict[str, tuple[float, float]] = {
     "2-e17-cross-s1": (0.9804, 1.0),
     "2-e17-cross-s0": (0.4845, 0.4813),
     "2-e17-occ-leave-s1": (0.8814, 1.0),
     "4-e17-occ-s2": (0.9469, 1.0),
     "4-e15-mild-occ-s0": (0.9434, 1.0),
-    "4-e17-occ-s4-150": (0.9143, 1.0),  # before the crowded fixes: 0.7453, 0.9118
-    "4-e17-occ-leave-s3": (0.8313, 0.9899),
+    "4-e17-occ-s4-150": (0.9184, 1.0),  # before the crowded fixes: 0.7453, 0.9118
+    "4-e17-occ-leave-s3": (0.8562, 1.0),
 }
 
 #: The metric case: two tools, EndoVis'15 labels, mild corruption, offline smoothing.

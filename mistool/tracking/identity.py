@@ -95,6 +95,13 @@ SPLIT_GOOD_SCORE = 0.65
 #: this (squared shaft half-widths) from every fitted axis are theirs (left out of the
 #: fit; a lone such tool takes them).
 SPLIT_OTHERS_D2 = 9.0
+#: A piece of a blob split between at least this many tools measures its tool's motion
+#: across its shaft, but along it no faster than the tool went before: the cuts between
+#: three or four tools move from frame to frame, and a piece's centroid slid along its
+#: shaft by up to 140 px a frame (the velocity then carried the tool's expected shaft out
+#: of the blob). Two tools crossing are cut across their shafts: their pieces' motion
+#: is measured as is.
+CROWDED_SPLIT_TRACKS = 3
 #: A head part seen this many frames ago or fewer is expected where it was, moved on the
 #: track's velocity (for at most :data:`SPLIT_STOP_FRAMES`), when heads are handed back
 #: to their own tool (:func:`~mistool.tracking.heads.hand_over_heads`).
@@ -784,8 +791,9 @@ class IdentityTracker:
                 names.extend(t.name for t in fr.piece_tracks[b])
             elif b in fr.pieces:
                 tracks = fr.split_tracks[b]
+                crowded = 1 + len(fr.blob_of[b]) >= CROWDED_SPLIT_TRACKS
                 for t, piece in zip(tracks, fr.pieces[b], strict=True):
-                    self._update(t, piece, fr.index, merged=False, apart=False)
+                    self._update(t, piece, fr.index, merged=False, apart=False, crowded=crowded)
                     out.append(piece)
                     names.append(t.name)
                 group = [fr.live[fr.owner[b]]] + [fr.live[a] for a in fr.blob_of[b]]
@@ -823,10 +831,20 @@ class IdentityTracker:
         t.in_blob = True
 
     def _update(
-        self, t: Track, inst: InstanceObservation, frame: int, *, merged: bool, apart: bool = True
+        self,
+        t: Track,
+        inst: InstanceObservation,
+        frame: int,
+        *,
+        merged: bool,
+        apart: bool = True,
+        crowded: bool = False,
     ) -> None:
         """Update a track with the instance given its name (``merged``: a blob holding
-        others too, whose centroid is not this instrument's: it coasts)."""
+        others too, whose centroid is not this instrument's: it coasts; ``apart``: seen
+        apart from others, not a split's piece; ``crowded``: a piece of a blob split
+        between at least :data:`CROWDED_SPLIT_TRACKS` tools, its motion along its shaft
+        unsure)."""
         gap = frame - t.last_frame
         t.in_blob = merged or not apart
         if merged:
@@ -834,7 +852,14 @@ class IdentityTracker:
             t.state = TrackState.COASTING
         else:
             c = np.asarray(inst.centroid_px, dtype=np.float64)
-            t.motion.update(c, gap, continuous=t.state is TrackState.TRACKED, first=t.seen == 1)
+            unsure = unit_vector(t.angle) if crowded and t.angle is not None else None
+            t.motion.update(
+                c,
+                gap,
+                continuous=t.state is TrackState.TRACKED,
+                first=t.seen == 1,
+                unsure_along=unsure,
+            )
             if gap > LOST_AFTER_FRAMES:  # back after being lost: its old shape is stale
                 t.motion.reset_velocity()
                 t.boxes = None

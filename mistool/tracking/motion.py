@@ -35,7 +35,15 @@ class ConstantVelocity:
         """(2,) px: the position ``steps`` frames after the last update."""
         return self.position + self.velocity * steps
 
-    def update(self, measured: np.ndarray, gap: int, *, continuous: bool, first: bool) -> None:
+    def update(
+        self,
+        measured: np.ndarray,
+        gap: int,
+        *,
+        continuous: bool,
+        first: bool,
+        unsure_along: np.ndarray | None = None,
+    ) -> None:
         """Take a measurement ``gap`` frames after the last update.
 
         Args:
@@ -45,9 +53,18 @@ class ConstantVelocity:
                 a lost track's): the displacement gives a velocity. Otherwise the
                 velocity is kept (:meth:`reset_velocity` restarts it).
             first: the track's first update: the displacement's velocity is taken as is.
+            unsure_along: (2,) unit vector, or None: the measurement is unsure along it
+                (the centroid of a piece of a blob slides along its shaft as the cut
+                between tools moves): the displacement's component along it counts no
+                faster than the velocity's own component (across it, as measured).
         """
         if continuous:
-            v = (measured - self.position) / gap
+            d = measured - self.position
+            if unsure_along is not None and not first:
+                along = float(d @ unsure_along)
+                most = abs(float(self.velocity @ unsure_along)) * gap
+                d = d + (max(-most, min(most, along)) - along) * unsure_along
+            v = d / gap
             self.velocity = (
                 v if first else VELOCITY_GAIN * v + (1.0 - VELOCITY_GAIN) * self.velocity
             )
