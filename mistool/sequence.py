@@ -69,6 +69,7 @@ import numpy as np
 from mistool.config import CONFIG_NAME, MAX_PIXELS, Config, ValueRange, load_config, preset_hint
 from mistool.errors import InputPathError, InputWarning, MaskFormatError
 from mistool.lens import fit_camera
+from mistool.pngdecode import PngImage, decode_png
 
 IMAGE_EXTENSIONS: frozenset[str] = frozenset(
     {".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".jpg", ".jpeg", ".webp"}
@@ -238,163 +239,31 @@ def _integer_labels(arr: np.ndarray, where: str) -> np.ndarray:
     return arr.astype(np.uint8 if hi <= 255 else np.uint16)
 
 
-def _inflate_module() -> Any:
-    """zlib-ng's inflate (about 20x faster than zlib 1.2 on masks) when installed."""
-    try:
-        from zlib_ng import zlib_ng
-    except ImportError:  # optional: the standard library's zlib gives the same bytes
-        import zlib
-
-        return zlib
-    return zlib_ng
-
-
-_ZLIB = _inflate_module()
-
-
-def decode_grey_png_fast(data: bytes, max_pixels: int = MAX_PIXELS) -> np.ndarray | None:
-    """Decode a typical 8-bit grey label PNG about 5x faster than OpenCV, else None.
-
-    Label masks are long runs of equal values; OpenCV stores them with PNG's "Sub" row
-    filter, so the filtered bytes are zero except where a run starts.
-    This decoder inflates the image data (zlib-ng when installed) and undoes the Sub
-    filter sparsely: only the non-zero filtered bytes are visited (``cv2.findNonZero``),
-    and each run is written with one ``np.repeat``.
-
-    None rows are copied, runs of Up rows with zero bytes repeat the row above, and a few
-    other Up rows are one vector addition each.
-
-    It handles only 8-bit greyscale, non-interlaced PNGs whose rows use the None, Sub and
-    Up filters, with every chunk's CRC correct and an ``IEND`` chunk. Anything else
-    returns None and the caller uses OpenCV (which also reports corrupt files): in
-    particular files written with libpng's adaptive filtering (Paeth and Average rows:
-    e.g. OpenCV with an explicit compression level), where OpenCV is as fast or faster.
-    It never inflates more than the header's ``h x (w + 1)`` bytes (inflate bombs stop
-    there) and declines headers over ``max_pixels``. ``tests/test_sequence.py`` checks it
-    against OpenCV and ``tests/test_png_decoder_fuzz.py`` fuzzes it (arbitrary and
-    mutated bytes, header lies, truncation, bombs); ``scripts/bench_decode.py`` measures
-    it: 4-8x faster than ``cv2.imread`` on PNGs written with OpenCV's defaults, declined
-    (then the sequence's :class:`FastPathGate` stops trying) on adaptive-filter PNGs.
-
-    Args:
-        data: the PNG file's bytes.
-        max_pixels: decline a header claiming more pixels than this.
-
-    Returns:
-        (H, W) uint8 labels, or None when this fast path does not apply.
-    """
-    if len(data) < 45 or not data.startswith(_PNG_SIGNATURE) or data[12:16] != b"IHDR":
-        return None
-    w, h, depth, ctype, comp, filt, interlace = struct.unpack(">IIBBBBB", data[16:29])
-    if (depth, ctype, comp, filt, interlace) != (8, 0, 0, 0, 0) or w == 0 or h == 0:
-        return None
-    if w * h > max_pixels:
-        return None
-    pos, chunks, ended = 8, [], False
-    while pos + 12 <= len(data):
-        length, kind = struct.unpack(">I4s", data[pos : pos + 8])
-        stop = pos + 12 + length
-        if stop > len(data):
-            return None
-        body = data[pos + 8 : pos + 8 + length]
-        if _ZLIB.crc32(body, _ZLIB.crc32(kind)) != struct.unpack(">I", data[stop - 4 : stop])[0]:
-            return None
-        if kind == b"IDAT":
-            chunks.append(body)
-        elif kind == b"IEND":
-            ended = True
-            break
-        pos = stop
-    if not ended or not chunks:
-        return None
-    size = h * (w + 1)  # filtered rows: one filter byte each
-    inflate = _ZLIB.decompressobj()
-    try:  # never inflate past the size the header claims (a bomb stops there)
-        raw = inflate.decompress(b"".join(chunks), size + 1)
-    except Exception:  # noqa: BLE001 - any inflate error: let OpenCV decide and report
-        return None
-    if len(raw) != size or not inflate.eof:  # too much, too little, or a cut stream
-        return None
-    rows = np.frombuffer(raw, dtype=np.uint8).reshape(h, w + 1)
-    return _unfilter(rows[:, 0], rows[:, 1:])
+def _png_labels(png: PngImage, where: str, colour: bool) -> np.ndarray:
+    """Labels of a PNG :func:`~mistool.pngdecode.decode_png` decoded, exactly as
+    :func:`to_labels` gives them from OpenCV's decoding of the same file (a palette
+    image: the lowest index of each pixel's colour, or the packed colour)."""
+    if png.palette is None:
+        return to_labels(png.pixels, where, colour=colour)
+    if colour:
+        return png.palette[png.pixels]
+    keys, first = np.unique(png.palette, return_index=True)  # lowest index per colour
+    lut = first[np.searchsorted(keys, png.palette)].astype(np.uint8)
+    return lut[png.pixels]
 
 
-#: Give up on the fast path (OpenCV decodes instead, faster then) beyond this many
-#: Up-filtered rows that differ from the row above (each costs a Python-level step).
-_MAX_STEPS = 32
-
-
-def _sub_rows(delta: np.ndarray) -> np.ndarray:
-    """Undo the Sub filter on every row: row-wise prefix sums mod 256, visiting only the
-    non-zero filtered bytes. (N, W) uint8 -> (N, W) uint8."""
-    h, w = delta.shape
-    pts = cv2.findNonZero(delta) if h else None
-    if pts is None:
-        return np.zeros((h, w), dtype=np.uint8)
-    pts = pts.reshape(-1, 2)  # row-major order: y, then x
-    xs, ys = pts[:, 0].astype(np.int64), pts[:, 1].astype(np.int64)
-    steps = delta[ys, xs]
-    total = np.cumsum(steps, dtype=np.int64)
-    first = np.searchsorted(ys, ys, side="left")  # first non-zero byte of the same row
-    value = (total - (total[first] - steps[first])).astype(np.uint8)  # row sums mod 256
-    start = ys * w + xs
-    nxt = np.append(start[1:], h * w)
-    end = np.minimum(nxt, (ys + 1) * w)  # a run stops at the next step or its row's end
-    n = len(start)
-    values = np.zeros(2 * n + 1, dtype=np.uint8)
-    lengths = np.empty(2 * n + 1, dtype=np.int64)
-    lengths[0] = start[0]
-    values[1::2] = value
-    lengths[1::2] = end - start
-    lengths[2::2] = nxt - end
-    return np.repeat(values, lengths).reshape(h, w)
-
-
-def _unfilter(filters: np.ndarray, delta: np.ndarray) -> np.ndarray | None:
-    """Undo PNG row filters None (0), Sub (1) and Up (2) of an 8-bit grey image; None
-    when a row uses Average (3) or Paeth (4), or many Up rows change (OpenCV is faster
-    on such files, written with libpng's adaptive filtering)."""
-    h, w = delta.shape
-    if np.any(filters > 2):
-        return None
-    sub = filters == 1
-    if sub.all():
-        return _sub_rows(delta)
-    out = np.empty((h, w), dtype=np.uint8)
-    plain = filters == 0
-    out[plain] = delta[plain]
-    if sub.any():
-        out[sub] = _sub_rows(np.ascontiguousarray(delta[sub]))
-    # Up rows depend on the row above: resolve them in order. An Up row whose filtered
-    # bytes are all zero repeats the row above; a run of them is one copy.
-    ups = np.flatnonzero(filters == 2)
-    if len(ups) == 0:
-        return out
-    busy = np.zeros(h, dtype=bool)
-    busy[ups] = cv2.reduce(np.ascontiguousarray(delta[ups]), 1, cv2.REDUCE_MAX).ravel() > 0
-    if int(busy.sum()) > _MAX_STEPS:
-        return None
-    zero = np.zeros(w, dtype=np.uint8)
-    r, n_up = 0, len(ups)
-    while r < n_up:
-        y = int(ups[r])
-        above = out[y - 1] if y else zero
-        if busy[y]:
-            np.add(above, delta[y], out=out[y])  # uint8 addition wraps mod 256
-            r += 1
-            continue
-        k = r
-        while k + 1 < n_up and ups[k + 1] == ups[k] + 1 and not busy[ups[k + 1]]:
-            k += 1
-        out[y : int(ups[k]) + 1] = above
-        r = k + 1
-    return out
+#: A PNG with more than this share of rows filtered against the row above (which libpng
+#: decodes, at OpenCV's own cost per row) decodes about as fast with OpenCV alone
+#: (``scripts/bench_decode.py``: ``mistool synth`` with 4 instruments and every
+#: corruption, 47% such rows, 0.84-0.91x ``cv2.imread``; 1 instrument, 7%, 1.1-1.2x).
+FAST_PATH_MAX_DEPENDENT = 0.4
 
 
 class FastPathGate:
-    """Stops trying :func:`decode_grey_png_fast` on a sequence whose files it keeps
-    declining (one encoder wrote them all), so they cost no wasted inflate. Counters are
-    updated from worker threads; a lost update only delays the decision."""
+    """Stops trying :func:`~mistool.pngdecode.decode_png` on a sequence whose files it
+    keeps declining (e.g. every frame has a chunk it leaves to OpenCV) or where it does
+    not pay (:data:`FAST_PATH_MAX_DEPENDENT`), so they cost no wasted inflate. Counters
+    are updated from worker threads; a lost update only delays the decision."""
 
     def __init__(self, patience: int = 8) -> None:
         self.tried = 0
@@ -407,7 +276,7 @@ class FastPathGate:
         return self.declined < self.patience or 4 * self.declined < self.tried
 
     def record(self, decoded: bool) -> None:
-        """Count one attempt."""
+        """Count one attempt (``decoded``: the fast path took the file and paid off)."""
         self.tried += 1
         self.declined += not decoded
 
@@ -492,11 +361,14 @@ def read_label_image(
         raise InputPathError(f"{path}: cannot read: {exc.strerror or exc}") from None
     check_pixels(header_size(data), str(path), max_pixels)
     if gate is None or gate.open:
-        img = decode_grey_png_fast(data)
+        png = decode_png(data, max_pixels)
         if gate is not None:
-            gate.record(img is not None)
-        if img is not None:
-            return to_labels(img, str(path), colour=colour)
+            gate.record(
+                png is not None
+                and png.dependent_rows <= FAST_PATH_MAX_DEPENDENT * png.pixels.shape[0]
+            )
+        if png is not None:
+            return _png_labels(png, str(path), colour)
     try:
         img = (
             cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)

@@ -182,13 +182,13 @@ def main(argv: list[str] | None = None) -> int:
         child_memory(args.child_memory, args.workers)
         return 0
 
-    from mistool import api, sequence
+    from mistool import api, pngdecode
     from mistool.cli import main as cli_main
 
     if args.stdlib_zlib:
         import zlib
 
-        sequence._ZLIB = zlib
+        pngdecode._ZLIB = zlib
 
     with tempfile.TemporaryDirectory(prefix="mistool-bench-") as tmp:
         folder = Path(tmp) / "seq"
@@ -237,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
                 wall, used = timed(fn)
                 times[name].append(wall)
                 cpu[name].append(used)
-        _print_results(args, times, cpu, load0, sequence._ZLIB.__name__)
+        _print_results(args, times, cpu, load0, pngdecode._ZLIB.__name__)
         if args.memory:
             big = Path(tmp) / "seq4"
             make_frames(big, 4 * args.frames, args.png_level)

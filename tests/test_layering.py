@@ -18,8 +18,9 @@ LAYERS: list[tuple[str, ...]] = [
     # export (CSV and atomic writes) needs only errors and model; synth writes truth.csv
     # calibration (camera files) is read by config (a lazy import: same layer)
     ("config", "resources", "export", "annotations", "columnar", "calibration"),
-    # assignment: the one min-cost matching solver (tracking and evaluation share it)
-    ("geometry", "assignment", "lens"),
+    # assignment: the one min-cost matching solver (tracking and evaluation share it);
+    # pngdecode: the PNG decoder (numpy, zlib-ng, OpenCV only), read by sequence
+    ("geometry", "assignment", "lens", "pngdecode"),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
     # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools;
     # worker_signals: imported by its workers' fork server only)

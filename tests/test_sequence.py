@@ -287,31 +287,31 @@ def _fast_cases() -> list[np.ndarray]:
 
 @pytest.mark.parametrize("img", _fast_cases())
 def test_fast_png_decoder_matches_opencv(tmp_path: Path, img: np.ndarray) -> None:
-    from mistool.sequence import decode_grey_png_fast
+    from mistool.pngdecode import decode_png
 
     data = cv2.imencode(".png", img)[1].tobytes()
     ref = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED).reshape(img.shape)
     np.testing.assert_array_equal(ref, img)
-    fast = decode_grey_png_fast(data)
-    if img.size >= 1000:  # libpng leaves tiny rows unfiltered: then OpenCV decodes
-        assert fast is not None, "OpenCV writes Sub-filtered rows: the fast path must apply"
-    if fast is not None:
-        assert fast.dtype == np.uint8
-        np.testing.assert_array_equal(fast, img)
+    fast = decode_png(data, 10**8)
+    assert fast is not None and fast.palette is None
+    assert fast.pixels.dtype == np.uint8
+    np.testing.assert_array_equal(fast.pixels, img)
     pil = pytest.importorskip("PIL.Image")
     pil.fromarray(img, mode="L").save(tmp_path / "pil.png")  # other encoders, other filters
+    assert decode_png((tmp_path / "pil.png").read_bytes(), 10**8) is not None
     np.testing.assert_array_equal(read_label_image(tmp_path / "pil.png"), img)
 
 
-def _filter_rows(img: np.ndarray, filters: list[int]) -> np.ndarray:
-    """PNG-filter each row of an 8-bit grey image (the encoder's side, by the spec)."""
+def _filter_rows(img: np.ndarray, filters: list[int], bpp: int = 1) -> np.ndarray:
+    """PNG-filter each row of an image's bytes (the encoder's side, by the spec; ``bpp``:
+    bytes per pixel, the distance to the byte on the left)."""
     out = np.zeros_like(img)
     a16 = img.astype(np.int16)
     for y, f in enumerate(filters):
         x = a16[y]
         up = a16[y - 1] if y else np.zeros_like(x)
-        left = np.concatenate([[0], x[:-1]])
-        ul = np.concatenate([[0], up[:-1]])
+        left = np.concatenate([np.zeros(bpp, np.int16), x[:-bpp]])
+        ul = np.concatenate([np.zeros(bpp, np.int16), up[:-bpp]])
         if f == 0:
             pred = np.zeros_like(x)
         elif f == 1:
@@ -328,86 +328,95 @@ def _filter_rows(img: np.ndarray, filters: list[int]) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed", range(8))
 def test_fast_png_decoder_every_filter_mix(seed: int) -> None:
-    from mistool.sequence import decode_grey_png_fast
+    from mistool.pngdecode import decode_png
 
     rng = np.random.default_rng(seed)
     img = _fast_cases()[8 + seed % 6]
-    if seed == 5:
+    if seed >= 6:
         img = rng.integers(0, 256, (20, 30)).astype(np.uint8)  # noise: every byte changes
-    filters = rng.choice([0, 1, 2], size=img.shape[0]).tolist()
-    got = decode_grey_png_fast(_png(_filter_rows(img, filters), filters))
-    if seed < 5:  # noise changes every Up row: left to OpenCV
-        assert got is not None
-    if got is not None:
-        np.testing.assert_array_equal(got, img)
-    for other in (3, 4):  # Average and Paeth: left to OpenCV
-        filters[len(filters) // 2] = other
-        data = _png(_filter_rows(img, filters), filters)
-        assert decode_grey_png_fast(data) is None
-        ref = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-        np.testing.assert_array_equal(ref, img)  # (the test's encoder is right)
-        np.testing.assert_array_equal(read_label_image_bytes(data), img)
+    filters = rng.choice([0, 1, 2, 3, 4], size=img.shape[0]).tolist()
+    data = _png(_filter_rows(img, filters), filters)
+    ref = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(ref, img)  # (the test's encoder is right)
+    got = decode_png(data, 10**8)
+    assert got is not None
+    np.testing.assert_array_equal(got.pixels, img)
+    np.testing.assert_array_equal(read_label_image_bytes(data), img)
 
 
-def read_label_image_bytes(data: bytes) -> np.ndarray:
+def read_label_image_bytes(data: bytes, **kw: object) -> np.ndarray:
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "x.png"
         path.write_bytes(data)
-        return read_label_image(path)
+        return read_label_image(path, **kw)  # type: ignore[arg-type]
 
 
-@pytest.mark.parametrize("level", [0, 1, 6, 9])
+@pytest.mark.parametrize("level", [0, 1, 3, 6, 9])
 def test_libpng_adaptive_filters_decode(level: int) -> None:
-    """With an explicit compression level OpenCV lets libpng pick filters per row."""
+    """With an explicit compression level OpenCV lets libpng pick filters per row
+    (Paeth and Up rows among Sub and None: what ``mistool synth`` writes at level 3)."""
+    from mistool.pngdecode import decode_png
+
     img = np.zeros((120, 150), np.uint8)
     pts = np.array([[10, 100], [140, 20], [148, 35], [20, 115]], np.int32)
     cv2.fillPoly(img, [pts], 160)
     cv2.circle(img, (120, 40), 15, 70, -1)
     data = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, level])[1].tobytes()
+    got = decode_png(data, 10**8)
+    assert got is not None
+    np.testing.assert_array_equal(got.pixels, img)
     np.testing.assert_array_equal(read_label_image_bytes(data), img)
 
 
 def test_fast_png_decoder_declines_what_it_does_not_handle(tmp_path: Path) -> None:
-    from mistool.sequence import decode_grey_png_fast
+    from mistool.pngdecode import decode_png
 
     img = np.zeros((4, 6), np.uint8)
     img[1:3, 2:5] = 160
     sub = _filter_rows(img, [1, 1, 1, 1])
-    assert decode_grey_png_fast(_png(np.zeros((4, 12), np.uint8), [1] * 4, depth=16)) is None
-    assert decode_grey_png_fast(_png(sub, [1, 5, 1, 1])) is None  # no such filter
+    assert decode_png(_png(sub, [1, 1, 1, 1], depth=4), 10**8) is None  # sub-byte depth
+    assert decode_png(_png(sub, [1, 5, 1, 1]), 10**8) is None  # no such filter
     good = _png(sub, [1, 1, 1, 1])
-    np.testing.assert_array_equal(decode_grey_png_fast(good), img)
+    np.testing.assert_array_equal(decode_png(good, 10**8).pixels, img)  # type: ignore[union-attr]
+    assert decode_png(good, 23) is None  # over max_pixels
     bad_crc = bytearray(good)
     bad_crc[-20] ^= 0xFF  # inside the IDAT chunk's data or CRC
-    assert decode_grey_png_fast(bytes(bad_crc)) is None
+    assert decode_png(bytes(bad_crc), 10**8) is None
     (tmp_path / "crc.png").write_bytes(bytes(bad_crc))
     with pytest.raises(MaskFormatError, match=r"crc\.png: cannot decode"):
         read_label_image(tmp_path / "crc.png")
-    assert decode_grey_png_fast(good[:-12]) is None  # no IEND: truncated
+    assert decode_png(good[:-12], 10**8) is None  # no IEND: truncated
+    assert decode_png(good + b"\x00", 10**8) is None  # bytes after IEND
 
 
 def test_fast_path_gate_closes_on_a_sequence_it_keeps_declining(tmp_path: Path) -> None:
     from mistool.sequence import FastPathGate
 
     img = _labels()
-    rng = np.random.default_rng(1)
-    noisy = rng.integers(0, 256, img.shape).astype(np.uint8)
-    # level 9: libpng's adaptive filters (Paeth rows on noise): the fast path declines
+    # grey saved as RGB: left to OpenCV (the labels are the shared channel)
     path = tmp_path / "a.png"
-    path.write_bytes(cv2.imencode(".png", noisy, [cv2.IMWRITE_PNG_COMPRESSION, 9])[1])
+    path.write_bytes(cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))[1])
     gate = FastPathGate(patience=3)
     for _ in range(5):
-        np.testing.assert_array_equal(read_label_image(path, gate=gate), noisy)
+        np.testing.assert_array_equal(read_label_image(path, gate=gate), img)
     assert (gate.tried, gate.declined, gate.open) == (3, 3, False)
     ok = FastPathGate(patience=3)
     _write(tmp_path / "b.png", img)
     for _ in range(5):
         read_label_image(tmp_path / "b.png", gate=ok)
     assert (ok.tried, ok.declined, ok.open) == (5, 0, True)
+    # every row filtered against the one above: decoded, but libpng does most of it, at
+    # OpenCV's cost: not worth trying on the next frames
+    paeth = [4] * img.shape[0]
+    (tmp_path / "c.png").write_bytes(_png(_filter_rows(img, paeth), paeth))
+    slow = FastPathGate(patience=3)
+    for _ in range(5):
+        np.testing.assert_array_equal(read_label_image(tmp_path / "c.png", gate=slow), img)
+    assert (slow.tried, slow.declined, slow.open) == (3, 3, False)
 
 
 def test_jpeg_folder_is_lossy_like_a_video(tmp_path: Path) -> None:
@@ -425,9 +434,10 @@ def test_fast_png_decoder_without_zlib_ng(monkeypatch: pytest.MonkeyPatch) -> No
     """zlib-ng is optional: the standard library's zlib inflates the same bytes."""
     import zlib
 
-    from mistool import sequence
+    from mistool import pngdecode
 
-    monkeypatch.setattr(sequence, "_ZLIB", zlib)
+    monkeypatch.setattr(pngdecode, "_ZLIB", zlib)
     img = _fast_cases()[9]
-    data = cv2.imencode(".png", img)[1].tobytes()
-    np.testing.assert_array_equal(sequence.decode_grey_png_fast(data), img)
+    for params in ([], [cv2.IMWRITE_PNG_COMPRESSION, 9]):
+        data = cv2.imencode(".png", img, params)[1].tobytes()
+        np.testing.assert_array_equal(pngdecode.decode_png(data, 10**8).pixels, img)  # type: ignore[union-attr]

@@ -1,0 +1,331 @@
+"""A strict, fast decoder for the PNG label images masks are stored as.
+
+:func:`decode_png` decodes non-interlaced 8/16-bit greyscale and 8-bit palette PNGs,
+whatever row filters their encoder chose (None, Sub, Up, Average, Paeth), faster than
+``cv2.imread`` on label masks (``scripts/bench_decode.py``): zlib-ng inflates (into a
+buffer kept from frame to frame), numpy undoes the None and Sub rows in a few calls for
+the whole image, and only the runs of rows that depend on the row above (Up, Average,
+Paeth) go to libpng, through OpenCV, as a small PNG of their own (see :func:`unfilter`).
+
+**Strict.** It returns None (the caller then decodes with OpenCV, which reports a bad
+file) for anything it does not fully check: every chunk's CRC must be right, chunk types
+are the critical ones in their order or those listed in :data:`ANCILLARY_OK`, the image
+data must inflate to exactly the header's size with a correct Adler-32 and nothing after
+it, every row's filter type must exist, palette indices must lie in the palette, and
+nothing may follow ``IEND``. Whatever it decodes is exactly what OpenCV decodes
+(``tests/test_png_decoder_fuzz.py``: hypothesis images with every filter, depths,
+palettes; mutated, truncated and lying files).
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+from typing import Any
+
+import cv2
+import numpy as np
+
+_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+#: Ancillary chunks a decodable file may hold (ignored by OpenCV and by this decoder);
+#: any other ancillary chunk sends the file to OpenCV.
+ANCILLARY_OK: frozenset[bytes] = frozenset({b"tEXt", b"zTXt", b"iTXt", b"pHYs", b"tIME"})
+
+
+def _inflate_module() -> Any:
+    """zlib-ng's inflate (several times faster than zlib 1.2 on masks) when installed."""
+    try:
+        from zlib_ng import zlib_ng
+    except ImportError:  # optional: the standard library's zlib gives the same bytes
+        import zlib
+
+        return zlib
+    return zlib_ng
+
+
+_ZLIB = _inflate_module()
+
+
+class PngImage:
+    """A decoded PNG: its pixels as OpenCV's ``IMREAD_UNCHANGED`` gives them, except that
+    a palette image keeps its indices and palette."""
+
+    __slots__ = ("pixels", "palette", "dependent_rows")
+
+    def __init__(self, pixels: np.ndarray, palette: np.ndarray | None, dependent_rows: int) -> None:
+        self.pixels = pixels
+        """(H, W) uint8 or uint16 grey values; for a palette image, uint8 indices."""
+        self.palette = palette
+        """Palette images: (N,) uint32 colours packed ``r << 16 | g << 8 | b``; else None."""
+        self.dependent_rows = dependent_rows
+        """Rows filtered against the row above (Up, Average, Paeth): libpng decoded them,
+        at about OpenCV's own cost per row."""
+
+
+def _chunks(data: bytes) -> tuple[list[tuple[bytes, int, int]], bool] | None:
+    """``[(type, start, stop)]`` of every chunk's body, and whether every CRC is right;
+    None when the chunk structure is broken (or bytes follow ``IEND``)."""
+    crc32 = _ZLIB.crc32
+    out = []
+    pos, n = 8, len(data)
+    ok = True
+    unpack = struct.unpack_from
+    while pos + 12 <= n:
+        length, kind = unpack(">I4s", data, pos)
+        stop = pos + 8 + length
+        if length > 0x7FFFFFFF or stop + 4 > n:
+            return None
+        if crc32(data[pos + 4 : stop]) != unpack(">I", data, stop)[0]:
+            ok = False
+        out.append((kind, pos + 8, stop))
+        pos = stop + 4
+        if kind == b"IEND":
+            return (out, ok) if pos == n else None
+    return None
+
+
+def decode_png(data: bytes, max_pixels: int) -> PngImage | None:
+    """Decode a label-mask PNG exactly as OpenCV does, or None (see the module docs).
+
+    Args:
+        data: the file's bytes.
+        max_pixels: decline a header claiming more pixels than this (before inflating).
+
+    Returns:
+        The image, or None when this decoder does not take the file (OpenCV decides).
+    """
+    if len(data) < 57 or data[:8] != _SIGNATURE or data[12:16] != b"IHDR":
+        return None
+    w, h, depth, ctype, comp, filt, interlace = struct.unpack_from(">IIBBBBB", data, 16)
+    if (ctype, depth) not in ((0, 8), (0, 16), (3, 8)) or (comp, filt, interlace) != (0, 0, 0):
+        return None
+    if not (0 < w <= 0x7FFFFFFF and 0 < h <= 0x7FFFFFFF) or w * h > max_pixels:
+        return None
+    walked = _chunks(data)
+    if walked is None or not walked[1] or walked[0][0] != (b"IHDR", 16, 29):
+        return None
+    palette = _idat_and_palette(walked[0], data, ctype)
+    if palette is None:
+        return None
+    idat, plte = palette
+    bpp = depth // 8
+    size = h * (w * bpp + 1)  # filtered rows: one filter byte each
+    filtered = _inflate_into(idat, size)
+    if filtered is None:
+        return None
+    rows = filtered.reshape(h, w * bpp + 1)
+    filters = rows[:, 0]
+    if int(filters.max()) > 4:
+        return None
+    dependent = int(np.count_nonzero(filters >= 2))
+    if bpp == 1:
+        pixels = unfilter(filters, rows[:, 1:])
+    else:  # the filters work bytewise, each byte against the same byte of its neighbours
+        planes = rows[:, 1:].reshape(h, w, 2)
+        hi, lo = unfilter(filters, planes[:, :, 0]), unfilter(filters, planes[:, :, 1])
+        if hi is None or lo is None:
+            return None
+        pixels = (hi.astype(np.uint16) << 8) | lo
+    if pixels is None:
+        return None
+    if plte is None:
+        return PngImage(pixels, None, dependent)
+    if int(pixels.max()) >= len(plte):  # OpenCV's colour for such an index: not ours to guess
+        return None
+    return PngImage(pixels, plte, dependent)
+
+
+#: Inflate this many bytes at a time into the thread's scratch buffer.
+_PIECE = 1 << 16
+
+_local = threading.local()
+
+
+def _scratch(name: str, size: int, dtype: type) -> np.ndarray:
+    """The calling thread's reusable flat buffer ``name`` of at least ``size`` items.
+
+    The decoder's large temporaries live here, kept from frame to frame: freed and
+    allocated anew each frame, they made glibc hand memory back to the system and fault
+    it in again (~180 page faults per 720x576 frame, a third of the decoding time)."""
+    have = getattr(_local, name, None)
+    if have is None or have.size < size:
+        have = np.empty(size, dtype)
+        setattr(_local, name, have)
+    return have[:size]
+
+
+def _inflate_into(idat: bytes, size: int) -> np.ndarray | None:
+    """The zlib stream ``idat`` inflated into the thread's scratch buffer, a piece at a
+    time (never more than ``size`` bytes, so a bomb stops there); None unless it holds
+    exactly ``size`` bytes, ends with a correct Adler-32 and nothing follows it."""
+    out = _scratch("filtered", size, np.uint8)
+    inflate = _ZLIB.decompressobj()
+    pos, data = 0, idat
+    try:
+        while not inflate.eof:
+            piece = inflate.decompress(data, _PIECE)
+            data = inflate.unconsumed_tail
+            if not piece:
+                break  # no progress: the stream is cut
+            end = pos + len(piece)
+            if end > size:
+                return None
+            out[pos:end] = np.frombuffer(piece, np.uint8)
+            pos = end
+    except Exception:  # noqa: BLE001 - any inflate error: OpenCV decides and reports
+        return None
+    if pos != size or not inflate.eof or data or inflate.unused_data:
+        return None
+    return out
+
+
+def _idat_and_palette(
+    chunks: list[tuple[bytes, int, int]], data: bytes, ctype: int
+) -> tuple[bytes, np.ndarray | None] | None:
+    """The joined image data and the packed palette (palette images), or None when the
+    chunk sequence is not one this decoder takes."""
+    idat: list[bytes] = []
+    plte: np.ndarray | None = None
+    state = 0  # 0: before IDAT, 1: in the IDAT run, 2: after it
+    alpha = False
+    for kind, start, stop in chunks[1:]:
+        if kind == b"IDAT":
+            if state == 2:
+                return None
+            state = 1
+            idat.append(data[start:stop])
+            continue
+        if state == 1:
+            state = 2
+        if kind == b"IEND":
+            if stop != start:
+                return None
+            break
+        if kind == b"PLTE":
+            n = stop - start
+            if ctype != 3 or plte is not None or state or n == 0 or n % 3 or n > 768:
+                return None
+            rgb = np.frombuffer(data, np.uint8, n, start).reshape(-1, 3).astype(np.uint32)
+            plte = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
+        elif kind == b"tRNS":  # palette transparency: OpenCV adds alpha, labels ignore it
+            if ctype != 3 or plte is None or alpha or state or stop - start > len(plte):
+                return None
+            alpha = True
+        elif kind not in ANCILLARY_OK:
+            return None
+    if not idat or (ctype == 3 and plte is None):
+        return None
+    return b"".join(idat), plte
+
+
+# --- undoing the row filters ------------------------------------------------------------
+
+
+def unfilter(filters: np.ndarray, delta: np.ndarray) -> np.ndarray | None:
+    """Undo PNG row filters, one byte per pixel (PNG spec, section 9).
+
+    None rows are copied and Sub rows are prefix sums along the row (``cv2.integral``,
+    ~3x numpy's ``cumsum`` on uint8), all at once. The runs of rows that depend on the
+    row above (Up, Average, Paeth: Average and Paeth are sequential along the row, a C
+    loop per byte) are given to libpng through OpenCV as one small PNG: each run after
+    the decoded row above it (as a None row), with the run's filter types and filtered
+    bytes as they are, stored without compression. (Up runs alone as numpy prefix sums
+    down the columns, and Paeth rows by numpy in batches of independent rows, were
+    slower: more numpy calls than libpng's ~1-2 us per row.)
+
+    Args:
+        filters: (H,) uint8 filter type of each row, each in 0..4.
+        delta: (H, W) uint8 filtered bytes (any strides).
+
+    Returns:
+        (H, W) uint8 unfiltered bytes, C-contiguous; None if OpenCV did not decode the
+        rows given to it (not expected: the small PNG is well formed by construction).
+    """
+    h, w = delta.shape
+    buf = np.empty((h + 1, w), np.uint8)  # row 0: the zero row above the image
+    buf[0] = 0
+    out = buf[1:]
+    out[...] = delta
+    sub = np.flatnonzero(filters == 1)
+    if len(sub):
+        _sub_rows(out, sub)
+    dep = np.concatenate(([False], filters >= 2, [False]))
+    if not dep.any():
+        return out
+    change = np.flatnonzero(dep[1:] != dep[:-1])  # runs of dependent rows: [start, stop)
+    starts, stops = change[0::2], change[1::2]  # image rows = buf rows - 1
+    return out if _libpng_runs(buf, filters, starts + 1, stops + 1) else None
+
+
+def _sub_rows(out: np.ndarray, ys: np.ndarray) -> None:
+    """Undo Sub on rows ``ys`` of ``out`` (filtered bytes in place): prefix sums along
+    each row (``cv2.integral`` sums over both axes; the difference of two of its rows is
+    one row's), in the thread's scratch buffers."""
+    n, w = len(ys), out.shape[1]
+    rows = _scratch("sub", n * w, np.uint8).reshape(n, w)
+    np.take(out, ys, axis=0, out=rows)
+    total = _scratch("integral", (n + 1) * (w + 1), np.int32).reshape(n + 1, w + 1)
+    cv2.integral(rows, sum=total)
+    sums = _scratch("sums", n * w, np.int32).reshape(n, w)
+    np.subtract(total[1:, 1:], total[:-1, 1:], out=sums)
+    out[ys] = sums  # mod 256
+
+
+def _run_rows(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """Every row of the runs ``[start, stop)``, in order."""
+    lengths = stops - starts
+    offsets = np.repeat(starts - np.cumsum(lengths) + lengths, lengths)
+    return np.arange(int(lengths.sum())) + offsets
+
+
+def _chunk(kind: bytes, body: bytes | memoryview) -> list[bytes | memoryview]:
+    """A PNG chunk's pieces (length, type, body, CRC), to be joined."""
+    crc = _ZLIB.crc32(body, _ZLIB.crc32(kind))
+    return [struct.pack(">I", len(body)) + kind, body, struct.pack(">I", crc)]
+
+
+def _stored_zlib(raw: memoryview) -> bytes:
+    """A zlib stream holding ``raw`` in stored (uncompressed) deflate blocks."""
+    parts: list[bytes | memoryview] = [b"\x78\x01"]
+    n = len(raw)
+    for i in range(0, n, 65535):
+        size = min(65535, n - i)
+        parts.append(struct.pack("<BHH", i + size >= n, size, size ^ 0xFFFF))
+        parts.append(raw[i : i + size])
+    parts.append(struct.pack(">I", _ZLIB.adler32(raw)))
+    return b"".join(parts)
+
+
+def _libpng_runs(
+    buf: np.ndarray, filters: np.ndarray, starts: np.ndarray, stops: np.ndarray
+) -> bool:
+    """Undo the filters of the runs of rows ``[start, stop)`` of ``buf`` (filtered bytes
+    in place, the row above each run decoded) with libpng, through ``cv2.imdecode`` of
+    one PNG holding each run after the decoded row above it. False if it fails."""
+    w = buf.shape[1]
+    lengths = stops - starts + 1  # each run and the row above it
+    rows = _run_rows(starts - 1, stops)
+    n = len(rows)
+    mini = _scratch("mini", n * (w + 1), np.uint8).reshape(n, w + 1)
+    mini[:, 1:] = buf[rows]
+    mini[:, 0] = filters[rows - 1]
+    above = np.cumsum(lengths) - lengths  # the decoded rows: filter None
+    mini[above, 0] = 0
+    ihdr = struct.pack(">IIBBBBB", w, n, 8, 0, 0, 0, 0)
+    png = b"".join(
+        [_SIGNATURE]
+        + _chunk(b"IHDR", ihdr)
+        + _chunk(b"IDAT", _stored_zlib(mini.data.cast("B")))
+        + _chunk(b"IEND", b"")
+    )
+    try:
+        decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:  # pragma: no cover - a well-formed PNG
+        return False
+    if decoded is None or decoded.shape != (n, w):  # pragma: no cover
+        return False
+    keep = np.ones(n, bool)
+    keep[above] = False
+    buf[rows[keep]] = decoded[keep]
+    return True
