@@ -12,7 +12,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mistool.pose.cylinder import cross3, project, quat_from_z
-from mistool.pose.measure import _jaw_tips, _mean_rows, _near, _window_max
+from mistool.pose.measure import (
+    _crop_bounds,
+    _jaw_tips,
+    _mean_rows,
+    _near,
+    _on_border,
+    _window_max,
+)
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask, perpendicular_basis
 from mistool.pose.silhouette import (
     Boundary,
@@ -430,3 +437,27 @@ def test_robust_line_fit_as_before(seed: int, n: int, pixels: bool) -> None:
     assert (got is None) == (ref is None)
     if got is not None and ref is not None:
         assert _same(got[0], ref[0]) and _same(got[1], ref[1]) and got[2] == ref[2]
+
+
+@settings(max_examples=200, deadline=None)
+@given(_parts())
+def test_border_test_within_a_crop_as_before(case: tuple) -> None:  # type: ignore[type-arg]
+    mask, (ox, oy), _ = case
+    h, w = mask.shape
+    ys, xs = np.nonzero(mask)
+    px = np.stack([xs + float(ox), ys + float(oy)], axis=1)
+    for shape in ((oy + h, ox + w), (oy + h + 5, ox + w + 5), (576, 720)):
+        H, W = shape
+        before = (px[:, 0] <= 0) | (px[:, 1] <= 0) | (px[:, 0] >= W - 1) | (px[:, 1] >= H - 1)
+        assert np.array_equal(_on_border(px, shape, _crop_bounds(mask, (ox, oy))), before)
+        assert np.array_equal(_on_border(px, shape), before)
+    # the jaw ends without the outline points near them: the same ends
+    jpx = np.array([ox - 5.0, oy + 0.5 * h])
+    full, bare = (
+        _jaw_tips(mask.view(np.uint8), (ox, oy), jpx, 4.0),
+        _jaw_tips(mask.view(np.uint8), (ox, oy), jpx, 4.0, with_nears=False),
+    )
+    assert bare[1] == [] and len(full[1]) == len(full[0])
+    for g, r in zip((bare[0], bare[2]), (full[0], full[2]), strict=True):
+        assert all(_same(a, b) for a, b in zip(g, r, strict=True))
+    assert bare[3] == full[3]

@@ -141,7 +141,10 @@ def _outline(
     """
     if contours is None:
         contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
+    if len(contours) == 1:
+        pts = contours[0].reshape(-1, 2).astype(np.float64)
+    else:
+        pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
     mom = {"m00": 0.0, "m10": 0.0, "m01": 0.0, "m20": 0.0, "m11": 0.0, "m02": 0.0}
     for c in contours:
         m = cv2.moments(c)
@@ -210,9 +213,31 @@ def _window_max(x: np.ndarray, size: int) -> np.ndarray:
     return np.maximum(m[:n_out], m[size - w : size - w + n_out])
 
 
-def _on_border(px: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray:
+def _on_border(
+    px: np.ndarray,
+    image_shape: tuple[int, int],
+    bounds: tuple[int, int, int, int] | None = None,
+) -> np.ndarray:
+    """(N,) bool: the pixel (N, 2) is on the image border. ``bounds``: ``(x0, y0, x1, y1)``
+    known to hold every pixel (inclusive), so that only the sides they reach are tested."""
     H, W = image_shape
-    return (px[:, 0] <= 0) | (px[:, 1] <= 0) | (px[:, 0] >= W - 1) | (px[:, 1] >= H - 1)
+    x0, y0, x1, y1 = bounds if bounds is not None else (0, 0, W - 1, H - 1)
+    out = np.zeros(len(px), dtype=bool)
+    if x0 <= 0:
+        out |= px[:, 0] <= 0
+    if y0 <= 0:
+        out |= px[:, 1] <= 0
+    if x1 >= W - 1:
+        out |= px[:, 0] >= W - 1
+    if y1 >= H - 1:
+        out |= px[:, 1] >= H - 1
+    return out
+
+
+def _crop_bounds(mask: np.ndarray, offset: tuple[int, int]) -> tuple[int, int, int, int]:
+    """``(x0, y0, x1, y1)``: the full-image pixels a crop covers (inclusive)."""
+    h, w = mask.shape
+    return offset[0], offset[1], offset[0] + w - 1, offset[1] + h - 1
 
 
 def _why(out: dict[str, dict[str, float]], reason: str, parts: Iterable[str] | None = None) -> None:
@@ -484,6 +509,9 @@ class _ShaftSolution:
 #: misses the junction) still meets them there: its outline points within this many px
 #: of them are taken as next to them.
 _JUNCTION_GAP_PX = 5
+_GAP_DISK = cv2.getStructuringElement(
+    cv2.MORPH_ELLIPSE, (2 * _JUNCTION_GAP_PX + 1, 2 * _JUNCTION_GAP_PX + 1)
+)
 
 
 def _across_gap(
@@ -500,8 +528,7 @@ def _across_gap(
     g = _JUNCTION_GAP_PX
     canvas = make_canvas(shaft_mask, offset, others, image_shape, margin=2 + g)
     lab = canvas.labels
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * g + 1, 2 * g + 1))
-    near = cv2.dilate((lab == OTHER).astype(np.uint8), k) > 0
+    near = cv2.dilate(cv2.compare(lab, OTHER, cv2.CMP_EQ), _GAP_DISK) > 0  # type: ignore[call-overload]
     grown = lab.copy()
     grown[(lab == BG) & near] = OTHER
     found = boundary_points(Canvas(grown, canvas.x0, canvas.y0), pix)
@@ -582,7 +609,7 @@ def _shaft_points(
     pix, mom = _outline(smask, shaft.offset, contours)
     if mom["m00"] <= 0:
         return None
-    border = _on_border(pix, image_shape)  # in the camera's image
+    border = _on_border(pix, image_shape, _crop_bounds(shaft_mask, shaft.offset))  # camera's
     bnd = boundary_points(canvas, pix)
     if len(bnd.other) < 3 and others:  # a thin gap between the shaft and its head?
         bnd = _across_gap(bnd, shaft_mask, shaft.offset, others, image_shape, pix)
@@ -858,12 +885,14 @@ def _solve_shaft(
     return _ShaftSolution(refit[0], refit[1], res2[0], res2[1], res2[2], joint2, "")
 
 
+_LINE_KEYS = (("aux_l1a", "aux_l1b", "aux_l1c"), ("aux_l2a", "aux_l2b", "aux_l2c"))
+
+
 def _store_lines(row: dict[str, float], lines: Sequence[np.ndarray | None]) -> None:
     """The limb lines in the ``aux_l*`` cells."""
-    for k, line in enumerate(lines):
+    for keys, line in zip(_LINE_KEYS, lines, strict=True):
         if line is not None:
-            for j, c in enumerate("abc"):
-                row[f"aux_l{k + 1}{c}"] = float(line[j])
+            row[keys[0]], row[keys[1]], row[keys[2]] = line.tolist()
 
 
 def _shaft_row(
@@ -1042,7 +1071,11 @@ _TIP_CAP = 1.0
 
 
 def _jaw_tips(
-    mask_u8: np.ndarray, offset: tuple[int, int], jpx: np.ndarray, width_px: float
+    mask_u8: np.ndarray,
+    offset: tuple[int, int],
+    jpx: np.ndarray,
+    width_px: float,
+    with_nears: bool = True,
 ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[float]]:
     """Far ends of the clasper's jaws in the image.
 
@@ -1057,6 +1090,8 @@ def _jaw_tips(
         mask_u8: (h, w) uint8 clasper crop; offset: its (x0, y0).
         jpx: (2,) J's pixel.
         width_px: expected jaw width in the image (px).
+        with_nears: False: the outline points near each end are not gathered (their
+            list is empty).
 
     Returns:
         (jaw-end pixels (2,), the outline points near each end (M, 2), each end's jaw
@@ -1094,13 +1129,12 @@ def _jaw_tips(
     dirs: list[np.ndarray] = []
     halfw: list[float] = []
     for k in picks:
-        nb, sx, sy = _pixels_within(mask_u8, (int(ci[k, 0]), int(ci[k, 1])), rad)
-        if len(nb) < 3:
-            continue
-        nb += offset
+        nb, sx, sy = _pixels_within(mask_u8, offset, (int(ci[k, 0]), int(ci[k, 1])), rad)
         cnt = len(nb)
+        if cnt < 3:
+            continue
         # the pixels' mean: their coordinates are integers, so their sums are exact
-        m = np.array([(sx + cnt * offset[0]) / cnt, (sy + cnt * offset[1]) / cnt])
+        m = np.array([sx / cnt, sy / cnt])
         dd = nb - m
         cov = dd.T @ dd
         phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
@@ -1111,17 +1145,19 @@ def _jaw_tips(
         dirs.append(e)
         across = dd @ np.array([-e[1], e[0]])
         halfw.append(min(0.5 * float(across.max() - across.min()) + 0.5, width_px))
-        dc = ci - ci[k]
-        nears.append(take_rows(c, np.einsum("ij,ij->i", dc, dc) <= rad * rad))
+        if with_nears:
+            dc = ci - ci[k]
+            nears.append(take_rows(c, np.einsum("ij,ij->i", dc, dc) <= rad * rad))
     return ends, nears, dirs, halfw
 
 
 def _pixels_within(
-    mask_u8: np.ndarray, centre: tuple[int, int], rad: float
+    mask_u8: np.ndarray, offset: tuple[int, int], centre: tuple[int, int], rad: float
 ) -> tuple[np.ndarray, int, int]:
-    """The mask's pixels within ``rad`` px of the pixel ``centre`` (crop px, integers):
-    (M, 2) float crop px in row-major order (as ``np.nonzero`` over the whole crop, only
-    the window around ``centre`` examined), and the sums of their x and of their y."""
+    """The pixels of a mask crop at ``offset`` within ``rad`` px of the pixel ``centre``
+    (crop px, integers): (M, 2) float full-image px in row-major order (as ``np.nonzero``
+    over the whole crop, only the window around ``centre`` examined), and the sums of
+    their x and of their y (exact integers)."""
     h, w = mask_u8.shape
     cx, cy = centre
     x0, y0 = max(int(math.floor(cx - rad)), 0), max(int(math.floor(cy - rad)), 0)
@@ -1135,10 +1171,11 @@ def _pixels_within(
     dx += dy  # squared distances, exact in integers
     inside = dx <= rad * rad
     xs, ys = xs[inside], ys[inside]
+    fx, fy = offset[0] + x0, offset[1] + y0
     out = np.empty((len(xs), 2))
-    np.add(xs, float(x0), out=out[:, 0])
-    np.add(ys, float(y0), out=out[:, 1])
-    return out, int(xs.sum()) + len(xs) * x0, int(ys.sum()) + len(ys) * y0
+    np.add(xs, float(fx), out=out[:, 0])
+    np.add(ys, float(fy), out=out[:, 1])
+    return out, int(xs.sum()) + len(xs) * fx, int(ys.sum()) + len(ys) * fy
 
 
 def _tip(
@@ -1170,11 +1207,15 @@ def _tip(
     jpx = np.array([K[0, 0] * jx / jz + K[0, 2], K[1, 1] * jy / jz + K[1, 2]])  # project()
     jpx_image = distort_points(jpx[None], camera)[0] if camera.distorted else jpx
     width_px = K[0, 0] * 0.25 * diameter / max(float(joint[2]), 1.0)
-    ends, nears, dirs, halfw = _jaw_tips(mask_u8, clasper.offset, jpx_image, max(width_px, 2.0))
+    box = _crop_bounds(mask_u8, clasper.offset)
+    at_border = min(box[:2]) <= 0 or box[2] >= image_shape[1] - 1 or box[3] >= image_shape[0] - 1
+    ends, nears, dirs, halfw = _jaw_tips(
+        mask_u8, clasper.offset, jpx_image, max(width_px, 2.0), with_nears=at_border
+    )
     if not ends:
         return None, None, None
     tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
-    hidden = any(bool(_on_border(nb, image_shape).any()) for nb in nears)
+    hidden = any(bool(_on_border(nb, image_shape, box).any()) for nb in nears)
     tip_px = _ideal_px(tip_px, camera)
     tip, c_axis, tip_px = _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
     if tip is None or hidden or not _TIP_CAP:

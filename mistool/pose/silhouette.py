@@ -233,7 +233,6 @@ def fit_line_robust(
     X = np.empty((3, n))
     X[:2] = (pts - (ox, oy)).T
     X[2] = 1.0
-    x, y = X[0], X[1]
     order = np.argsort(along)
     half = n // 2
     if rng is None:
@@ -241,19 +240,19 @@ def fit_line_robust(
     else:
         u1, u2 = rng.random(iters), rng.random(iters)
         pick_i, pick_j = (u1 * half).astype(np.int64), n - half + (u2 * half).astype(np.int64)
-    i = order[pick_i]
-    j = order[pick_j]
-    H = np.empty((len(i), 3))
-    H[:, 0] = y[i] - y[j]
-    H[:, 1] = x[j] - x[i]
-    ln = np.sqrt(H[:, 0] * H[:, 0] + H[:, 1] * H[:, 1])
-    if ln.min() <= 1e-9:
-        ok = ln > 1e-9
-        if not ok.any():
-            return None
-        H, ln, i = H[ok], ln[ok], i[ok]
-    H[:, :2] /= ln[:, None]
-    H[:, 2] = -(H[:, 0] * x[i] + H[:, 1] * y[i])
+    # each hypothesis: the line through a pair of points, normal (y_i - y_j, x_j - x_i)
+    # normalised; in plain floats (a dozen pairs: numpy's per-call overhead dominates)
+    (xi, yi), (xj, yj) = X[:2, order[pick_i]].tolist(), X[:2, order[pick_j]].tolist()
+    rows = []
+    for ax, ay, bx, by in zip(xi, yi, xj, yj, strict=True):
+        h0, h1 = ay - by, bx - ax
+        ln = math.sqrt(h0 * h0 + h1 * h1)
+        if ln > 1e-9 or math.isnan(ln):  # NaN kept, as before
+            h0, h1 = h0 / ln, h1 / ln
+            rows.append((h0, h1, -(h0 * ax + h1 * ay)))
+    if not rows:
+        return None
+    H = np.array(rows)
     res = np.abs(H @ X)  # (iters, n)
     best = int(np.argmin(np.minimum(res, thresh_px).sum(axis=1)))  # MSAC
     inl = res[best] < thresh_px
