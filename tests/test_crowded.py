@@ -517,3 +517,22 @@ def test_a_crowded_pieces_slide_along_its_shaft_is_not_motion():
     assert vy == pytest.approx(0.5 * 2.0 + 0.5 * (210 - 206), abs=0.5)  # across: measured
     vx2, _ = velocity_after_piece(crowded=False)
     assert vx2 > 40.0  # two tools: as measured (their pieces are cut across the shafts)
+
+
+def test_a_tool_seen_apart_does_not_take_a_piece_a_tenth_its_size():
+    """A tool seen apart, then gone from where it was (in another's blob, say) while a
+    14 x 14 px piece of some tool lies near where it is expected: the piece gets a new
+    name. The same piece at the image border (a tool leaving the view shrinks there)
+    keeps the tool's name."""
+
+    def names_at_4(piece: tuple[int, int, int, int]) -> list[str]:
+        tracker = IdentityTracker(MERGED)
+        for f in range(4):
+            tracker.resolve(f, observe_frame(_shaft_from_left(300 - 5 * f, 200), MERGED))
+        x0, y0, x1, y1 = piece
+        img = np.zeros(SHAPE, np.uint8)
+        img[y0:y1, x0:x1] = 30
+        return tracker.resolve(4, observe_frame(img, MERGED))[1]
+
+    assert names_at_4((200, 193, 214, 207)) == ["2"]  # inside the view
+    assert names_at_4((0, 193, 14, 207)) == ["1"]  # at the border where it was

@@ -350,6 +350,24 @@ def _far_head(t: Track, inst: InstanceObservation, frame: int, entry_reach: floa
     return not (near_entry and _touches_border(inst))
 
 
+#: A track seen apart in the last frame takes no instance inside the view (not touching
+#: the image border) of less than this share of its area: a piece cut off a tool (by an
+#: occluder, or a split) is no tool's whole; the tool itself is elsewhere, e.g. in a blob
+#: with another. (A tool leaving the view shrinks at the border.)
+SHRUNK_AREA_FRAC = 0.1
+
+
+def _shrunk(t: Track, inst: InstanceObservation, frame: int) -> bool:
+    """Whether ``inst`` is too small to be the whole of track ``t``, seen apart in the
+    frame before (:data:`SHRUNK_AREA_FRAC`), and lies inside the view."""
+    return (
+        t.state is TrackState.TRACKED
+        and frame - t.last_frame == 1
+        and inst.area_px < SHRUNK_AREA_FRAC * t.area
+        and not _touches_border(inst)
+    )
+
+
 def _fragment_of(t: Track, host: Track | None) -> bool:
     """Whether track ``t``, hidden in ``host``'s blob that could not be split, was only a
     piece of it: seen for at most :data:`FRAGMENT_MAX_SEEN` frames, never with a shaft,
@@ -525,7 +543,9 @@ class IdentityTracker:
         entries = [_one_entry(self._runs_of(inst)) for inst in fr.instances]
         for a, t in enumerate(fr.live):
             for b, inst in enumerate(fr.instances):
-                if _far_head(t, inst, fr.index, self._entry_reach(inst)):
+                if _far_head(t, inst, fr.index, self._entry_reach(inst)) or _shrunk(
+                    t, inst, fr.index
+                ):
                     continue
                 cost[a, b] = self._cost(t, inst, fr.index, entries[b])
         fr.owner = {b: a for a, b in gated_assignment(cost, self._weights.max_cost)}
