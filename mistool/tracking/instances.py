@@ -280,11 +280,14 @@ def labelled_components(
     and the labels disagree in number.
 
     Returns:
-        ``(n, labels, stats)``: ``n`` labels (0: background), the (H, W) int32 label
-        image, (n, 4) int32 bounds (row 0, the background's, left zero).
+        ``(n, labels, stats)``: ``n`` labels (0: background), the (H, W) label image
+        (uint16, or int32 beyond 65,534 components), (n, 4) int32 bounds (row 0, the
+        background's, left zero).
     """
-    n, cc = cv2.connectedComponents(mask, connectivity=8)
     rows = hierarchy[0] if hierarchy is not None else np.zeros((0, 4), np.int32)
+    # 16-bit labels when they fit (one outer outline per component): less to write
+    small = len(rows) < np.iinfo(np.uint16).max
+    n, cc = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_16U if small else cv2.CV_32S)
     outer = [c for c, h in zip(contours, rows, strict=True) if h[3] < 0]
     if len(outer) != n - 1:  # pragma: no cover - findContours and the labelling agree
         n, cc, full, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
@@ -317,12 +320,11 @@ def _merged(
             return [make_instance(None, parts, shape)]
         return []
     n, cc, stats = labelled_components(bridged, contours, hierarchy)
-    counts = np.bincount(cc[union > 0], minlength=n)
-    shaft_counts = (
-        np.bincount(cc[masks["shaft"] > 0], minlength=n)
-        if "shaft" in masks
-        else np.zeros(n, np.int64)
-    )
+    if "shaft" in masks:
+        counts, shaft_counts = component_counts(cc, stats, [union, masks["shaft"]])
+    else:
+        (counts,) = component_counts(cc, stats, [union])
+        shaft_counts = np.zeros(n, np.int64)
     fx, fy = origin
     border = (
         (stats[:, 0] + fx <= 0)
@@ -363,6 +365,38 @@ def _merged(
     found = join_by_axis(found, min_area, shape)
     found.sort(key=lambda inst: -inst.area_px)
     return found
+
+
+#: :func:`component_counts` counts each component in its own bounds up to this many
+#: components (a few cv2 calls each), beyond it all at once with numpy.
+PER_COMPONENT_COUNTS_MAX = 16
+
+
+def component_counts(
+    labels: np.ndarray, stats: np.ndarray, masks: list[np.ndarray]
+) -> list[np.ndarray]:
+    """For each mask, its non-zero pixels in each component: ``np.bincount(labels[mask >
+    0], minlength=n)``, the same values (int64), without a pass over the whole image
+    per mask when there are few components.
+
+    Args:
+        labels: (H, W) component labels (:func:`labelled_components`).
+        stats: (n, >= 4) each component's (x, y, w, h) bounds, which hold all of its
+            pixels that the masks may count.
+        masks: (H, W) uint8 masks, each non-zero only on labelled pixels.
+
+    Returns:
+        One (n,) int64 array per mask (index 0: the background's pixels are not counted).
+    """
+    n = len(stats)
+    if n - 1 > PER_COMPONENT_COUNTS_MAX:
+        return [np.bincount(labels[m > 0], minlength=n) for m in masks]
+    out = [np.zeros(n, np.int64) for _ in masks]
+    for i, (x, y, w, h) in enumerate(stats[1:, :4].tolist(), start=1):
+        inside = _compare(labels[y : y + h, x : x + w], i, cv2.CMP_EQ)
+        for k, m in enumerate(masks):
+            out[k][i] = cv2.countNonZero(cv2.bitwise_and(inside, m[y : y + h, x : x + w]))
+    return out
 
 
 def member_mask(labels: np.ndarray, members: list[int]) -> np.ndarray:
