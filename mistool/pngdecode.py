@@ -142,6 +142,11 @@ _PIECE = 1 << 16
 _local = threading.local()
 
 
+#: Scratch buffers up to this size are kept from frame to frame (per thread); a larger
+#: image's temporaries are allocated for it alone (not held after it).
+SCRATCH_KEEP_BYTES = 16 << 20
+
+
 def _scratch(name: str, size: int, dtype: type) -> np.ndarray:
     """The calling thread's reusable flat buffer ``name`` of at least ``size`` items.
 
@@ -151,6 +156,8 @@ def _scratch(name: str, size: int, dtype: type) -> np.ndarray:
     have = getattr(_local, name, None)
     if have is None or have.size < size:
         have = np.empty(size, dtype)
+        if have.nbytes > SCRATCH_KEEP_BYTES:
+            return have
         setattr(_local, name, have)
     return have[:size]
 
@@ -258,18 +265,25 @@ def unfilter(filters: np.ndarray, delta: np.ndarray) -> np.ndarray | None:
     return out if _libpng_runs(buf, filters, starts + 1, stops + 1) else None
 
 
+#: Sub rows are summed this many at a time (bounds the int32 scratch buffers).
+_SUB_BATCH = 1024
+
+
 def _sub_rows(out: np.ndarray, ys: np.ndarray) -> None:
     """Undo Sub on rows ``ys`` of ``out`` (filtered bytes in place): prefix sums along
     each row (``cv2.integral`` sums over both axes; the difference of two of its rows is
     one row's), in the thread's scratch buffers."""
-    n, w = len(ys), out.shape[1]
-    rows = _scratch("sub", n * w, np.uint8).reshape(n, w)
-    np.take(out, ys, axis=0, out=rows)
-    total = _scratch("integral", (n + 1) * (w + 1), np.int32).reshape(n + 1, w + 1)
-    cv2.integral(rows, sum=total)
-    sums = _scratch("sums", n * w, np.int32).reshape(n, w)
-    np.subtract(total[1:, 1:], total[:-1, 1:], out=sums)
-    out[ys] = sums  # mod 256
+    w = out.shape[1]
+    for i in range(0, len(ys), _SUB_BATCH):
+        batch = ys[i : i + _SUB_BATCH]
+        n = len(batch)
+        rows = _scratch("sub", n * w, np.uint8).reshape(n, w)
+        np.take(out, batch, axis=0, out=rows)
+        total = _scratch("integral", (n + 1) * (w + 1), np.int32).reshape(n + 1, w + 1)
+        cv2.integral(rows, sum=total)
+        sums = _scratch("sums", n * w, np.int32).reshape(n, w)
+        np.subtract(total[1:, 1:], total[:-1, 1:], out=sums)
+        out[batch] = sums  # mod 256
 
 
 def _run_rows(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:

@@ -481,3 +481,30 @@ def test_corrupted_synth_frames_are_refused_as_opencv_refuses_them(tmp_path) -> 
         refused += _opencv(bytes(blob)) is None
         _agrees_with_opencv(bytes(blob))
     assert refused > 200  # (the corruptions do break files)
+
+
+def test_large_images_scratch_is_not_kept() -> None:
+    """A frame's temporaries are kept per thread for the next frame, up to a size: a
+    large image's are not held after it (and Sub rows are summed in batches)."""
+    import threading
+
+    from mistool import pngdecode
+
+    img = np.zeros((4200, 4100), np.uint8)  # 17 MB of filtered rows
+    cv2.circle(img, (2000, 2200), 1500, 160, -1)
+    blob = _encode(img)  # Sub rows: the integral buffers
+    kept: dict[str, int] = {}
+
+    def run() -> None:
+        got = decode_png(blob, 10**8)
+        assert got is not None
+        np.testing.assert_array_equal(got.pixels, img)
+        local = pngdecode._local
+        for name in ("filtered", "sub", "integral", "sums", "mini"):
+            buf = getattr(local, name, None)
+            kept[name] = 0 if buf is None else buf.nbytes
+
+    t = threading.Thread(target=run)  # a fresh thread: its own scratch buffers
+    t.start()
+    t.join()
+    assert kept and max(kept.values()) <= pngdecode.SCRATCH_KEEP_BYTES
