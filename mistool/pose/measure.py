@@ -44,12 +44,14 @@ from mistool.pose.cylinder import (
 from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask
 from mistool.pose.silhouette import (
     BG,
+    FIT_MAX_POINTS,
     OTHER,
     Boundary,
     Canvas,
     boundary_points,
     fit_line_robust,
     make_canvas,
+    regular_subsample,
     sum_rows,
     take_rows,
 )
@@ -327,12 +329,14 @@ def _fit_limbs(
     lines: list[np.ndarray | None] = []
     stats: list[_LineStats | None] = []
     for side in (q < 0, q > 0):
-        sel = keep & side
-        enough = np.count_nonzero(sel) >= _MIN_LINE_POINTS
-        fit = fit_line_robust(take_rows(pts, sel), s[sel], rng) if enough else None
+        use = np.flatnonzero(keep & side)
+        if len(use) > FIT_MAX_POINTS:  # the fit's own regular subsample, taken here
+            use = use[regular_subsample(len(use), FIT_MAX_POINTS)]
+        enough = len(use) >= _MIN_LINE_POINTS
+        fit = fit_line_robust(take_rows(pts, use), s[use], rng) if enough else None
         if fit is not None:
             line, inl, sig = fit
-            idx = np.flatnonzero(sel)[inl]
+            idx = use[inl]
             n_in = len(idx)
             s_in = s[idx]
             span = float(s_in.max() - s_in.min()) if n_in else 0.0

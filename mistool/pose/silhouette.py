@@ -19,6 +19,7 @@ import numpy as np
 
 __all__ = [
     "BG",
+    "FIT_MAX_POINTS",
     "OTHER",
     "SHAFT",
     "Boundary",
@@ -26,6 +27,7 @@ __all__ = [
     "boundary_points",
     "fit_line_robust",
     "make_canvas",
+    "regular_subsample",
     "sum_rows",
     "take_rows",
 ]
@@ -175,8 +177,12 @@ def _median(v: np.ndarray) -> float:
 _DRAWS = np.random.default_rng(12345).random((2, 64))
 
 
+#: :func:`fit_line_robust` fits at most this many points (a regular subsample).
+FIT_MAX_POINTS = 192
+
+
 @functools.lru_cache(maxsize=1024)
-def _subsample(n: int, m: int) -> np.ndarray:
+def regular_subsample(n: int, m: int) -> np.ndarray:
     """Indices of a regular subsample of ``m`` of ``n`` points (read-only, cached)."""
     keep = np.arange(m) * (n - 1) // (m - 1)
     keep.flags.writeable = False
@@ -200,7 +206,7 @@ def fit_line_robust(
     rng: np.random.Generator | None = None,
     thresh_px: float = 1.5,
     iters: int = 12,
-    max_points: int = 192,
+    max_points: int = FIT_MAX_POINTS,
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """Robust sub-pixel line: RANSAC on long baselines, then Tukey-weighted TLS.
 
@@ -224,7 +230,7 @@ def fit_line_robust(
         return None
     keep = None
     if n > max_points:  # a regular subsample: the fit's precision is already ~0.03 px
-        keep = _subsample(n, max_points)
+        keep = regular_subsample(n, max_points)
         pts, along = take_rows(pts, keep), along[keep]
         n = max_points
     # homogeneous coordinates relative to the points' mean (well conditioned moments):
