@@ -266,7 +266,7 @@ def unfilter(filters: np.ndarray, delta: np.ndarray) -> np.ndarray | None:
 
 
 #: Sub rows are summed this many at a time (bounds the int32 scratch buffers).
-_SUB_BATCH = 1024
+_SUB_BATCH = 64
 
 
 def _sub_rows(out: np.ndarray, ys: np.ndarray) -> None:
