@@ -297,6 +297,11 @@ def test_algorithm_1_of_a_mask_equals_the_former_definition(seed, min_area):
         cv2.line(mask, tuple(map(int, a)), tuple(map(int, b)), 255, int(rng.integers(1, 25)))
     for _ in range(int(rng.integers(0, 6))):  # specks
         mask[int(rng.integers(0, mask.shape[0])), int(rng.integers(0, mask.shape[1]))] = 255
+    if rng.integers(0, 2):  # in a larger window (fit_part then works on its bounds)
+        big = np.zeros((mask.shape[0] + int(rng.integers(0, 200)), mask.shape[1] + 150), np.uint8)
+        y0, x0 = int(rng.integers(0, big.shape[0] - mask.shape[0] + 1)), int(rng.integers(0, 151))
+        big[y0 : y0 + mask.shape[0], x0 : x0 + mask.shape[1]] = mask
+        mask = big
     offset = (int(rng.integers(0, 600)), int(rng.integers(0, 400)))
     got = fit_part(mask, min_area, offset)
     want = _fit_part_before(mask, min_area, offset)
