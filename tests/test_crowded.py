@@ -536,3 +536,25 @@ def test_a_tool_seen_apart_does_not_take_a_piece_a_tenth_its_size():
 
     assert names_at_4((200, 193, 214, 207)) == ["2"]  # inside the view
     assert names_at_4((0, 193, 14, 207)) == ["1"]  # at the border where it was
+
+
+def _from_right(x1: int, y: int = 200) -> np.ndarray:
+    """One tool from the right border along row ``y``: shaft from ``x1``, jaws before."""
+    img = np.zeros(SHAPE, np.uint8)
+    if x1 < SHAPE[1]:
+        img[y - 20 : y + 20, x1:] = 10
+        img[y - 8 : y + 8, max(0, x1 - 40) : x1] = 30
+    return img
+
+
+def test_a_tool_back_through_where_it_left_gets_its_name_back():
+    """A tool pulled out of the view fast (80 px a frame), back 46 frames later where its
+    shaft left: its centroid, predicted on from its exit, lies far outside the view, but
+    its shaft enters where it did: it gets its name back."""
+    tracker = IdentityTracker(MERGED)
+    f = 0
+    for x1 in range(300, 720, 80):
+        tracker.resolve(f, observe_frame(_from_right(x1), MERGED))
+        f += 1
+    _, names = tracker.resolve(f + 46, observe_frame(_from_right(600), MERGED))
+    assert names == ["1"]

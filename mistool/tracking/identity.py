@@ -256,10 +256,12 @@ def track_cost(
 
     Distance from the track's prediction in units of its size (a lost track's size
     bounded by :attr:`CostWeights.lost_scale_frac` of the image diagonal and growing
-    with time unseen), plus direction and area terms, a per-frame-unseen term, and a
-    penalty for a track hidden in another's blob, and the distance between where the
-    instance's shaft enters the view (``entry``, :func:`shaft_entry`) and where the
-    track's last did.
+    with time unseen; for a lost track, the distance between where the instance's shaft
+    enters the view and where the track's last did, when shorter and within
+    :attr:`CostWeights.entry_scale_frac` of the diagonal), plus direction and area
+    terms, a per-frame-unseen term, and a penalty for a track hidden in another's blob,
+    and the distance between where the instance's shaft enters the view (``entry``,
+    :func:`shaft_entry`) and where the track's last did.
     """
     gap = frame - t.last_frame
     lost = t.state is TrackState.LOST
@@ -270,7 +272,14 @@ def track_cost(
         if inst.image_shape is not None:  # from where it left, whatever its size
             scale = min(scale, weights.lost_scale_frac * math.hypot(*inst.image_shape))
         scale *= 1.0 + weights.lost_search_growth * (gap - LOST_AFTER_FRAMES) / fps
-    cost = float(np.hypot(*(c - t.predict(frame)))) / scale
+    dist = float(np.hypot(*(c - t.predict(frame))))
+    if lost and entry is not None and t.entry is not None and inst.image_shape is not None:
+        # a tool comes back through its trocar: its shaft enters where it left (its
+        # centroid, predicted on from its exit, lies outside the view)
+        moved = float(np.hypot(*(entry - t.entry)))
+        if moved <= weights.entry_scale_frac * math.hypot(*inst.image_shape):
+            dist = min(dist, moved)
+    cost = dist / scale
     angle, elong = _appearance(inst)
     # an instrument coming back shows its head first: its direction is no shaft's
     if angle is not None and t.angle is not None and not (lost and "shaft" not in inst.parts):
