@@ -642,7 +642,8 @@ def _label_bounds(
     :func:`_owner_cells`' image gives index ``j``: the bounds of its cells and the
     mixed ones (None: none)."""
     s = OWNER_CELL_PX
-    cells = cv2.bitwise_or(cv2.compare(coarse, j, cv2.CMP_EQ), mixed)  # type: ignore[call-overload]
+    # (numpy, not cv2.compare: OpenCV takes a grid of one to four cells for a scalar)
+    cells = cv2.bitwise_or(np.where(coarse == j, np.uint8(255), np.uint8(0)), mixed)
     cx, cy, cw, ch = cv2.boundingRect(cells)
     if cw == 0 or ch == 0:
         return None
