@@ -11,7 +11,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mistool.pose.cylinder import cross3, project, quat_from_z
+from mistool.pose.cylinder import cross3, pixel_rays, project, quat_from_z
 from mistool.pose.measure import (
     _crop_bounds,
     _jaw_tips,
@@ -461,3 +461,20 @@ def test_border_test_within_a_crop_as_before(case: tuple) -> None:  # type: igno
     for g, r in zip((bare[0], bare[2]), (full[0], full[2]), strict=True):
         assert all(_same(a, b) for a, b in zip(g, r, strict=True))
     assert bare[3] == full[3]
+
+
+def _pixel_rays_before(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    d = np.empty((len(uv), 3))
+    d[:, 0] = (uv[:, 0] - K[0, 2]) / K[0, 0]
+    d[:, 1] = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    d[:, 2] = 1.0
+    d /= np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + 1.0)[:, None]
+    return d
+
+
+@settings(max_examples=200, deadline=None)
+@given(_points(), st.floats(100.0, 2000.0), st.floats(0.5, 2.0))
+def test_pixel_rays_as_before(uv: np.ndarray, f: float, aspect: float) -> None:
+    K = np.array([[f, 0.0, 359.5], [0.0, f * aspect, 287.5], [0.0, 0.0, 1.0]])
+    assert _same(pixel_rays(uv, K), _pixel_rays_before(uv, K))

@@ -179,10 +179,16 @@ def pixel_rays(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
     """
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     d = np.empty((len(uv), 3))
-    d[:, 0] = (uv[:, 0] - K[0, 2]) / K[0, 0]
-    d[:, 1] = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    x, y = d[:, 0], d[:, 1]
+    np.subtract(uv[:, 0], K[0, 2], out=x)
+    x /= K[0, 0]
+    np.subtract(uv[:, 1], K[1, 2], out=y)
+    y /= K[1, 1]
     d[:, 2] = 1.0
-    d /= np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + 1.0)[:, None]
+    n = x * x
+    n += y * y
+    n += 1.0
+    d /= np.sqrt(n, out=n)[:, None]
     return d
 
 

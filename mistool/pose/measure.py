@@ -189,8 +189,9 @@ def _median1(v: np.ndarray) -> float:
 
 def _ray(px: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Unit viewing ray (3,) of one pixel (2,) (``pixel_rays`` for a single pixel)."""
-    x = (float(px[0]) - K[0, 2]) / K[0, 0]
-    y = (float(px[1]) - K[1, 2]) / K[1, 1]
+    u, v = px.tolist()
+    x = (u - K.item(0, 2)) / K.item(0, 0)
+    y = (v - K.item(1, 2)) / K.item(1, 1)
     n = math.sqrt(x * x + y * y + 1.0)
     return np.array([x / n, y / n, 1.0 / n])
 
@@ -1292,7 +1293,7 @@ def _tip_solve(
     cost = (np.arccos(cosb) / _TIP_BEND_SIGMA_RAD) ** 2
     if l_nom is not None:
         cost += ((ln - l_nom) / (_TIP_LENGTH_SIGMA * l_nom)) ** 2
-    k = int(np.argmin(cost))
+    k = int(cost.argmin())
     sk = float(s[k])
     if 0 < k < len(s) - 1:  # parabolic refinement
         c0, c1, c2 = cost[k - 1 : k + 2].tolist()

@@ -122,22 +122,21 @@ def boundary_points(canvas: Canvas, outline: np.ndarray) -> Boundary:
     at = y * (w + 2)
     at += x
     # (4, N) neighbours (right, left, down, up), direction-major as the pairs are examined
-    nb = pad.ravel().take(at + np.array([[1], [-1], [w + 2], [-(w + 2)]]))
-    return Boundary(_mid_points(nb == BG, x, y, canvas), _mid_points(nb == OTHER, x, y, canvas))
+    nb = pad.ravel().take(at + np.array([[1], [-1], [w + 2], [-(w + 2)]])).reshape(-1)
+    # the pairs' mid-points (full-image px), each a complex number so that a selection of
+    # them is gathered as one column
+    f = np.empty((4, len(x), 2))
+    np.add(x, _HALF_DX + (canvas.x0 - 1), out=f[:, :, 0])
+    np.add(y, _HALF_DY + (canvas.y0 - 1), out=f[:, :, 1])
+    fc = f.view(np.complex128).reshape(-1)
+    return Boundary(
+        fc[np.flatnonzero(nb == BG)].view(np.float64).reshape(-1, 2),
+        fc[np.flatnonzero(nb == OTHER)].view(np.float64).reshape(-1, 2),
+    )
 
 
-def _mid_points(pairs: np.ndarray, x: np.ndarray, y: np.ndarray, canvas: Canvas) -> np.ndarray:
-    """(M, 2) full-image mid-points of the selected (4, N) neighbour pairs of the outline
-    pixels at padded-canvas ``x, y`` (N,), direction-major."""
-    k, i = np.nonzero(pairs)
-    out = np.empty((len(i), 2))
-    np.add(x[i], _HALF_DX[k] + (canvas.x0 - 1), out=out[:, 0])
-    np.add(y[i], _HALF_DY[k] + (canvas.y0 - 1), out=out[:, 1])
-    return out
-
-
-_HALF_DX = 0.5 * np.array([1, -1, 0, 0])
-_HALF_DY = 0.5 * np.array([0, 0, 1, -1])
+_HALF_DX = np.array([[0.5], [-0.5], [0.0], [0.0]])  # (4, 1) half steps to the neighbour
+_HALF_DY = np.array([[0.0], [0.0], [0.5], [-0.5]])
 
 
 def take_rows(points: np.ndarray, index: np.ndarray) -> np.ndarray:
