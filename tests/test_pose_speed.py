@@ -25,9 +25,11 @@ from mistool.pose.silhouette import (
     Boundary,
     Canvas,
     _tls_moments,
+    add_rows,
     boundary_points,
     fit_line_robust,
     make_canvas,
+    sub_rows,
     sum_rows,
     take_rows,
 )
@@ -59,6 +61,11 @@ def test_take_sum_and_mean_of_rows_equal_numpy_indexing_and_sums(p: np.ndarray, 
     assert _same(take_rows(p, idx), p[idx])
     assert _same(take_rows(p[:, ::-1], idx), p[:, ::-1][idx])  # not C-contiguous
     assert _same(sum_rows(p), p.sum(axis=0))
+    c = rng.normal(0.0, 300.0, 2)
+    assert _same(sub_rows(p, c), p - c)
+    shifted = p.copy()
+    add_rows(shifted, (float(c[0]), float(c[1])))
+    assert _same(shifted, p + (float(c[0]), float(c[1])))
     if sel.any():
         assert _same(_mean_rows(p, sel), p[sel].mean(axis=0))
 

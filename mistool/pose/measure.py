@@ -48,10 +48,12 @@ from mistool.pose.silhouette import (
     OTHER,
     Boundary,
     Canvas,
+    add_rows,
     boundary_points,
     fit_line_robust,
     make_canvas,
     regular_subsample,
+    sub_rows,
     sum_rows,
     take_rows,
 )
@@ -155,7 +157,7 @@ def _outline(
     if mom["m00"] < 1.0:  # degenerate outlines (lines of pixels): count pixels instead
         m = cv2.moments(mask_u8, binaryImage=True)
         mom = {k: m[k] for k in mom}
-    pts += offset
+    add_rows(pts, offset)
     return pts, mom
 
 
@@ -682,7 +684,7 @@ def _shaft_frame(sp: _ShaftPoints) -> _ShaftFrame:
     centre = sp.centre
     med_other = _median_rows(sp.bnd.other) if len(sp.bnd.other) >= 3 else None
     e = _initial_direction(sp, centre, (mu20, mu02, mu11), med_other)
-    rel = sp.pix - centre
+    rel = sub_rows(sp.pix, centre)
     s_pix = rel @ e
     distal = _distal_sign(sp, centre, e, s_pix)
     if distal < 0:
@@ -715,7 +717,7 @@ def _limb_points(sp: _ShaftPoints, fr: _ShaftFrame) -> _LimbPoints:
     # the cap's points that curve away)
     zone = min(0.6 * fr.width + 2.0, max(3.0, 0.15 * (fr.s_max - fr.s_min)))
     pts = sp.bnd.bg
-    rel = pts - fr.centre
+    rel = sub_rows(pts, fr.centre)
     s = rel @ fr.e
     keep_base = np.ones(len(pts), dtype=bool)
     if not fr.prox_at_border:
@@ -1107,8 +1109,8 @@ def _jaw_tips(
         return [], [], [], []
     ci = max(contours, key=len).reshape(-1, 2)  # outline pixels (crop px, integers)
     c = ci.astype(np.float64)
-    c += offset
-    dj = c - jpx
+    add_rows(c, offset)
+    dj = sub_rows(c, jpx)
     d = np.sqrt(np.einsum("ij,ij->i", dj, dj))
     n = len(c)
     win = int(max(2, min(n // 4, round(width_px))))
@@ -1140,7 +1142,7 @@ def _jaw_tips(
             continue
         # the pixels' mean: their coordinates are integers, so their sums are exact
         m = np.array([sx / cnt, sy / cnt])
-        dd = nb - m
+        dd = sub_rows(nb, m)
         cov = dd.T @ dd
         phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
         e = np.array([math.cos(phi), math.sin(phi)])
