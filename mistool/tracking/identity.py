@@ -27,7 +27,8 @@ appearance.
 - Leaving and coming back: a track unseen for more than :data:`LOST_AFTER_FRAMES` frames
   is ``LOST``; for up to ``max_gap_s`` seconds a new instance near where it was last seen
   (within :attr:`CostWeights.lost_scale_frac` of the image diagonal, growing with time,
-  and similar in shaft direction) gets its old name back; after that gap it is forgotten.
+  or its shaft entering the view near where the track's last did, and similar in shaft
+  direction) gets its old name back; after that gap it is forgotten.
 
 Identity needs only the instances (boxes, areas, centroids and the part pixel crops,
 which a split uses), never the label image: the per-frame work can run elsewhere.
