@@ -66,7 +66,17 @@ def _set3(
 
 def _ray(K: np.ndarray, u: float, v: float) -> np.ndarray:
     r = np.linalg.solve(K, np.array([u, v, 1.0]))
-    return r / np.linalg.norm(r)
+    return r / _norm(r)
+
+
+def _norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a 1-D float64 vector, without its overhead: the very same
+    ``sqrt(v.dot(v))`` it computes, so the same bits."""
+    return math.sqrt(float(v.dot(v)))
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
 
 
 def _trocar_fusion(
@@ -79,48 +89,73 @@ def _trocar_fusion(
     by inverse variances; (2) the direction fused with ``unit(J - T)``, whose error is
     the joint's and the trocar's over their distance (small: the trocar is far).
     One limb line: the closed-form solve through the trocar.
+
+    The rows' values are read once as Python floats (the same values as the columns'
+    float64 cells), the finiteness tests are done on them, and the vector arithmetic is
+    the same numpy arithmetic as before, so the result is the same bit for bit
+    (``tests/test_pose.py::test_trocar_fusion_is_its_former_definition``).
     """
     T = trocar.point
-    for i in idx:
-        lines = [np.array([cols[f"aux_l{k}{c}"][i] for c in "abc"]) for k in (1, 2)]
-        have = [bool(np.all(np.isfinite(line))) for line in lines]
-        J = np.array([cols[n][i] for n in _END])
-        a = np.array([cols[n][i] for n in _AXIS])
-        sig_j = float(cols["aux_sigma_mm"][i])
-        sig_a = math.radians(float(cols["aux_sigma_deg"][i]))
-        have_j = bool(np.all(np.isfinite(J))) and math.isfinite(sig_j)
-        have_a = bool(np.all(np.isfinite(a))) and math.isfinite(sig_a)
+    idx_list = idx.tolist()
+    if not idx_list:
+        return
+    v = {
+        n: cols[n][idx].tolist()
+        for n in (
+            *_END,
+            *_AXIS,
+            *(f"aux_l{k}{c}" for k in (1, 2) for c in "abc"),
+            "aux_sigma_mm",
+            "aux_sigma_deg",
+            "aux_su_px",
+            "aux_sv_px",
+            "aux_u_px",
+            "aux_v_px",
+        )
+    }
+    l1a, l1b, l1c = v["aux_l1a"], v["aux_l1b"], v["aux_l1c"]
+    l2a, l2b, l2c = v["aux_l2a"], v["aux_l2b"], v["aux_l2c"]
+    jx, jy, jz = (v[n] for n in _END)
+    ax_, ay_, az_ = (v[n] for n in _AXIS)
+    su, sv, uu, vv = v["aux_su_px"], v["aux_sv_px"], v["aux_u_px"], v["aux_v_px"]
+    sig_mm, sig_deg = v["aux_sigma_mm"], v["aux_sigma_deg"]
+    for r, i in enumerate(idx_list):
+        have0 = _finite(l1a[r], l1b[r], l1c[r])
+        have1 = _finite(l2a[r], l2b[r], l2c[r])
+        sig_j = sig_mm[r]
+        sig_a = math.radians(sig_deg[r])
         sray = None
-        if np.isfinite(cols["aux_su_px"][i]) and np.isfinite(cols["aux_sv_px"][i]):
-            sray = _ray(K, cols["aux_su_px"][i], cols["aux_sv_px"][i])
-        if have[0] and have[1] and have_j:
+        if math.isfinite(su[r]) and math.isfinite(sv[r]):
+            sray = _ray(K, su[r], sv[r])
+        if have0 and have1 and _finite(jx[r], jy[r], jz[r]) and math.isfinite(sig_j):
+            J = np.array([jx[r], jy[r], jz[r]])
+            a = np.array([ax_[r], ay_[r], az_[r]])
+            have_a = _finite(ax_[r], ay_[r], az_[r]) and math.isfinite(sig_a)
             sig_j = max(sig_j, 0.05)
             if have_a:
-                jray = J / np.linalg.norm(J)
+                jray = J / _norm(J)
                 t = float(closest_on_axis(jray[None], T, a)[0])
                 s_r = float(jray @ (T + t * a))
                 sin_ang = math.sqrt(max(1.0 - float(jray @ a) ** 2, 1e-6))
-                sig_t = (
-                    float(np.linalg.norm(J - T)) * max(sig_a, 1e-4) + trocar.sigma_across(a)
-                ) / sin_ang
+                sig_t = (_norm(J - T) * max(sig_a, 1e-4) + trocar.sigma_across(a)) / sin_ang
                 if s_r > 0:
                     w_t, w_m = 1.0 / sig_t**2, 1.0 / sig_j**2
                     J = (w_t * s_r * jray + w_m * J) / (w_t + w_m)
                     sig_j = 1.0 / math.sqrt(w_t + w_m)
-            dist = float(np.linalg.norm(J - T))
+            dist = _norm(J - T)
             a_t = (J - T) / dist
             sig_at = math.hypot(sig_j, trocar.sigma_across(a_t)) / dist
             if have_a and float(a_t @ a) > 0:
                 a = a / sig_a**2 + a_t / sig_at**2
-                a /= np.linalg.norm(a)
+                a /= _norm(a)
             elif not have_a and math.degrees(sig_at) <= MAX_SIGMA_DEG:
                 a = a_t
             else:
                 continue
             _set_row(cols, i, J, a, sray)
-        elif have[0] != have[1] and np.isfinite(cols["aux_u_px"][i]):
-            line = lines[0] if have[0] else lines[1]
-            jray = _ray(K, cols["aux_u_px"][i], cols["aux_v_px"][i])
+        elif have0 != have1 and math.isfinite(uu[r]):
+            line = np.array([l1a[r], l1b[r], l1c[r]] if have0 else [l2a[r], l2b[r], l2c[r]])
+            jray = _ray(K, uu[r], vv[r])
             sol = axis_through_point(tangent_plane(line, K), radius, T, jray)
             if sol is None:
                 continue
@@ -145,23 +180,31 @@ def _set_row(
 def _realign_clasper(
     cols: dict[str, np.ndarray], shaft_idx: np.ndarray, clasper_idx: np.ndarray, frames: np.ndarray
 ) -> None:
-    """Move each clasper row's start (= J) and end with its shaft row's joint."""
-    by_frame = {int(frames[i]): i for i in shaft_idx}
-    for i in clasper_idx:
-        s = by_frame.get(int(frames[i]))
-        if s is None:
+    """Move each clasper row's start (= J) and end with its shaft row's joint.
+
+    Plain floats (the same subtractions and additions as on 3-vectors), values read once:
+    the loop writes only the clasper rows, never a shaft row it reads."""
+    by_frame = dict(zip(frames[shaft_idx].tolist(), shaft_idx.tolist(), strict=True))
+    rows = clasper_idx.tolist()
+    shafts = [by_frame.get(f) for f in frames[clasper_idx].tolist()]
+    have = [s is not None for s in shafts]
+    src = np.array([s if s is not None else 0 for s in shafts], dtype=np.int64)
+    J = [cols[n][src].tolist() for n in _END]
+    start = [cols[n][clasper_idx].tolist() for n in _START]
+    tip = [cols[n][clasper_idx].tolist() for n in _END]
+    for r, i in enumerate(rows):
+        if not have[r]:
             continue
-        J = np.array([cols[n][s] for n in _END])
-        start = np.array([cols[n][i] for n in _START])
-        tip = np.array([cols[n][i] for n in _END])
-        if not (np.all(np.isfinite(J)) and np.all(np.isfinite(start))):
+        j3 = (J[0][r], J[1][r], J[2][r])
+        s3 = (start[0][r], start[1][r], start[2][r])
+        if not (_finite(*j3) and _finite(*s3)):
             continue
-        shift = J - start
         for j, n in enumerate(_START):
-            cols[n][i] = J[j]
-        if np.all(np.isfinite(tip)):
+            cols[n][i] = j3[j]
+        t3 = (tip[0][r], tip[1][r], tip[2][r])
+        if _finite(*t3):
             for j, n in enumerate(_END):
-                cols[n][i] = tip[j] + shift[j]
+                cols[n][i] = t3[j] + (j3[j] - s3[j])
 
 
 def _reliable_trocar(cols: dict[str, np.ndarray], idx: np.ndarray, t: np.ndarray) -> Trocar | None:
