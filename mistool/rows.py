@@ -57,9 +57,14 @@ class RowBuilder:
         self._box = np.empty((self._cap, len(BOX_COLUMNS)), np.float64)
         self._names: list[str] = []
         self._codes: dict[str, int] = {}
-        # metric columns, created when first seen (NaN / "" in earlier rows)
-        self._num: dict[str, np.ndarray] = {}
+        # numeric metric columns, one block, a column each, created when first seen (NaN
+        # in earlier rows); text metric columns apart ("" in earlier rows)
+        self._num_names: list[str] = []
+        self._num_index: dict[str, int] = {}
+        self._num = np.empty((self._cap, 0), np.float64)
         self._text: dict[str, np.ndarray] = {}
+        # per tuple of a metric's keys (all numeric): where its values go in self._num
+        self._plans: dict[tuple[str, ...], slice | list[int]] = {}
 
     @property
     def num_rows(self) -> int:
@@ -82,7 +87,7 @@ class RowBuilder:
         self._inst = grown(self._inst, 0)
         self._part = grown(self._part, 0)
         self._box = grown(self._box, np.nan)
-        self._num = {c: grown(a, np.nan) for c, a in self._num.items()}
+        self._num = grown(self._num, np.nan)
         self._text = {c: grown(a, "") for c, a in self._text.items()}
         self._cap = cap
 
@@ -109,37 +114,71 @@ class RowBuilder:
                 ``.box``, ``.corners`` (4, 2) px, ``.area_px``).
             metrics: per instance, part -> {column: value} of the metric pose, or None.
         """
+        rows: list[tuple[int, int, Any, Any]] = []
         for name, inst, metric in zip(names, instances, metrics, strict=True):
             code = self._code(str(name))
+            parts = inst.parts
             for p, part in enumerate(PARTS):
-                obs = inst.parts.get(part)
-                if obs is None:
-                    continue
-                self._add(index, code, p, obs, (metric or {}).get(part))
+                obs = parts.get(part)
+                if obs is not None:
+                    rows.append((code, p, obs, metric.get(part) if metric else None))
+        if not rows:
+            return
+        i0 = self._n
+        i1 = i0 + len(rows)
+        if i1 > self._cap:
+            self._grow(i1)
+        self._frame[i0:i1] = index
+        self._inst[i0:i1] = [r[0] for r in rows]
+        self._part[i0:i1] = [r[1] for r in rows]
+        box = []
+        for _, _, obs, _ in rows:
+            b = obs.box
+            box.append(
+                [b.cx, b.cy, b.length, b.width, b.angle_deg, obs.area_px, *_corners(obs.corners)]
+            )
+        self._box[i0:i1] = box
+        self._n = i1
+        for i, (_, _, _, metric) in enumerate(rows, i0):
+            if metric:
+                self._add_metric(i, metric)
 
-    def _add(self, index: int, code: int, part: int, obs: Any, metric: Any) -> None:
-        i = self._n
-        if i == self._cap:
-            self._grow(i + 1)
-        self._frame[i] = index
-        self._inst[i] = code
-        self._part[i] = part
-        b = obs.box
-        row = self._box[i]
-        row[:6] = (b.cx, b.cy, b.length, b.width, b.angle_deg, obs.area_px)
-        row[6:] = np.asarray(obs.corners, dtype=np.float64).reshape(8)
-        self._n = i + 1
-        if metric:
+    def _add_metric(self, i: int, metric: Mapping[str, Any]) -> None:
+        """Row ``i``'s metric values: numbers (None: NaN) and text, by column name."""
+        values = list(metric.values())
+        if any(isinstance(v, str) for v in values):
             for col, v in metric.items():
                 if isinstance(v, str):
-                    self._column(self._text, col, "", object)[i] = v
+                    self._text_column(col)[i] = v
                 else:
-                    self._column(self._num, col, np.nan, np.float64)[i] = np.nan if v is None else v
+                    j = self._num_column(col)  # before self._num is read: it may grow
+                    self._num[i, j] = np.nan if v is None else v
+            return
+        keys = tuple(metric)
+        plan = self._plans.get(keys)
+        if plan is None:  # before self._num is read: it may grow
+            plan = self._plans[keys] = self._plan(keys)
+        # a float64 cell takes a number as it is and None as NaN, as a cell at a time did
+        self._num[i, plan] = values
 
-    def _column(self, cols: dict[str, np.ndarray], name: str, fill: Any, dtype: Any) -> np.ndarray:
-        arr = cols.get(name)
+    def _plan(self, keys: tuple[str, ...]) -> slice | list[int]:
+        js = [self._num_column(k) for k in keys]
+        if js == list(range(js[0], js[0] + len(js))):
+            return slice(js[0], js[0] + len(js))
+        return js
+
+    def _num_column(self, name: str) -> int:
+        j = self._num_index.get(name)
+        if j is None:
+            j = self._num_index[name] = len(self._num_names)
+            self._num_names.append(name)
+            self._num = np.hstack([self._num, np.full((self._cap, 1), np.nan)])
+        return j
+
+    def _text_column(self, name: str) -> np.ndarray:
+        arr = self._text.get(name)
         if arr is None:
-            arr = cols[name] = np.full(self._cap, fill, dtype=dtype)
+            arr = self._text[name] = np.full(self._cap, "", dtype=object)
         return arr
 
     def take(self) -> TrackTable:
@@ -160,13 +199,19 @@ class RowBuilder:
         }
         for j, c in enumerate(BOX_COLUMNS):
             cols[c] = self._box[:n, j].copy()
-        extra = {**self._num, **self._text}
+        extra: dict[str, np.ndarray] = {c: self._num[:, j] for j, c in enumerate(self._num_names)}
+        extra.update(self._text)
         known = [c for c in COLUMN_NAMES if c in extra]
         for c in known + [c for c in extra if c not in known]:
             cols[c] = extra[c][:n].copy()
         self._n = 0
-        for a in self._num.values():
-            a[:n] = np.nan
+        self._num[:n] = np.nan
         for a in self._text.values():
             a[:n] = ""
         return TrackTable(cols)
+
+
+def _corners(corners: Any) -> list[float]:
+    """A part's (4, 2) corners as 8 floats, row by row."""
+    out: list[float] = np.asarray(corners, dtype=np.float64).ravel().tolist()
+    return out

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from mistool.model import RotatedBox
-from mistool.rows import BASE_COLUMNS, INITIAL_ROWS, RowBuilder
+from mistool.model import COLUMN_NAMES, PARTS, RotatedBox, TrackTable
+from mistool.rows import BASE_COLUMNS, BOX_COLUMNS, INITIAL_ROWS, RowBuilder
 
 
 @dataclass
@@ -64,3 +68,179 @@ def test_metric_columns_appear_late_with_nan_and_empty_text_before() -> None:
     again = rows.take()  # emptied, and no value of the earlier rows leaks in
     assert again["frame"].tolist() == [2, 2] and np.isnan(again["end_x_mm"]).all()
     assert again["pose_status"].tolist() == ["", ""]
+
+
+class _FormerRowBuilder:  # mistool.rows.RowBuilder as it was (e67ef6d)
+    """Rows of consecutive frames, in growing numpy columns.
+
+    Args:
+        fps: frames per second (``time_s = frame / fps``).
+    """
+
+    def __init__(self, fps: float) -> None:
+        self.fps = fps
+        self._cap = INITIAL_ROWS
+        self._n = 0
+        self._frame = np.empty(self._cap, np.int64)
+        self._inst = np.empty(self._cap, np.int32)  # code into self._names
+        self._part = np.empty(self._cap, np.int8)  # index into PARTS
+        self._box = np.empty((self._cap, len(BOX_COLUMNS)), np.float64)
+        self._names: list[str] = []
+        self._codes: dict[str, int] = {}
+        # metric columns, created when first seen (NaN / "" in earlier rows)
+        self._num: dict[str, np.ndarray] = {}
+        self._text: dict[str, np.ndarray] = {}
+
+    @property
+    def num_rows(self) -> int:
+        """Rows so far."""
+        return self._n
+
+    def _grow(self, need: int) -> None:
+        cap = self._cap
+        while cap < need:
+            cap *= 2
+        if cap == self._cap:
+            return
+
+        def grown(a: np.ndarray, fill: Any) -> np.ndarray:
+            out = np.full((cap, *a.shape[1:]), fill, dtype=a.dtype)
+            out[: self._n] = a[: self._n]
+            return out
+
+        self._frame = grown(self._frame, 0)
+        self._inst = grown(self._inst, 0)
+        self._part = grown(self._part, 0)
+        self._box = grown(self._box, np.nan)
+        self._num = {c: grown(a, np.nan) for c, a in self._num.items()}
+        self._text = {c: grown(a, "") for c, a in self._text.items()}
+        self._cap = cap
+
+    def _code(self, name: str) -> int:
+        code = self._codes.get(name)
+        if code is None:
+            code = self._codes[name] = len(self._names)
+            self._names.append(name)
+        return code
+
+    def add_frame(
+        self,
+        index: int,
+        names: Sequence[str],
+        instances: Sequence[Any],
+        metrics: Sequence[Mapping[str, Mapping[str, Any]] | None],
+    ) -> None:
+        """Add one frame's rows: one per visible part of each named instance.
+
+        Args:
+            index: the frame's 0-based index.
+            names: instrument name per instance.
+            instances: ``InstanceObservation`` per instance (``.parts``: part -> obs with
+                ``.box``, ``.corners`` (4, 2) px, ``.area_px``).
+            metrics: per instance, part -> {column: value} of the metric pose, or None.
+        """
+        for name, inst, metric in zip(names, instances, metrics, strict=True):
+            code = self._code(str(name))
+            for p, part in enumerate(PARTS):
+                obs = inst.parts.get(part)
+                if obs is None:
+                    continue
+                self._add(index, code, p, obs, (metric or {}).get(part))
+
+    def _add(self, index: int, code: int, part: int, obs: Any, metric: Any) -> None:
+        i = self._n
+        if i == self._cap:
+            self._grow(i + 1)
+        self._frame[i] = index
+        self._inst[i] = code
+        self._part[i] = part
+        b = obs.box
+        row = self._box[i]
+        row[:6] = (b.cx, b.cy, b.length, b.width, b.angle_deg, obs.area_px)
+        row[6:] = np.asarray(obs.corners, dtype=np.float64).reshape(8)
+        self._n = i + 1
+        if metric:
+            for col, v in metric.items():
+                if isinstance(v, str):
+                    self._column(self._text, col, "", object)[i] = v
+                else:
+                    self._column(self._num, col, np.nan, np.float64)[i] = np.nan if v is None else v
+
+    def _column(self, cols: dict[str, np.ndarray], name: str, fill: Any, dtype: Any) -> np.ndarray:
+        arr = cols.get(name)
+        if arr is None:
+            arr = cols[name] = np.full(self._cap, fill, dtype=dtype)
+        return arr
+
+    def take(self) -> TrackTable:
+        """The rows so far as a table (columns: :data:`BASE_COLUMNS`, then the metric
+        columns, known ones in :data:`~mistool.model.COLUMNS` order); the builder is
+        emptied (its capacity kept)."""
+        n = self._n
+        names = np.empty(len(self._names), dtype=object)
+        names[:] = self._names
+        parts = np.empty(len(PARTS), dtype=object)
+        parts[:] = PARTS
+        frame = self._frame[:n].copy()
+        cols: dict[str, Any] = {
+            "frame": frame,
+            "time_s": frame / self.fps,
+            "instrument": names[self._inst[:n]],
+            "part": parts[self._part[:n]],
+        }
+        for j, c in enumerate(BOX_COLUMNS):
+            cols[c] = self._box[:n, j].copy()
+        extra = {**self._num, **self._text}
+        known = [c for c in COLUMN_NAMES if c in extra]
+        for c in known + [c for c in extra if c not in known]:
+            cols[c] = extra[c][:n].copy()
+        self._n = 0
+        for a in self._num.values():
+            a[:n] = np.nan
+        for a in self._text.values():
+            a[:n] = ""
+        return TrackTable(cols)
+
+
+_NUMBERS = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.none(), st.integers(-5, 5))
+_TEXT = st.sampled_from(["ok", "no camera", ""])
+_ITEM = st.one_of(  # known numeric columns take numbers, text ones text, others either
+    st.tuples(st.sampled_from(("end_x_mm", "quality", "axis_z", "aux_u_px")), _NUMBERS),
+    st.tuples(st.just("pose_status"), _TEXT),
+    st.tuples(st.sampled_from(("zz_extra", "zz_more")), st.one_of(_NUMBERS, _TEXT)),
+)
+_METRIC = st.one_of(
+    st.none(),
+    st.dictionaries(st.sampled_from(PARTS), st.lists(_ITEM, max_size=7).map(dict)),
+)
+_FRAME = st.lists(st.tuples(st.sampled_from("abc"), st.sets(st.sampled_from(PARTS)), _METRIC))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(_FRAME, max_size=40), st.integers(0, 3))
+def test_rows_are_those_of_the_former_definition(frames, takes) -> None:
+    """Frames of random instances and metric dicts (numbers, None, text, keys in any
+    order, columns appearing late), taken at random points: the same tables, bit for bit."""
+    new, old = RowBuilder(fps=7.0), _FormerRowBuilder(fps=7.0)
+    got: list[TrackTable] = []
+    want: list[TrackTable] = []
+    for k, frame in enumerate(frames * 8):  # repeated: past the initial capacity
+        insts = [
+            _inst(k + j, tuple(p for p in PARTS if p in ps)) for j, (_, ps, _) in enumerate(frame)
+        ]
+        names = [n for n, _, _ in frame]
+        metrics = [m for _, _, m in frame]
+        new.add_frame(k, names, insts, metrics)
+        old.add_frame(k, names, insts, metrics)
+        if takes and k % (takes * 17) == 5:
+            got.append(new.take())
+            want.append(old.take())
+    got.append(new.take())
+    want.append(old.take())
+    for g, w in zip(got, want, strict=True):
+        assert g.columns == w.columns
+        for c in g.columns:
+            if g[c].dtype == np.float64:
+                assert np.array_equal(g[c].view(np.int64), w[c].view(np.int64)), c
+            else:
+                assert g[c].dtype == w[c].dtype and g[c].tolist() == w[c].tolist(), c
