@@ -75,8 +75,8 @@ def _norm(v: np.ndarray) -> float:
     return math.sqrt(float(v.dot(v)))
 
 
-def _finite(*values: float) -> bool:
-    return all(math.isfinite(v) for v in values)
+def _finite(a: float, b: float, c: float) -> bool:
+    return math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
 
 
 def _trocar_fusion(
