@@ -715,16 +715,16 @@ class BlobPixels:
     def __init__(self, inst: InstanceObservation) -> None:
         self.inst = inst
         self._cache: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        self._shaft_nz: np.ndarray | None = None
+        self._shaft_idx: np.ndarray | None = None
         self._samples: dict[int, np.ndarray] = {}  # shaft points by step (1: all)
 
-    def _shaft_nonzero(self) -> np.ndarray:
-        """(N, 2) int32 (x, y) in the shaft's crop of its pixels, row by row (as
-        ``np.nonzero``; OpenCV's ``findNonZero`` is faster on large masks)."""
-        if self._shaft_nz is None:
-            nz = cv2.findNonZero(self.inst.parts["shaft"].mask.view(np.uint8))
-            self._shaft_nz = nz.reshape(-1, 2)
-        return self._shaft_nz
+    def _shaft_index(self) -> np.ndarray:
+        """(N,) flat (row-major) indices in the shaft's crop of its pixels: numpy's
+        ``flatnonzero`` of the bool mask (~1.5x faster than OpenCV's ``findNonZero``,
+        ~58,000 px on a crossing blob); only the sampled ones become (x, y)."""
+        if self._shaft_idx is None:
+            self._shaft_idx = np.flatnonzero(self.inst.parts["shaft"].mask)
+        return self._shaft_idx
 
     def shaft_points(self) -> np.ndarray:
         """(N, 2) float64 full-image (x, y) of the shaft's pixels, row by row."""
@@ -733,13 +733,18 @@ class BlobPixels:
     def shaft_sample(self, max_points: int) -> tuple[np.ndarray, int]:
         """``(shaft_points()[::step], step)`` with ``step = len // max_points`` (at
         least 1): about ``max_points`` points, the others never converted."""
-        step = max(1, len(self._shaft_nonzero()) // max_points)
+        step = max(1, len(self._shaft_index()) // max_points)
         return self._sample(step), step
 
     def _sample(self, step: int) -> np.ndarray:
         if step not in self._samples:
-            nz = self._shaft_nonzero()[::step]
-            self._samples[step] = nz.astype(np.float64) + self.inst.parts["shaft"].offset
+            part = self.inst.parts["shaft"]
+            ys, xs = np.divmod(self._shaft_index()[::step], part.mask.shape[1])
+            pts = np.empty((len(xs), 2), np.float64)
+            pts[:, 0] = xs
+            pts[:, 1] = ys
+            pts += part.offset
+            self._samples[step] = pts
         return self._samples[step]
 
     def get(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
