@@ -8,8 +8,14 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mistool.model import TrackTable
 from mistool.pose import refine
-from mistool.pose.cylinder import axis_through_point, closest_on_axis, tangent_plane
+from mistool.pose.cylinder import (
+    axis_through_point,
+    closest_on_axis,
+    quat_from_z,
+    tangent_plane,
+)
 from mistool.pose.measure import MAX_SIGMA_DEG
 from mistool.pose.trocar import Trocar
 
@@ -149,3 +155,29 @@ def test_trocar_fusion_and_clasper_realignment_are_their_former_definitions(seed
     refine._realign_clasper(cols, shaft, clasper, frames)
     _former_realign_clasper(old, shaft, clasper, frames)
     _same_bits(cols, old)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 30))
+def test_quaternions_are_those_of_each_row_as_before(seed, n):
+    """The quaternion columns: ``quat_from_z(axis / np.linalg.norm(axis))`` of each row
+    with a finite axis (the former per-row loop), bit for bit; NaN elsewhere."""
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(0.0, 1.0, (n, 3))
+    axes[rng.random(n) < 0.2, rng.integers(0, 3)] = np.nan
+    table = TrackTable(
+        {
+            "frame": np.arange(n),
+            "instrument": ["1"] * n,
+            "part": ["shaft"] * n,
+            "end_x_mm": np.full(n, np.nan),
+            **{c: axes[:, j] for j, c in enumerate(_AXIS)},
+        }
+    )
+    out = refine.refine_sequence(table, None, smoothing="none")
+    want = np.full((n, 4), np.nan)
+    for i in range(n):
+        if np.all(np.isfinite(axes[i])):
+            want[i] = quat_from_z(axes[i] / np.linalg.norm(axes[i]))
+    got = np.stack([out[c] for c in ("qw", "qx", "qy", "qz")], axis=1)
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))

@@ -328,10 +328,10 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
     if smoothing != "none":
         _smooth(cols, smoothing, frames, inst, part, fps)
     ax = _get3(cols, _AXIS, np.arange(table.num_rows))
-    ok = np.all(np.isfinite(ax), axis=1)
-    for i in np.flatnonzero(ok):
-        q = quat_from_z(ax[i] / np.linalg.norm(ax[i]))
+    rows = np.flatnonzero(np.all(np.isfinite(ax), axis=1))
+    if len(rows):
+        quats = np.array([quat_from_z(a / _norm(a)) for a in ax[rows]])
         for j, n in enumerate(_QUAT):
-            cols[n][i] = q[j]
+            cols[n][rows] = quats[:, j]
     cols["pose_status"] = status_column(cols, table.num_rows)
     return TrackTable({c: v for c, v in cols.items() if c not in AUX_KEYS})
