@@ -23,28 +23,21 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
-import sys
 import time
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import cv2
+from _checkout import import_checkout
 
 HERE = Path(__file__).resolve().parent.parent
 
 
 def _load(root: Path) -> ModuleType:
     """``mistool.parallel`` of the checkout at ``root``."""
-    for name in [m for m in sys.modules if m == "mistool" or m.startswith("mistool.")]:
-        del sys.modules[name]
-    sys.path.insert(0, str(root))
-    try:
-        from mistool import parallel
-    finally:
-        sys.path.remove(str(root))
-    assert Path(parallel.__file__).is_relative_to(root), parallel.__file__
-    return parallel
+    (module,) = import_checkout(root, "parallel")
+    return module
 
 
 def _record(parallel: ModuleType, seq: Path) -> tuple[Any, list[tuple[Any, tuple[int, int]]], int]:

@@ -18,27 +18,20 @@ from __future__ import annotations
 
 import argparse
 import functools
-import sys
 import time
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import cv2
+from _checkout import import_checkout
 
 HERE = Path(__file__).resolve().parent.parent
 
 
 def _load(root: Path) -> tuple[ModuleType, ModuleType]:
     """``(mistool.tracking, mistool.parallel)`` of the checkout at ``root``."""
-    for name in [m for m in sys.modules if m == "mistool" or m.startswith("mistool.")]:
-        del sys.modules[name]
-    sys.path.insert(0, str(root))
-    try:
-        from mistool import parallel, tracking
-    finally:
-        sys.path.remove(str(root))
-    assert Path(parallel.__file__).is_relative_to(root), parallel.__file__
+    tracking, parallel = import_checkout(root, "tracking", "parallel")
     return tracking, parallel
 
 

@@ -36,21 +36,15 @@ from typing import Any
 
 import cv2
 import numpy as np
+from _checkout import import_checkout
 
 HERE = Path(__file__).resolve().parent.parent
 
 
 def _load(root: Path) -> ModuleType:
     """``mistool.tracking`` of the checkout at ``root`` (its own copy of the package)."""
-    for name in [m for m in sys.modules if m == "mistool" or m.startswith("mistool.")]:
-        del sys.modules[name]
-    sys.path.insert(0, str(root))
-    try:
-        from mistool import tracking
-    finally:
-        sys.path.remove(str(root))
-    assert Path(tracking.__file__).is_relative_to(root), tracking.__file__
-    return tracking
+    (module,) = import_checkout(root, "tracking")
+    return module
 
 
 def _observe(seq: Path) -> tuple[Any, list[tuple[list[Any], Any]], float]:
