@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_sequence import _filter_rows  # the encoder's side of the row filters
 
 from mistool.errors import MaskFormatError
 from mistool.pngdecode import ANCILLARY_OK, decode_png
@@ -193,31 +194,6 @@ def test_inflate_bomb_is_refused_without_inflating_it(claimed: tuple[int, int]) 
 
 
 # --- every filter, depth and palette ------------------------------------------------------
-
-
-def _filter_rows(img: np.ndarray, filters: list[int], bpp: int) -> np.ndarray:
-    """PNG-filter each row of an image's bytes (the encoder's side, PNG spec 9.2-9.4)."""
-    out = np.zeros_like(img)
-    a16 = img.astype(np.int16)
-    for y, f in enumerate(filters):
-        x = a16[y]
-        up = a16[y - 1] if y else np.zeros_like(x)
-        left = np.concatenate([np.zeros(bpp, np.int16), x[:-bpp]])
-        ul = np.concatenate([np.zeros(bpp, np.int16), up[:-bpp]])
-        pred = [
-            np.zeros_like(x),
-            left,
-            up,
-            (left + up) // 2,
-            np.where(
-                (np.abs(up - ul) <= np.abs(left - ul))
-                & (np.abs(up - ul) <= np.abs(left + up - 2 * ul)),
-                left,
-                np.where(np.abs(left - ul) <= np.abs(left + up - 2 * ul), up, ul),
-            ),
-        ][f]
-        out[y] = ((x - pred) % 256).astype(np.uint8)
-    return out
 
 
 def _raw_png(
