@@ -448,7 +448,9 @@ def worker_context() -> Any:
     ctx: Any = mp_context.ForkServerContext()
     ctx.Process = _NoMainProcess
     # worker_signals: Ctrl+C ignored from each worker's first instant (its docstring)
-    ctx.set_forkserver_preload(["mistool.worker_signals", "mistool.parallel"])
+    ctx.set_forkserver_preload(
+        ["mistool.worker_signals", "mistool.parallel", "mistool.kernels._all"]
+    )
     return ctx
 
 

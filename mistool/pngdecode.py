@@ -1,11 +1,10 @@
 """A strict, fast decoder for the PNG label images masks are stored as.
 
 :func:`decode_png` decodes non-interlaced 8/16-bit greyscale and 8-bit palette PNGs,
-whatever row filters their encoder chose (None, Sub, Up, Average, Paeth), faster than
-``cv2.imread`` on label masks (``scripts/bench_decode.py``): zlib-ng inflates (into a
-buffer kept from frame to frame), numpy undoes the None and Sub rows in a few calls for
-the whole image, and only the runs of rows that depend on the row above (Up, Average,
-Paeth) go to libpng, through OpenCV, as a small PNG of their own (see :func:`unfilter`).
+whatever row filters their encoder chose (None, Sub, Up, Average, Paeth), several times
+faster than ``cv2.imread`` on label masks (``scripts/bench_decode.py``): zlib-ng inflates
+(into a buffer kept from frame to frame) and one compiled pass undoes every row's filter
+(:func:`mistool.kernels.png.unfilter_rows`).
 
 **Strict.** It returns None (the caller then decodes with OpenCV, which reports a bad
 file) for anything it does not fully check: every chunk's CRC must be right, chunk types
@@ -23,7 +22,6 @@ import struct
 import threading
 from typing import Any
 
-import cv2
 import numpy as np
 
 _SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -51,16 +49,13 @@ class PngImage:
     """A decoded PNG: its pixels as OpenCV's ``IMREAD_UNCHANGED`` gives them, except that
     a palette image keeps its indices and palette."""
 
-    __slots__ = ("pixels", "palette", "dependent_rows")
+    __slots__ = ("pixels", "palette")
 
-    def __init__(self, pixels: np.ndarray, palette: np.ndarray | None, dependent_rows: int) -> None:
+    def __init__(self, pixels: np.ndarray, palette: np.ndarray | None) -> None:
         self.pixels = pixels
         """(H, W) uint8 or uint16 grey values; for a palette image, uint8 indices."""
         self.palette = palette
         """Palette images: (N,) uint32 colours packed ``r << 16 | g << 8 | b``; else None."""
-        self.dependent_rows = dependent_rows
-        """Rows filtered against the row above (Up, Average, Paeth): libpng decoded them,
-        at about OpenCV's own cost per row."""
 
 
 def _chunks(data: bytes) -> tuple[list[tuple[bytes, int, int]], bool] | None:
@@ -114,26 +109,23 @@ def decode_png(data: bytes, max_pixels: int) -> PngImage | None:
     filtered = _inflate_into(idat, size)
     if filtered is None:
         return None
+    # imported at the first decode: numba (with scipy) costs ~0.4 s to import, which a
+    # program that only imports mistool (the viewer before its first frame) need not pay
+    from mistool.kernels.png import unfilter_rows
+
     rows = filtered.reshape(h, w * bpp + 1)
-    filters = rows[:, 0]
-    if int(filters.max()) > 4:
-        return None
-    dependent = int(np.count_nonzero(filters >= 2))
+    unfiltered = np.empty((h, w * bpp), np.uint8)
+    if not unfilter_rows(rows, bpp, unfiltered):
+        return None  # a filter type over 4
     if bpp == 1:
-        pixels = unfilter(filters, rows[:, 1:])
-    else:  # the filters work bytewise, each byte against the same byte of its neighbours
-        planes = rows[:, 1:].reshape(h, w, 2)
-        hi, lo = unfilter(filters, planes[:, :, 0]), unfilter(filters, planes[:, :, 1])
-        if hi is None or lo is None:
-            return None
-        pixels = (hi.astype(np.uint16) << 8) | lo
-    if pixels is None:
-        return None
+        pixels = unfiltered
+    else:  # big-endian samples
+        pixels = unfiltered.view(">u2").astype(np.uint16)
     if plte is None:
-        return PngImage(pixels, None, dependent)
+        return PngImage(pixels, None)
     if int(pixels.max()) >= len(plte):  # OpenCV's colour for such an index: not ours to guess
         return None
-    return PngImage(pixels, plte, dependent)
+    return PngImage(pixels, plte)
 
 
 #: Inflate this many bytes at a time into the thread's scratch buffer.
@@ -224,122 +216,3 @@ def _idat_and_palette(
     if not idat or (ctype == 3 and plte is None):
         return None
     return b"".join(idat), plte
-
-
-# --- undoing the row filters ------------------------------------------------------------
-
-
-def unfilter(filters: np.ndarray, delta: np.ndarray) -> np.ndarray | None:
-    """Undo PNG row filters, one byte per pixel (PNG spec, section 9).
-
-    None rows are copied and Sub rows are prefix sums along the row (``cv2.integral``,
-    ~3x numpy's ``cumsum`` on uint8), all at once. The runs of rows that depend on the
-    row above (Up, Average, Paeth: Average and Paeth are sequential along the row, a C
-    loop per byte) are given to libpng through OpenCV as one small PNG: each run after
-    the decoded row above it (as a None row), with the run's filter types and filtered
-    bytes as they are, stored without compression. (Up runs alone as numpy prefix sums
-    down the columns, and Paeth rows by numpy in batches of independent rows, were
-    slower: more numpy calls than libpng's ~1-2 us per row.)
-
-    Args:
-        filters: (H,) uint8 filter type of each row, each in 0..4.
-        delta: (H, W) uint8 filtered bytes (any strides).
-
-    Returns:
-        (H, W) uint8 unfiltered bytes, C-contiguous; None if OpenCV did not decode the
-        rows given to it (not expected: the small PNG is well formed by construction).
-    """
-    h, w = delta.shape
-    buf = np.empty((h + 1, w), np.uint8)  # row 0: the zero row above the image
-    buf[0] = 0
-    out = buf[1:]
-    out[...] = delta
-    sub = np.flatnonzero(filters == 1)
-    if len(sub):
-        _sub_rows(out, sub)
-    dep = np.concatenate(([False], filters >= 2, [False]))
-    if not dep.any():
-        return out
-    change = np.flatnonzero(dep[1:] != dep[:-1])  # runs of dependent rows: [start, stop)
-    starts, stops = change[0::2], change[1::2]  # image rows = buf rows - 1
-    return out if _libpng_runs(buf, filters, starts + 1, stops + 1) else None
-
-
-#: Sub rows are summed this many at a time (bounds the int32 scratch buffers).
-_SUB_BATCH = 64
-
-
-def _sub_rows(out: np.ndarray, ys: np.ndarray) -> None:
-    """Undo Sub on rows ``ys`` of ``out`` (filtered bytes in place): prefix sums along
-    each row (``cv2.integral`` sums over both axes; the difference of two of its rows is
-    one row's), in the thread's scratch buffers."""
-    w = out.shape[1]
-    for i in range(0, len(ys), _SUB_BATCH):
-        batch = ys[i : i + _SUB_BATCH]
-        n = len(batch)
-        rows = _scratch("sub", n * w, np.uint8).reshape(n, w)
-        np.take(out, batch, axis=0, out=rows)
-        total = _scratch("integral", (n + 1) * (w + 1), np.int32).reshape(n + 1, w + 1)
-        cv2.integral(rows, sum=total)
-        sums = _scratch("sums", n * w, np.int32).reshape(n, w)
-        np.subtract(total[1:, 1:], total[:-1, 1:], out=sums)
-        out[batch] = sums  # mod 256
-
-
-def _run_rows(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
-    """Every row of the runs ``[start, stop)``, in order."""
-    lengths = stops - starts
-    offsets = np.repeat(starts - np.cumsum(lengths) + lengths, lengths)
-    return np.arange(int(lengths.sum())) + offsets
-
-
-def _chunk(kind: bytes, body: bytes | memoryview) -> list[bytes | memoryview]:
-    """A PNG chunk's pieces (length, type, body, CRC), to be joined."""
-    crc = _ZLIB.crc32(body, _ZLIB.crc32(kind))
-    return [struct.pack(">I", len(body)) + kind, body, struct.pack(">I", crc)]
-
-
-def _stored_zlib(raw: memoryview) -> bytes:
-    """A zlib stream holding ``raw`` in stored (uncompressed) deflate blocks."""
-    parts: list[bytes | memoryview] = [b"\x78\x01"]
-    n = len(raw)
-    for i in range(0, n, 65535):
-        size = min(65535, n - i)
-        parts.append(struct.pack("<BHH", i + size >= n, size, size ^ 0xFFFF))
-        parts.append(raw[i : i + size])
-    parts.append(struct.pack(">I", _ZLIB.adler32(raw)))
-    return b"".join(parts)
-
-
-def _libpng_runs(
-    buf: np.ndarray, filters: np.ndarray, starts: np.ndarray, stops: np.ndarray
-) -> bool:
-    """Undo the filters of the runs of rows ``[start, stop)`` of ``buf`` (filtered bytes
-    in place, the row above each run decoded) with libpng, through ``cv2.imdecode`` of
-    one PNG holding each run after the decoded row above it. False if it fails."""
-    w = buf.shape[1]
-    lengths = stops - starts + 1  # each run and the row above it
-    rows = _run_rows(starts - 1, stops)
-    n = len(rows)
-    mini = _scratch("mini", n * (w + 1), np.uint8).reshape(n, w + 1)
-    mini[:, 1:] = buf[rows]
-    mini[:, 0] = filters[rows - 1]
-    above = np.cumsum(lengths) - lengths  # the decoded rows: filter None
-    mini[above, 0] = 0
-    ihdr = struct.pack(">IIBBBBB", w, n, 8, 0, 0, 0, 0)
-    png = b"".join(
-        [_SIGNATURE]
-        + _chunk(b"IHDR", ihdr)
-        + _chunk(b"IDAT", _stored_zlib(mini.data.cast("B")))
-        + _chunk(b"IEND", b"")
-    )
-    try:
-        decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:  # pragma: no cover - a well-formed PNG
-        return False
-    if decoded is None or decoded.shape != (n, w):  # pragma: no cover
-        return False
-    keep = np.ones(n, bool)
-    keep[above] = False
-    buf[rows[keep]] = decoded[keep]
-    return True

@@ -252,17 +252,10 @@ def _png_labels(png: PngImage, where: str, colour: bool) -> np.ndarray:
     return lut[png.pixels]
 
 
-#: A PNG with more than this share of rows filtered against the row above (which libpng
-#: decodes, at OpenCV's own cost per row) decodes about as fast with OpenCV alone
-#: (``scripts/bench_decode.py``: ``mistool synth`` with 4 instruments and every
-#: corruption, 47% such rows, 0.84-0.91x ``cv2.imread``; 1 instrument, 7%, 1.1-1.2x).
-FAST_PATH_MAX_DEPENDENT = 0.4
-
-
 class FastPathGate:
     """Stops trying :func:`~mistool.pngdecode.decode_png` on a sequence whose files it
-    keeps declining (e.g. every frame has a chunk it leaves to OpenCV) or where it does
-    not pay (:data:`FAST_PATH_MAX_DEPENDENT`), so they cost no wasted inflate. Counters
+    keeps declining (e.g. every frame has a chunk it leaves to OpenCV), so they cost no
+    wasted inflate. Counters
     are updated from worker threads; a lost update only delays the decision."""
 
     def __init__(self, patience: int = 8) -> None:
@@ -276,7 +269,7 @@ class FastPathGate:
         return self.declined < self.patience or 4 * self.declined < self.tried
 
     def record(self, decoded: bool) -> None:
-        """Count one attempt (``decoded``: the fast path took the file and paid off)."""
+        """Count one attempt (``decoded``: the fast path took the file)."""
         self.tried += 1
         self.declined += not decoded
 
@@ -363,10 +356,7 @@ def read_label_image(
     if gate is None or gate.open:
         png = decode_png(data, max_pixels)
         if gate is not None:
-            gate.record(
-                png is not None
-                and png.dependent_rows <= FAST_PATH_MAX_DEPENDENT * png.pixels.shape[0]
-            )
+            gate.record(png is not None)
         if png is not None:
             return _png_labels(png, str(path), colour)
     try:

@@ -13,7 +13,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mistool"
 
 # Layers, lowest first; a module may import only from its own layer or lower ones.
 LAYERS: list[tuple[str, ...]] = [
-    ("errors",),
+    # kernels: compiled inner loops (numba, numpy only), imported by any layer above
+    ("errors", "kernels"),
     ("model",),
     # export (CSV and atomic writes) needs only errors and model; synth writes truth.csv
     # calibration (camera files) is read by config (a lazy import: same layer)

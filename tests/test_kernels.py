@@ -1,0 +1,59 @@
+"""mistool.kernels: every kernel is compiled at import for its declared signatures."""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import mistool.kernels
+from mistool.kernels import kernel, warm
+
+
+def _kernels() -> list[tuple[str, object]]:
+    from numba.core.registry import CPUDispatcher
+
+    found = []
+    for info in pkgutil.iter_modules(mistool.kernels.__path__):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"mistool.kernels.{info.name}")
+        for name, value in vars(module).items():
+            if isinstance(value, CPUDispatcher):
+                found.append((f"{info.name}.{name}", value))
+    return found
+
+
+def test_there_are_kernels_and_each_is_compiled_and_closed() -> None:
+    found = _kernels()
+    assert found
+    for name, dispatcher in found:
+        assert dispatcher.signatures, name  # compiled at import
+        assert not dispatcher._can_compile, name  # no second compilation at a call
+
+
+def test_an_argument_of_another_dtype_is_an_error_not_a_new_compilation() -> None:
+    from mistool.kernels.png import unfilter_rows
+
+    rows = np.zeros((2, 5), np.uint8)
+    with pytest.raises(TypeError):
+        unfilter_rows(rows.astype(np.int16), 1, np.zeros((2, 4), np.uint8))
+    assert len(unfilter_rows.signatures) == 1
+
+
+def test_a_kernel_needs_its_signatures() -> None:
+    with pytest.raises(ValueError, match="signatures"):
+        kernel()
+
+
+def test_warm_imports_every_kernel_module() -> None:
+    names = warm()
+    assert "png" in names and not any(n.startswith("_") for n in names)
+    out = subprocess.run(
+        [sys.executable, "-m", "mistool.kernels"], capture_output=True, text=True, check=True
+    )
+    assert out.stdout.startswith("mistool kernels ready (") and "png" in out.stdout
