@@ -45,6 +45,7 @@ import cv2
 
 from mistool import api, parallel
 from mistool.export import write_csv
+from mistool.kernels import warm
 from mistool.model import TrackTable
 from mistool.sequence import list_frames, open_sequence
 from mistool.synth import synthesize
@@ -159,6 +160,9 @@ def main() -> int:
             preset="endovis17",
         )
     n = len(list_frames(args.seq))
+    # the compiled kernels loaded before any timing, as the worker processes' fork server
+    # does (their first import, numba's included, costs ~0.5 s)
+    warm()
     runs: list[dict[str, float]] = []
     calls: dict[str, int] = {}
     base: list[float] = []
