@@ -30,10 +30,7 @@ import numpy as np
 from mistool.errors import ConfigError
 from mistool.model import TrackTable
 from mistool.pose.cylinder import (
-    axis_through_point,
-    closest_on_axis,
     quat_from_z,
-    tangent_plane,
 )
 from mistool.pose.filtering import MODES, filter_series, noise_scale
 from mistool.pose.measure import AUX_KEYS, MAX_SIGMA_DEG
@@ -64,11 +61,6 @@ def _set3(
         cols[n][idx] = values[:, j]
 
 
-def _ray(K: np.ndarray, u: float, v: float) -> np.ndarray:
-    r = np.linalg.solve(K, np.array([u, v, 1.0]))
-    return r / _norm(r)
-
-
 def _norm(v: np.ndarray) -> float:
     """``np.linalg.norm`` of a 1-D float64 vector, without its overhead: the very same
     ``sqrt(v.dot(v))`` it computes, so the same bits."""
@@ -88,93 +80,32 @@ def _trocar_fusion(
     measured direction met with the joint's viewing ray, fused with the measured joint
     by inverse variances; (2) the direction fused with ``unit(J - T)``, whose error is
     the joint's and the trocar's over their distance (small: the trocar is far).
-    One limb line: the closed-form solve through the trocar.
+    One limb line: the closed-form solve through the trocar. The proximal point follows
+    the new axis where the shaft's entry pixel is known.
 
-    The rows' values are read once as Python floats (the same values as the columns'
-    float64 cells), the finiteness tests are done on them, and the vector arithmetic is
-    the same numpy arithmetic as before, so the result is the same bit for bit
-    (``tests/test_pose.py::test_trocar_fusion_is_its_former_definition``).
+    Row by row in a compiled kernel (:func:`mistool.kernels.refine.trocar_fusion`): the
+    former numpy arithmetic to ~1e-15 relative (``tests/test_refine.py``).
     """
-    T = trocar.point
-    idx_list = idx.tolist()
-    if not idx_list:
+    if not len(idx):
         return
-    v = {
-        n: cols[n][idx].tolist()
-        for n in (
-            *_END,
-            *_AXIS,
-            *(f"aux_l{k}{c}" for k in (1, 2) for c in "abc"),
-            "aux_sigma_mm",
-            "aux_sigma_deg",
-            "aux_su_px",
-            "aux_sv_px",
-            "aux_u_px",
-            "aux_v_px",
-        )
-    }
-    l1a, l1b, l1c = v["aux_l1a"], v["aux_l1b"], v["aux_l1c"]
-    l2a, l2b, l2c = v["aux_l2a"], v["aux_l2b"], v["aux_l2c"]
-    jx, jy, jz = (v[n] for n in _END)
-    ax_, ay_, az_ = (v[n] for n in _AXIS)
-    su, sv, uu, vv = v["aux_su_px"], v["aux_sv_px"], v["aux_u_px"], v["aux_v_px"]
-    sig_mm, sig_deg = v["aux_sigma_mm"], v["aux_sigma_deg"]
-    for r, i in enumerate(idx_list):
-        have0 = _finite(l1a[r], l1b[r], l1c[r])
-        have1 = _finite(l2a[r], l2b[r], l2c[r])
-        sig_j = sig_mm[r]
-        sig_a = math.radians(sig_deg[r])
-        sray = None
-        if math.isfinite(su[r]) and math.isfinite(sv[r]):
-            sray = _ray(K, su[r], sv[r])
-        if have0 and have1 and _finite(jx[r], jy[r], jz[r]) and math.isfinite(sig_j):
-            J = np.array([jx[r], jy[r], jz[r]])
-            a = np.array([ax_[r], ay_[r], az_[r]])
-            have_a = _finite(ax_[r], ay_[r], az_[r]) and math.isfinite(sig_a)
-            sig_j = max(sig_j, 0.05)
-            if have_a:
-                jray = J / _norm(J)
-                t = float(closest_on_axis(jray[None], T, a)[0])
-                s_r = float(jray @ (T + t * a))
-                sin_ang = math.sqrt(max(1.0 - float(jray @ a) ** 2, 1e-6))
-                sig_t = (_norm(J - T) * max(sig_a, 1e-4) + trocar.sigma_across(a)) / sin_ang
-                if s_r > 0:
-                    w_t, w_m = 1.0 / sig_t**2, 1.0 / sig_j**2
-                    J = (w_t * s_r * jray + w_m * J) / (w_t + w_m)
-                    sig_j = 1.0 / math.sqrt(w_t + w_m)
-            dist = _norm(J - T)
-            a_t = (J - T) / dist
-            sig_at = math.hypot(sig_j, trocar.sigma_across(a_t)) / dist
-            if have_a and float(a_t @ a) > 0:
-                a = a / sig_a**2 + a_t / sig_at**2
-                a /= _norm(a)
-            elif not have_a and math.degrees(sig_at) <= MAX_SIGMA_DEG:
-                a = a_t
-            else:
-                continue
-            _set_row(cols, i, J, a, sray)
-        elif have0 != have1 and math.isfinite(uu[r]):
-            line = np.array([l1a[r], l1b[r], l1c[r]] if have0 else [l2a[r], l2b[r], l2c[r]])
-            jray = _ray(K, uu[r], vv[r])
-            sol = axis_through_point(tangent_plane(line, K), radius, T, jray)
-            if sol is None:
-                continue
-            p, a = sol
-            J = p + float(closest_on_axis(jray[None], p, a)[0]) * a
-            _set_row(cols, i, J, a, sray)
+    from mistool.kernels.refine import FUSION_INPUTS, trocar_fusion  # numba: at first use
 
-
-def _set_row(
-    cols: dict[str, np.ndarray], i: int, J: np.ndarray, a: np.ndarray, sray: np.ndarray | None
-) -> None:
-    for j, n in enumerate(_END):
-        cols[n][i] = J[j]
-    for j, n in enumerate(_AXIS):
-        cols[n][i] = a[j]
-    if sray is not None:
-        start = J + float(closest_on_axis(sray[None], J, a)[0]) * a
-        for j, n in enumerate(_START):
-            cols[n][i] = start[j]
+    rows = np.stack([cols[n][idx] for n in FUSION_INPUTS], axis=1)
+    out = np.empty((len(idx), 9))
+    what = trocar_fusion(
+        rows,
+        np.ascontiguousarray(K, np.float64),
+        np.ascontiguousarray(trocar.point, np.float64),
+        np.ascontiguousarray(trocar.cov, np.float64),
+        float(radius),
+        float(MAX_SIGMA_DEG),
+        out,
+    )
+    solved, started = what >= 1, what == 2
+    for j, n in enumerate((*_END, *_AXIS)):
+        cols[n][idx[solved]] = out[solved, j]
+    for j, n in enumerate(_START):
+        cols[n][idx[started]] = out[started, 6 + j]
 
 
 def _realign_clasper(
