@@ -4,6 +4,7 @@ replace, bit for bit (issue 13: the sequential identity step's cost)."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import cv2
 import numpy as np
@@ -433,3 +434,195 @@ def test_algorithm_1_of_a_window_equals_that_of_the_whole_crop(seed, min_area):
     assert whole.box == window.box and np.array_equal(whole.corners, window.corners)
     assert whole.area_px == window.area_px and whole.offset == window.offset
     assert np.array_equal(whole.mask, window.mask)
+
+
+# the compiled split (mistool/kernels/split.py) against the numpy code it replaced -----
+
+
+def test_the_blas_orders_are_numpys() -> None:
+    """The float operations the kernels copy (mistool/kernels/_blas.py) give numpy's
+    bits: 2-vector and strided dot products, (2K, 2) @ (2, N) for N = 1 and more,
+    (N, 2) @ (2,), pairwise sums."""
+    from mistool.kernels import split as _blas
+    from mistool.kernels.split import segment_d2_rows as d2_kernel
+
+    rng = np.random.default_rng(11)
+    for n in [1, 2, 3, 4, 5, 7, 8, 9, 15, 16, 17, 127, 128, 129, 1000, 4099, 10_000, 70001]:
+        a = rng.normal(0, 100, (n, 2))
+        if n <= _blas.DOT_SERIAL_MAX:
+            assert _blas.dot_strided(a[:, 0], a[:, 1]) == float(a[:, 0] @ a[:, 1])
+            assert _blas.dot_strided(a[:, 1], a[:, 1]) == float(a[:, 1] @ a[:, 1])
+        v = rng.uniform(0, 30, n)
+        assert _blas.pairwise_sum(v, n) == float(np.add.reduce(v))
+        u = rng.normal(size=2)
+        got = [_blas.row_dot(x, y, u[0], u[1], True) for x, y in a.tolist()]
+        assert np.array_equal(got, a @ u)
+        dirs = rng.normal(size=(2, 2))
+        frame = np.concatenate([dirs, np.stack([-dirs[:, 1], dirs[:, 0]], 1)])
+        want = frame @ a.T
+        single = n == 1
+        got2 = [[_blas.row_dot(f0, f1, x, y, single) for x, y in a.tolist()] for f0, f1 in frame]
+        assert np.array_equal(got2, want)
+        # (the segment distances' kernel on points with no excess: perp^2 of that product)
+        out = np.empty((2, n))
+        d2_kernel(a, np.zeros((2, 2)), dirs, np.full(2, math.inf), np.ones(2), out)
+    for _ in range(300):
+        a, b = rng.normal(size=2), rng.normal(size=2)
+        assert _blas.dot2(a[0], a[1], b[0], b[1]) == float(a @ b)
+    assert _blas.pairwise_sum(np.array([-0.0]), 1) == np.add.reduce(np.array([-0.0]))
+
+
+def _nearest_before(pts: np.ndarray, ax: Any) -> np.ndarray:
+    """``split._Axes.nearest`` as it was (commit 3fc5814)."""
+    if ax.keep_d2 is None:
+        d2 = _segment_d2_before(pts, ax.ends, ax.dirs, ax.back, ax.radius).T
+        if len(ax.ends) == 2:
+            return (d2[1] < d2[0]).astype(np.intp)
+        return d2.argmin(0)
+    d2 = _segment_d2_before(pts, ax.ends, ax.dirs, ax.back, ax.radius).T
+    lab = d2.argmin(0)
+    lab[np.minimum.reduce(d2) > ax.keep_d2] = len(ax.dirs)
+    return lab
+
+
+def _centred_direction_before(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    c = np.add.reduce(q, 0) / len(q)
+    r = q - c
+    sxx = float(r[:, 0] @ r[:, 0])
+    syy = float(r[:, 1] @ r[:, 1])
+    sxy = float(r[:, 0] @ r[:, 1])
+    t = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    return c, r, np.array([math.cos(t), math.sin(t)])
+
+
+def _refit_before(
+    ax: Any, pts: np.ndarray, weight: int, min_area_px: int, contiguous: bool
+) -> bool:
+    """``split._refit`` as it was (commit 3fc5814)."""
+    from mistool.tracking import split
+
+    prev: np.ndarray | None = None
+    for _ in range(split.SPLIT_REFIT_ROUNDS):
+        lab = _nearest_before(pts, ax)
+        if prev is not None and np.array_equal(lab, prev):
+            break
+        prev = lab
+        for j in range(len(ax.dirs)):
+            q = pts[lab == j]
+            if len(q) < 3 or len(q) * weight < min_area_px:
+                return False
+            c, r, d = _centred_direction_before(q)
+            if abs(float(d @ ax.start_dirs[j])) >= split.SPLIT_MAX_TURN_COS:
+                ax.dirs[j] = d if d @ ax.dirs[j] >= 0 else -d
+            limit = float((ax.limit_end[j] + ax.margin[j] * ax.dirs[j] - c) @ ax.dirs[j])
+            proj = r @ ax.dirs[j]
+            reach = float(proj.max())
+            if contiguous:
+                sp = np.sort(proj)
+                gaps = np.flatnonzero(np.diff(sp) > split.SPLIT_CONTIGUOUS_GAP * ax.radius[j])
+                if len(gaps):
+                    reach = float(sp[gaps[0]])
+            ax.ends[j] = c + min(reach, limit) * ax.dirs[j]
+    return True
+
+
+def _side_by_side_before(ax: Any, i: int, j: int) -> bool:
+    from mistool.tracking import split
+
+    cos = float(ax.dirs[i] @ ax.dirs[j])
+    if math.degrees(math.acos(min(1.0, abs(cos)))) >= split.SPLIT_MIN_ANGLE_DEG:
+        return False
+    if cos > 0:
+        return True
+    u = ax.dirs[i]
+    hi_i, lo_j = float(ax.ends[i] @ u), float(ax.ends[j] @ u)
+    return hi_i - lo_j > ax.radius[i] + ax.radius[j]
+
+
+def _score_before(ax: Any, pts: np.ndarray) -> float | None:
+    """``split._score`` as it was (commit 3fc5814)."""
+    from mistool.tracking import split
+
+    d2 = _segment_d2_before(pts, ax.ends, ax.dirs, ax.back, ax.radius).T
+    lab = d2.argmin(0)
+    if ax.keep_d2 is not None:
+        lab[np.minimum.reduce(d2) > ax.keep_d2] = len(ax.dirs)
+    score = 0.0
+    k = len(ax.dirs)
+    for j in range(k):
+        with np.errstate(invalid="ignore"):
+            sel = d2[j][lab == j]
+            rms = math.sqrt(float(sel.mean())) if len(sel) else math.nan
+        if rms > 2.0 * split.SPLIT_MAX_SPREAD + 0.5 / ax.radius[j]:
+            return None
+        score = max(score, rms)
+    for i in range(k):
+        for j in range(i + 1, k):
+            if _side_by_side_before(ax, i, j):
+                return None
+    return score
+
+
+@st.composite
+def _fits(draw: st.DrawFn) -> tuple[Any, np.ndarray, int, int, bool]:
+    """A blob's shaft points drawn as K thick strokes (pixel centres, or any floats),
+    K axes near them (some crossing, some parallel, some half-lines), fit options."""
+    from mistool.tracking.split import _Axes
+
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    k = draw(st.integers(1, 4))
+    mask = np.zeros((200, 260), np.uint8)
+    t = rng.uniform(0, math.pi, k)
+    if draw(st.booleans()):  # near parallel
+        t = t[0] + rng.normal(0, 0.1, k)
+    centre = rng.uniform(60, 140, (k, 2))
+    for j in range(k):
+        d = 90 * np.array([math.cos(t[j]), math.sin(t[j])])
+        a, b = (centre[j] - d).astype(int), (centre[j] + d).astype(int)
+        cv2.line(mask, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 1, int(rng.integers(3, 25)))
+    ys, xs = np.nonzero(mask)
+    pts = np.stack([xs, ys], 1).astype(np.float64) + rng.integers(0, 400, 2)
+    pts = pts[:: max(1, len(pts) // int(rng.integers(3, 1500)))]
+    if draw(st.booleans()):
+        pts = pts + rng.uniform(-0.5, 0.5, pts.shape)
+    turn = t + rng.normal(0, 0.3, k)
+    dirs = np.stack([np.cos(turn), np.sin(turn)], 1) * rng.choice([-1, 1], (k, 1))
+    ends0 = pts.mean(0) + rng.normal(0, 40, (k, 2))
+    margin = rng.uniform(0, 30, k)
+    ax = _Axes(
+        ends=ends0 + margin[:, None] * dirs,
+        dirs=dirs,
+        back=np.where(rng.random(k) < 0.5, math.inf, rng.uniform(5, 200, k)),
+        radius=rng.uniform(1.0, 15.0, k),
+        limit_end=ends0,
+        start_dirs=dirs.copy(),
+        margin=margin,
+        keep_d2=float(rng.uniform(1, 30)) if draw(st.booleans()) else None,
+    )
+    weight = int(rng.integers(1, 60))
+    min_area = draw(st.sampled_from([1, 20, 400, 5000]))
+    return ax, pts, weight, min_area, draw(st.booleans())
+
+
+@settings(max_examples=300, deadline=None)
+@given(_fits())
+def test_the_compiled_refit_and_score_are_the_former_numpy_ones(case) -> None:
+    """split._refit / _score / _Axes.nearest (compiled) give the former numpy fit's
+    result, axes and score bit for bit: crossing, parallel and single axes, half-lines,
+    another tool's points left out (keep_d2), contiguous shafts, few and many points."""
+    import copy
+
+    from mistool.tracking import split
+
+    ax, pts, weight, min_area, contiguous = case
+    assert np.array_equal(ax.nearest(pts), _nearest_before(pts, ax))
+    before = copy.deepcopy(ax)
+    ok = split._refit(ax, pts, weight, min_area, contiguous)
+    assert ok == _refit_before(before, pts, weight, min_area, contiguous)
+    assert np.array_equal(ax.ends, before.ends) and np.array_equal(ax.dirs, before.dirs)
+    got, want = split._score(ax, pts), _score_before(before, pts)
+    assert got == want or (
+        got is not None and want is not None and math.isnan(got) and math.isnan(want)
+    )
+    assert np.array_equal(ax.nearest(pts), _nearest_before(pts, before))

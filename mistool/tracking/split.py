@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mistool.kernels import split as kernels
+from mistool.kernels.split import DOT_SERIAL_MAX
 from mistool.model import InstanceObservation, PartObservation, RotatedBox
 from mistool.tracking.instances import make_instance, part_observation, unit_vector
 
@@ -378,11 +380,13 @@ class _Axes:
     def nearest(self, pts: np.ndarray) -> np.ndarray:
         """(N,) index of each point's nearest axis; K for a point farther than
         ``keep_d2`` from all (when set)."""
-        if self.keep_d2 is None:
-            return nearest_axis(pts, self.ends, self.dirs, self.back, self.radius)
-        d2 = segment_d2_rows(pts, self.ends, self.dirs, self.back, self.radius)
-        lab = argmin_rows(d2)
-        lab[np.minimum.reduce(d2) > self.keep_d2] = len(self.dirs)
+        keep = self.keep_d2 is not None
+        lab = np.empty(len(pts), np.intp)
+        kernels.nearest_labels(
+            _points(pts), _points(self.ends), _points(self.dirs), _values(self.back),
+            _values(self.radius),
+            self.keep_d2 if self.keep_d2 is not None else 0.0, keep, lab,
+        )  # fmt: skip
         return lab
 
     def distance(self, pts: np.ndarray) -> np.ndarray:
@@ -456,70 +460,43 @@ def _centred_direction(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 
 def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous: bool) -> bool:
-    """Rounds of nearest axis, then each axis refitted to its points (direction by PCA,
-    distal end at the points' reach), until no point changes axis; False when an axis
-    keeps too few points."""
-    prev: np.ndarray | None = None
-    for _ in range(SPLIT_REFIT_ROUNDS):
-        lab = ax.nearest(pts)
-        if prev is not None and np.array_equal(lab, prev):
-            break  # the same points give the same axes: converged
-        prev = lab
-        for j in range(len(ax.dirs)):
-            q = pts[lab == j]
-            if len(q) < 3 or len(q) * weight < min_area_px:
-                return False
-            c, r, d = _centred_direction(q)  # largest spread: along the shaft ...
-            if abs(float(d @ ax.start_dirs[j])) >= SPLIT_MAX_TURN_COS:
-                ax.dirs[j] = d if d @ ax.dirs[j] >= 0 else -d
-            # ... unless it turned too far from the expected axis (the spread of a stub
-            # entering the view, or of a shaft mostly under another, is across it)
-            # the distal end: the pixels' reach, never beyond the expected end + margin
-            limit = float((ax.limit_end[j] + ax.margin[j] * ax.dirs[j] - c) @ ax.dirs[j])
-            proj = r @ ax.dirs[j]
-            reach = float(proj.max())
-            if contiguous:  # up to the first gap along the axis: beyond is another's
-                sp = np.sort(proj)
-                gaps = np.flatnonzero(np.diff(sp) > SPLIT_CONTIGUOUS_GAP * ax.radius[j])
-                if len(gaps):
-                    reach = float(sp[gaps[0]])
-            ax.ends[j] = c + min(reach, limit) * ax.dirs[j]
-    return True
+    """Rounds of nearest axis, then each axis refitted to its points, until no point
+    changes axis; False when an axis keeps too few points (fewer than 3, or ``weight``
+    times its points below ``min_area_px``).
+
+    Each axis's direction is its points' principal axis (:func:`_centred_direction`),
+    unless that turned more than :data:`SPLIT_MAX_TURN_DEG` from the expected axis (the
+    spread of a stub entering the view, or of a shaft mostly under another, is across
+    it); its distal end is the points' reach, never beyond the expected end plus its
+    margin (``contiguous``: up to the first gap of :data:`SPLIT_CONTIGUOUS_GAP`
+    half-widths along the axis, beyond is another's). One compiled loop
+    (:func:`mistool.kernels.split.refit_axes`), ``ax.ends`` and ``ax.dirs`` updated in
+    place."""
+    if len(pts) > DOT_SERIAL_MAX:  # (the fit's sample never is: SPLIT_FIT_POINTS)
+        raise ValueError(f"_refit: {len(pts)} points, at most {DOT_SERIAL_MAX} (numpy's bits)")
+    keep = ax.keep_d2 is not None
+    return bool(
+        kernels.refit_axes(
+            _points(pts), ax.ends, ax.dirs, ax.back, ax.radius, ax.limit_end,
+            ax.start_dirs, ax.margin, ax.keep_d2 if ax.keep_d2 is not None else 0.0, keep,
+            weight, min_area_px, contiguous, SPLIT_REFIT_ROUNDS, SPLIT_MAX_TURN_COS,
+            SPLIT_CONTIGUOUS_GAP,
+        )
+    )  # fmt: skip
 
 
 def _score(ax: _Axes, pts: np.ndarray) -> float | None:
-    """The worst RMS distance of an axis's points to it (half-widths), or None when a
-    piece is not shaft-like or two axes are near parallel."""
-    d2 = segment_d2_rows(pts, ax.ends, ax.dirs, ax.back, ax.radius)
-    lab = argmin_rows(d2)
-    if ax.keep_d2 is not None:
-        lab[np.minimum.reduce(d2) > ax.keep_d2] = len(ax.dirs)
-    score = 0.0
-    k = len(ax.dirs)
-    for j in range(k):  # in units of the half-width: a full rectangle gives 0.58
-        rms = math.sqrt(float(d2[j][lab == j].mean()))
-        if rms > 2.0 * SPLIT_MAX_SPREAD + 0.5 / ax.radius[j]:
-            return None
-        score = max(score, rms)
-    for i in range(k):
-        for j in range(i + 1, k):
-            if _side_by_side(ax, i, j):
-                return None
-    return score
-
-
-def _side_by_side(ax: _Axes, i: int, j: int) -> bool:
-    """Whether axes ``i`` and ``j`` are near parallel (:data:`SPLIT_MIN_ANGLE_DEG`) and
-    side by side (one shaft cut in two strips), not end to end: two shafts on one line
-    pointing at each other, from opposite sides of the view, are two shafts."""
-    cos = float(ax.dirs[i] @ ax.dirs[j])
-    if math.degrees(math.acos(min(1.0, abs(cos)))) >= SPLIT_MIN_ANGLE_DEG:
-        return False
-    if cos > 0:
-        return True
-    u = ax.dirs[i]  # along i; j points the other way: it covers [end_j, end_j + back_j]
-    hi_i, lo_j = float(ax.ends[i] @ u), float(ax.ends[j] @ u)
-    return hi_i - lo_j > ax.radius[i] + ax.radius[j]  # their extents overlap along u
+    """The worst RMS distance of an axis's points to it (half-widths; a full rectangle
+    gives 0.58), or None when a piece spreads more than :data:`SPLIT_MAX_SPREAD` widths
+    (plus half a pixel) or two axes are near parallel side by side
+    (one shaft cut in two strips, not two shafts on one line pointing at each other
+    from opposite sides of the view: :func:`mistool.kernels.split.score_axes`)."""
+    score = kernels.score_axes(
+        _points(pts), ax.ends, ax.dirs, ax.back, ax.radius,
+        ax.keep_d2 if ax.keep_d2 is not None else 0.0, ax.keep_d2 is not None,
+        2.0 * SPLIT_MAX_SPREAD, SPLIT_MIN_ANGLE_DEG,
+    )  # fmt: skip
+    return None if score < 0.0 else float(score)
 
 
 def _part_distance(
@@ -576,25 +553,23 @@ def segment_d2_rows(
     p: np.ndarray, ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray
 ) -> np.ndarray:
     """(K, N) squared distances of points (N, 2) to K segments in units of each radius,
-    one contiguous row per segment, cheaply: the coordinates along and across every
-    segment are one (2K, 2) x (2, N) product; no (N, K, 2) temporaries, no roots, and
-    no elementwise work on (N, K) arrays (whose rows of K = 2 numpy walks slowly)."""
-    k = len(ends)
-    d, e = dirs.tolist(), ends.tolist()  # (the K-sized set-up in plain floats: cheaper)
-    nrm = [(-dy, dx) for dx, dy in d]  # left normals
-    frame = np.array(d + nrm)  # (2K, 2)
-    offsets = [ex * dx + ey * dy for (ex, ey), (dx, dy) in zip(e + e, d + nrm, strict=True)]
-    coords = frame @ p.T
-    coords -= np.array(offsets)[:, None]
-    along, perp = coords[:k], coords[k:]
-    excess = np.maximum(along, 0.0)  # past the distal end
-    for j, b in enumerate(back.tolist()):
-        if math.isfinite(b):  # behind a segment's proximal end
-            excess[j] += np.maximum(-along[j] - b, 0.0)
-    d2 = perp * perp
-    d2 += excess * excess
-    d2 *= (1.0 / (radius * radius))[:, None]
-    return d2
+    one contiguous row per segment: the coordinates along and across each segment, the
+    excess past its ends, no roots (:func:`mistool.kernels.split.segment_d2_rows`, the
+    float operations of the former numpy product in their order)."""
+    ends, dirs = _points(ends), _points(dirs)
+    out = np.empty((len(ends), len(p)), np.float64)
+    kernels.segment_d2_rows(_points(p), ends, dirs, _values(back), _values(radius), out)
+    return out
+
+
+def _points(p: np.ndarray) -> np.ndarray:
+    """(N, 2) float64 C-contiguous (no copy when it is already)."""
+    return np.ascontiguousarray(p, np.float64)
+
+
+def _values(v: np.ndarray) -> np.ndarray:
+    """(N,) float64 contiguous (no copy when it is already)."""
+    return np.ascontiguousarray(v, np.float64)
 
 
 def argmin_rows(d2: np.ndarray) -> np.ndarray:
@@ -616,10 +591,11 @@ def nearest_axis(
 ) -> np.ndarray:
     """(N,) index of the nearest of K segments (:func:`segment_d2`; ties to the lower
     index) for points (N, 2)."""
-    d2 = segment_d2_rows(p, ends, dirs, back, radius)
-    if len(ends) == 2:
-        return (d2[1] < d2[0]).astype(np.intp)
-    return argmin_rows(d2)
+    lab = np.empty(len(p), np.intp)
+    kernels.nearest_labels(
+        _points(p), _points(ends), _points(dirs), _values(back), _values(radius), 0.0, False, lab
+    )
+    return lab
 
 
 #: Shaft pixels are given to the nearest axis on a grid of cells this many px wide,
