@@ -43,6 +43,7 @@ from mistool.pose import refine_sequence
 from mistool.pose.status import status_column
 from mistool.rows import RowBuilder
 from mistool.sequence import MaskSequence, finish_video, open_sequence, to_labels
+from mistool.tracking.relink import relink
 
 #: Allowed values of ``smoothing``.
 SMOOTHING = ("none", "offline", "online")
@@ -431,9 +432,12 @@ def refine(
 ) -> TrackTable:
     """The sequence-level steps on raw rows (:func:`iter_track`'s chunks, concatenated).
 
-    Sorts the rows, adds the paper's frame-to-frame motion (Algorithm 2) and, when the
-    config has a camera and the rows have a metric pose, refines it over the sequence
-    (trocar, trocar constraint, temporal filtering).
+    In merged masks (no ``[[instrument]]`` tables), first revisits the identity step's
+    names over the whole sequence (:func:`mistool.tracking.relink.relink`: fragments
+    absorbed, a tool back after leaving the view linked to its old name). Then sorts the
+    rows, adds the paper's frame-to-frame motion (Algorithm 2) and, when the config has a
+    camera and the rows have a metric pose, refines it over the sequence (trocar, trocar
+    constraint, temporal filtering).
 
     Args:
         table: raw rows of a whole sequence (``TrackTable.concat`` of the chunks).
@@ -445,6 +449,8 @@ def refine(
     """
     _check_smoothing(smoothing)
     cfg = _resolve_config(config) or Config()
+    if not cfg.instruments:  # names by connectivity, not by label values
+        table = relink(table, cfg.fps)
     table = table.sorted()
     focal = cfg.camera.fx if cfg.camera is not None else 1.0
     table = paper.paper_motion(table, focal_px=focal)

@@ -11,6 +11,8 @@ A pipeline of small modules, imports flowing one way:
 - :mod:`~mistool.tracking.identity`: :class:`IdentityTracker` (predict -> cost -> one
   gated assignment -> crossing and entry handlers -> update), :class:`TrackState`,
   :class:`CostWeights`, :func:`track_cost`.
+- :mod:`~mistool.tracking.relink`: the names revisited over a whole tracked sequence
+  (fragments absorbed, broken lives linked; :func:`mistool.api.refine` calls it).
 
 The observation types live in :mod:`mistool.model` and are re-exported here, as is
 :func:`unknown_values` (reading: :mod:`mistool.sequence`).

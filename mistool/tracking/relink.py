@@ -1,0 +1,358 @@
+"""Offline relinking: a whole sequence's names revisited once it is tracked.
+
+The identity step (:class:`~mistool.tracking.IdentityTracker`) names instruments frame by
+frame and never renames the past. With the whole motion table at hand, two of its errors
+are plain to see, and undone here (:func:`relink`, called by :func:`mistool.api.refine`):
+
+- **Fragments.** A tool entering the view head first, cut in two by an occluder, gets two
+  names in its first frame; the piece's name lives a frame or two (and may later be
+  handed to another tool coming back near it). A name's first run of at most
+  :data:`FRAGMENT_MAX_FRAMES` frames that lies, in each of its frames, within
+  :data:`FRAGMENT_REACH_PX` of a longer-lived name seen in all of them, is that tool's: its
+  rows take that name (a row of a part the tool already shows in that frame is dropped:
+  one row per frame, instrument and part).
+- **Broken lives.** A tool that leaves the view and comes back farther from where it left
+  than the online search reaches gets a new name; a name given back to the wrong tool
+  after a gap follows that tool. Each name is cut into tracklets, its runs of consecutive
+  frames; then one gated assignment (:func:`~mistool.assignment.gated_assignment`) links
+  tracklet ends to later tracklet starts by where the tool's shaft enters the view (it
+  pivots about its trocar) and the time between them (:func:`link_cost`). Links the
+  identity step made (one name across a gap) cost less and are kept unless the assignment
+  finds a better one. Each chain of linked tracklets is one instrument.
+
+Names are then renumbered ``"1"``, ``"2"``, ... in order of first appearance, as the
+identity step numbers them (unchanged when nothing was relinked). Pure, table in and
+table out: it needs no pixels, only each row's part box, so it runs on the raw rows of a
+whole sequence (:func:`mistool.api.iter_track`'s chunks concatenated) as well as on a
+finished table. The live path (:class:`mistool.Tracker` ``update``, the live viewer)
+shows the identity step's names as they come; :meth:`mistool.Tracker.table` relinks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from mistool.model import TrackTable
+
+__all__ = [
+    "FRAGMENT_MAX_FRAMES",
+    "FRAGMENT_REACH_PX",
+    "LINK_GATE",
+    "LINK_MAX_GAP_S",
+    "box_gap",
+    "link_cost",
+    "relink",
+    "sparse_gated_assignment",
+]
+
+#: A name whose first run of consecutive frames is at most this long may be a fragment
+#: of another tool (a head an occluder cut off as the tool entered) ...
+FRAGMENT_MAX_FRAMES = 3
+#: ... when in each of those frames one of its part boxes lies within this many pixels of
+#: one of that tool's (an occluder's width: the cut-off head lies beyond it) ...
+FRAGMENT_REACH_PX = 80.0
+#: ... and that tool is seen in all of them and for at least this many frames.
+FRAGMENT_HOST_MIN_FRAMES = 10
+#: Tracklets are linked across at most this many seconds unseen ...
+LINK_MAX_GAP_S = 4.0
+#: ... at a cost of at most this much (:func:`link_cost`).
+LINK_GATE = 2.5
+#: The distance between where the shaft left and where it comes back costs one per this
+#: fraction of the image diagonal (as :attr:`~mistool.tracking.CostWeights.entry_scale_frac`).
+LINK_SCALE_FRAC = 0.1
+#: Each second unseen costs this much.
+LINK_GAP_PER_S = 0.25
+#: A link the identity step made (one name across the gap) costs this much less, and
+#: never more than the gate: it is undone only for a better link.
+LINK_SAME_NAME_BONUS = 0.5
+#: A tracklet's end (start) is where its shaft enters the view in the last (first) frame
+#: with a shaft among this many.
+ANCHOR_FRAMES = 5
+
+
+@dataclass
+class _Tracklet:
+    """One name's run of consecutive frames."""
+
+    name: str
+    rows: np.ndarray
+    """Row indices into the table."""
+    frames: np.ndarray
+    """Its frames, sorted, consecutive."""
+    host: _Tracklet | None = None
+    """The tracklet it is a fragment of, when absorbed."""
+
+    @property
+    def first(self) -> int:
+        return int(self.frames[0])
+
+    @property
+    def last(self) -> int:
+        return int(self.frames[-1])
+
+
+class _Rows:
+    """The columns :func:`relink` reads, as arrays."""
+
+    def __init__(self, table: TrackTable) -> None:
+        self.frame = np.asarray(table["frame"]).astype(np.int64)
+        self.name = np.asarray(table["instrument"]).astype(str)
+        self.part = np.asarray(table["part"]).astype(str)
+        self.xy = np.stack([np.asarray(table["cx_px"]), np.asarray(table["cy_px"])], 1).astype(
+            np.float64
+        )
+        self.length = np.asarray(table["length_px"], dtype=np.float64)
+        self.angle = np.asarray(table["angle_deg"], dtype=np.float64)
+        self.area = np.asarray(table["area_px"], dtype=np.float64)
+        self.corners = np.stack(
+            [
+                np.stack([np.asarray(table[f"x{k}_px"]), np.asarray(table[f"y{k}_px"])], 1)
+                for k in (1, 2, 3, 4)
+            ],
+            1,
+        ).astype(np.float64)
+        finite = self.corners[np.isfinite(self.corners).all(axis=(1, 2))]
+        # the view's extent: boxes of shafts entering the view reach its borders
+        self.extent = finite.reshape(-1, 2).max(axis=0) if len(finite) else np.ones(2)
+
+
+def _tracklets(rows: _Rows) -> list[_Tracklet]:
+    """Every name cut into its runs of consecutive frames, in order of first frame."""
+    out: list[_Tracklet] = []
+    order = np.lexsort((rows.frame, rows.name))
+    names = rows.name[order]
+    bounds = np.flatnonzero(names[1:] != names[:-1]) + 1
+    for idx in np.split(order, bounds):
+        frames = rows.frame[idx]
+        cut = np.flatnonzero(np.diff(frames) > 1) + 1
+        for run in np.split(np.arange(len(idx)), cut):
+            sel = idx[run]
+            out.append(_Tracklet(str(rows.name[sel[0]]), sel, np.unique(rows.frame[sel])))
+    out.sort(key=lambda t: (t.first, t.name))
+    return out
+
+
+def box_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """Distance (px) between two convex quadrilaterals ``a``, ``b`` ((4, 2) corners in
+    order): 0 when they overlap."""
+    if _overlap(a, b):
+        return 0.0
+    return min(_point_quad_distance(a, b), _point_quad_distance(b, a))
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Separating axis test of two convex quadrilaterals."""
+    for q in (a, b):
+        edges = np.roll(q, -1, axis=0) - q
+        normals = np.stack([-edges[:, 1], edges[:, 0]], 1)
+        pa, pb = a @ normals.T, b @ normals.T
+        if np.any((pa.max(0) < pb.min(0)) | (pb.max(0) < pa.min(0))):
+            return False
+    return True
+
+
+def _point_quad_distance(points: np.ndarray, quad: np.ndarray) -> float:
+    """Least distance from the (4, 2) ``points`` to the edges of ``quad``."""
+    p0 = quad
+    d = np.roll(quad, -1, axis=0) - quad
+    rel = points[:, None, :] - p0[None, :, :]
+    t = np.clip((rel * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-12), 0.0, 1.0)
+    near = p0[None] + t[..., None] * d[None]
+    return float(np.sqrt(((points[:, None, :] - near) ** 2).sum(-1)).min())
+
+
+def _frame_gap(rows: _Rows, a: np.ndarray, b: np.ndarray) -> float:
+    """Least distance (px) between any part box of rows ``a`` and any of rows ``b``."""
+    return min(box_gap(rows.corners[i], rows.corners[j]) for i in a for j in b)
+
+
+def _absorb_fragments(rows: _Rows, tracklets: list[_Tracklet]) -> None:
+    """Mark each fragment's host (see the module docstring)."""
+    first_run: dict[str, _Tracklet] = {}
+    for t in tracklets:
+        first_run.setdefault(t.name, t)
+    firsts = np.array([t.first for t in tracklets])
+    lasts = np.array([t.last for t in tracklets])
+    sizes = np.array([len(t.frames) for t in tracklets])
+    for t in tracklets:
+        if first_run[t.name] is not t or len(t.frames) > FRAGMENT_MAX_FRAMES:
+            continue
+        # hosts: seen in all its frames (a tracklet's frames are consecutive), long-lived
+        hosts = (firsts <= t.first) & (lasts >= t.last) & (sizes >= FRAGMENT_HOST_MIN_FRAMES)
+        best: tuple[float, _Tracklet] | None = None
+        for k in np.flatnonzero(hosts):
+            o = tracklets[k]
+            during = o.rows[(rows.frame[o.rows] >= t.first) & (rows.frame[o.rows] <= t.last)]
+            if (rows.part[during] == "shaft").any():
+                continue  # not a head entering the view (a cut-off head joins its shaft)
+            gap = max(
+                _frame_gap(rows, t.rows[rows.frame[t.rows] == f], during[rows.frame[during] == f])
+                for f in t.frames
+            )
+            if gap <= FRAGMENT_REACH_PX and (best is None or gap < best[0]):
+                best = (gap, o)
+        if best is not None:
+            t.host = best[1]
+
+
+def _anchor(rows: _Rows, t: _Tracklet, frames: np.ndarray) -> np.ndarray:
+    """(2,) px: where the tracklet's shaft enters the view in the first of ``frames``
+    showing a shaft (its end away from the head; with no head in that frame, its end
+    nearer the border), else its parts' centroid in ``frames[0]``."""
+    for f in frames:
+        sel = t.rows[rows.frame[t.rows] == f]
+        shaft = sel[rows.part[sel] == "shaft"]
+        if len(shaft) == 0:
+            continue
+        s = int(shaft[0])
+        u = np.array([math.cos(math.radians(rows.angle[s])), math.sin(math.radians(rows.angle[s]))])
+        ends = rows.xy[s] + np.outer([-0.5, 0.5], u) * rows.length[s]
+        head = sel[rows.part[sel] != "shaft"]
+        if len(head) and rows.area[head].sum() > 0:
+            hc = np.average(rows.xy[head], axis=0, weights=rows.area[head])
+            far = np.hypot(*(ends - hc).T)
+            return ends[int(np.argmax(far))]
+        border = np.minimum(ends, rows.extent - ends).min(axis=1)
+        return ends[int(np.argmin(border))]
+    sel = t.rows[rows.frame[t.rows] == frames[0]]
+    weights = rows.area[sel] if rows.area[sel].sum() > 0 else None
+    return np.average(rows.xy[sel], axis=0, weights=weights)
+
+
+def link_cost(distance_px: float, gap_s: float, scale_px: float, same_name: bool) -> float:
+    """Cost of linking a tracklet ending where its shaft entered the view to one starting
+    ``distance_px`` away ``gap_s`` seconds later: the distance in ``scale_px`` units
+    (:data:`LINK_SCALE_FRAC` of the image diagonal) plus :data:`LINK_GAP_PER_S` per second;
+    a link the identity step made (``same_name``) :data:`LINK_SAME_NAME_BONUS` less and at
+    most just under :data:`LINK_GATE`."""
+    cost = distance_px / scale_px + LINK_GAP_PER_S * gap_s
+    if same_name:
+        cost = min(max(cost - LINK_SAME_NAME_BONUS, 0.0), 0.99 * LINK_GATE)
+    return cost
+
+
+def _links(rows: _Rows, tracklets: list[_Tracklet], fps: float) -> dict[int, int]:
+    """Tracklet index -> the index of the tracklet it continues into (``tracklets`` in
+    order of first frame)."""
+    n = len(tracklets)
+    if n < 2:
+        return {}
+    scale = LINK_SCALE_FRAC * float(np.hypot(*rows.extent))
+    ends = [_anchor(rows, t, t.frames[::-1][:ANCHOR_FRAMES]) for t in tracklets]
+    starts = [_anchor(rows, t, t.frames[:ANCHOR_FRAMES]) for t in tracklets]
+    firsts = np.array([t.first for t in tracklets])
+    max_gap = LINK_MAX_GAP_S * fps
+    pairs: list[tuple[int, int, float]] = []
+    for i, a in enumerate(tracklets):
+        lo = int(np.searchsorted(firsts, a.last + 1, side="left"))
+        hi = int(np.searchsorted(firsts, a.last + max_gap, side="right"))
+        for j in range(lo, hi):
+            b = tracklets[j]
+            d = float(np.hypot(*(ends[i] - starts[j])))
+            c = link_cost(d, (b.first - a.last) / fps, scale, a.name == b.name)
+            if c <= LINK_GATE:
+                pairs.append((i, j, c))
+    return dict(sparse_gated_assignment(pairs, n, n, LINK_GATE))
+
+
+def sparse_gated_assignment(
+    pairs: list[tuple[int, int, float]], n: int, m: int, max_cost: float
+) -> list[tuple[int, int]]:
+    """:func:`~mistool.assignment.gated_assignment` of a sparse problem: the same pairs
+    (up to ties) from the possible ``(row, col, cost)`` ``pairs`` alone (a whole
+    sequence's tracklets: too many for a dense matrix, few candidates each).
+
+    Solved by SciPy's sparse solver (``min_weight_full_bipartite_matching``, LAPJVsp) as
+    one full matching: each row may also take its own "unmatched" column and each column
+    its own "unmatched" row at ``max_cost``; those two pair up at no cost where their row
+    and column could (every cost shifted by one: the solver needs positive weights).
+
+    Args:
+        pairs: ``(row, col, cost)`` with ``0 <= row < n``, ``0 <= col < m``, finite costs
+            at most ``max_cost``; at most one per (row, col).
+        n, m: rows and columns.
+        max_cost: the gate (the cost of leaving a row or a column unmatched).
+
+    Returns:
+        The pairs ``(row, col)`` made, sorted by row.
+    """
+    if not pairs:
+        return []
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+
+    r = np.array([p[0] for p in pairs], dtype=np.int64)
+    c = np.array([p[1] for p in pairs], dtype=np.int64)
+    w = np.array([p[2] for p in pairs], dtype=np.float64)
+    # left nodes: rows 0..n-1, then one "column unmatched" per column; right nodes:
+    # columns 0..m-1, then one "row unmatched" per row
+    left = np.concatenate([r, np.arange(n), n + np.arange(m), n + c])
+    right = np.concatenate([c, m + np.arange(n), np.arange(m), m + r])
+    weight = 1.0 + np.concatenate([w, np.full(n, max_cost), np.full(m, max_cost), np.zeros(len(w))])
+    graph = coo_matrix((weight, (left, right)), shape=(n + m, m + n)).tocsr()
+    rows, cols = min_weight_full_bipartite_matching(graph)
+    return sorted((int(a), int(b)) for a, b in zip(rows, cols, strict=True) if a < n and b < m)
+
+
+def _name_key(name: str) -> tuple[int, str]:
+    """Sort key of a name: numbers in numeric order, before other names."""
+    return (int(name), "") if name.isdigit() else (1 << 62, name)
+
+
+def relink(table: TrackTable, fps: float) -> TrackTable:
+    """A tracked sequence's names with fragments absorbed and broken lives relinked (see
+    the module docstring).
+
+    Args:
+        table: a whole sequence's rows (``frame``, ``instrument``, ``part``, the part
+            boxes: ``cx_px`` .. ``angle_deg``, ``area_px``, corners ``x1_px`` .. ``y4_px``),
+            in any order; names from one identity step (merged masks).
+        fps: frames per second (the link gate's time term).
+
+    Returns:
+        The table with instruments renamed (``"1"``, ``"2"``, ... in order of first
+        appearance) and the rows of fragments' parts their tool already shows dropped; the
+        very table passed in when nothing changed.
+    """
+    if table.num_rows == 0:
+        return table
+    rows = _Rows(table)
+    tracklets = _tracklets(rows)
+    _absorb_fragments(rows, tracklets)
+    alive = [t for t in tracklets if t.host is None]
+    succ = _links(rows, alive, fps)
+    chain: dict[int, int] = {}
+    for i in range(len(alive)):
+        if i not in chain:
+            chain[i] = i
+        if i in succ:
+            chain[succ[i]] = chain[i]
+    label = np.empty(table.num_rows, dtype=np.int64)
+    keep = np.ones(table.num_rows, dtype=bool)
+    for i, t in enumerate(alive):
+        label[t.rows] = chain[i]
+    moved: set[tuple[int, int, str]] = set()
+    for t in tracklets:
+        if t.host is None:
+            continue
+        host = t.host
+        label[t.rows] = label[host.rows[0]]
+        for r in t.rows:  # one row per frame, instrument and part: the tool's own first
+            f, part = int(rows.frame[r]), str(rows.part[r])
+            own = host.rows[(rows.frame[host.rows] == f) & (rows.part[host.rows] == part)]
+            key = (f, int(label[r]), part)
+            keep[r] = len(own) == 0 and key not in moved
+            moved.add(key)
+    # chains numbered by first frame, ties in the identity step's order of its names
+    heads = sorted(
+        {chain[i] for i in range(len(alive))},
+        key=lambda c: (alive[c].first, _name_key(alive[c].name)),
+    )
+    number = {c: str(k + 1) for k, c in enumerate(heads)}
+    names = np.array([number[int(c)] for c in label], dtype=object)
+    if keep.all() and np.array_equal(names.astype(str), rows.name):
+        return table
+    return table.with_columns(instrument=names)[keep]
