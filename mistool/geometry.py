@@ -257,10 +257,15 @@ class PartFit:
     """(4, 2) float64 corners in ``cv2.boxPoints`` order, full-image px."""
     area_px: int
     """Number of the part's pixels after speck removal."""
-    mask: np.ndarray
-    """(h, w) uint8 tight crop of the kept pixels (255 inside)."""
+    kept: np.ndarray
+    """(h, w) bool tight crop of the kept pixels."""
     offset: tuple[int, int]
-    """(x0, y0) full-image px of ``mask``'s top-left pixel."""
+    """(x0, y0) full-image px of ``kept``'s top-left pixel."""
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(h, w) uint8 tight crop of the kept pixels, 255 inside."""
+        return self.kept.view(np.uint8) * np.uint8(255)
 
 
 def fit_part(
@@ -282,38 +287,34 @@ def fit_part(
     Returns:
         The fit, or None when no pixel is left.
     """
-    # the part's own bounds: speck removal and contours scan only them (a part's mask is
-    # often its whole instance's window); Algorithm 1 of a window holding every pixel is
-    # that of the whole mask, bit for bit (tests/test_split_speed.py)
-    bx, by, bw, bh = cv2.boundingRect(mask)
-    if bw == 0:
-        return None
-    if 2 * bw * bh <= mask.size:
-        mask = mask[by : by + bh, bx : bx + bw]
-        offset = (offset[0] + bx, offset[1] + by)
-    kept, area, contours = _clean(mask, min_area_px)
+    from mistool.kernels.boxes import fit_mask  # (numba: not at the viewer's start)
+
+    m = np.ascontiguousarray(mask)
+    found = fit_mask(m, int(min_area_px), int(offset[0]), int(offset[1]))
+    return fit_of(found, offset, pixel_edges)
+
+
+def fit_of(
+    found: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    offset: tuple[int, int],
+    pixel_edges: bool = True,
+) -> PartFit | None:
+    """The :class:`PartFit` of :func:`mistool.kernels.boxes.fit_runs`' outputs (``info,
+    crop, points, hull``; the points in full-image px), the runs' coordinates being at
+    ``offset``; None when no pixel was kept."""
+    info, kept, pts, hull = found
+    area = int(info[0])
     if area == 0:
         return None
-    if contours is None:  # specks removed by pixel counts: contours of what is left
-        pts = mask_points(kept)
-    else:
-        pts = np.concatenate(contours, axis=0).reshape(-1, 2)
-    # the tight crop of the kept pixels: the bounds of their outer contours
-    x, y, bw, bh = cv2.boundingRect(pts)  # (numpy's min/max over axis 0: ~15x slower)
-    x1, y1 = x + bw, y + bh
-    kept = kept[y:y1, x:x1]
-    ox, oy = offset[0] + x, offset[1] + y
-    pts = pts + np.asarray(offset, np.int32)
-    box, corners = grow_to_pixel_edges(pts) if pixel_edges else min_area_box(pts)
-    return PartFit(box=box, corners=corners, area_px=area, mask=kept, offset=(ox, oy))
+    box, corners = _grown(pts, hull) if pixel_edges else min_area_box(hull)
+    origin = (int(offset[0] + info[1]), int(offset[1] + info[2]))
+    return PartFit(box=box, corners=corners, area_px=area, kept=kept, offset=origin)
 
 
 #: Columns (or rows) walked per side by :func:`_lattice_gaps`. A side whose lattice
 #: pattern repeats within this many columns (slope denominator <= 64) gets its exact gap;
 #: any other gets a gap of at most about 1/64 px, whose half is negligible.
-_GAP_WALK = 64
-_WALK_INDEX = np.arange(_GAP_WALK)
-_WALK_SECOND_HALF = _WALK_INDEX >= _GAP_WALK // 2
+_GAP_WALK = 64  # (mistool.kernels.boxes.GAP_WALK)
 
 
 def _lattice_gaps(
@@ -342,33 +343,21 @@ def _lattice_gaps(
     Returns:
         (S,) gaps, px.
     """
-    eps = 1e-4  # lattice points this close to a side are on it (float32 angle)
-    sides = []  # per side: start, columns skipped, h + eps, a, |b|, columns walked
-    for (nx, ny), hs, lo, hi in zip(
-        np.asarray(normals).tolist(),
-        np.asarray(h).tolist(),
-        np.asarray(t_lo).tolist(),
-        np.asarray(t_hi).tolist(),
-        strict=True,
-    ):  # (a few sides: plain floats, the same values as numpy's)
-        horiz = abs(ny) >= abs(nx)
-        # a: coefficient of the walked coordinate, b: of the solved one (|b| >= 0.707)
-        a, b, tangent = (nx, abs(ny), -ny) if horiz else (ny, abs(nx), nx)
-        # the segment's extent along the walked coordinate: its end points h n + t (-ny, nx)
-        w0 = hs * a + lo * tangent
-        w1 = hs * a + hi * tangent
-        start = float(math.ceil(min(w0, w1) - eps))
-        full = int(max(math.floor(max(w0, w1) + eps) - start + 1, 1))
-        count = min(full, _GAP_WALK)
-        sides.append((start, full - count, hs + eps, a, b, count))
-    start_, skipped, he, a_, b_, count_ = np.array(sides, np.float64).T[:, :, None]
-    # one row of _GAP_WALK columns per side, those past its count left out; a long
-    # side: its first and last _GAP_WALK / 2 columns (mirror-symmetric)
-    p = start_ + _WALK_INDEX + np.where(_WALK_SECOND_HALF, skipped, 0.0)
-    r = (he - a_ * p) / b_
-    frac = r - np.floor(r)
-    frac[_WALK_INDEX >= count_] = -1.0  # (frac >= 0 elsewhere)
-    return b_[:, 0] * (1.0 - frac.max(1)) + eps
+    from mistool.kernels.boxes import lattice_gap
+
+    return np.array(
+        [
+            lattice_gap(nx, ny, hs, lo, hi)
+            for (nx, ny), hs, lo, hi in zip(
+                np.asarray(normals).tolist(),
+                np.asarray(h).tolist(),
+                np.asarray(t_lo).tolist(),
+                np.asarray(t_hi).tolist(),
+                strict=True,
+            )
+        ],
+        np.float64,
+    )
 
 
 def grow_to_pixel_edges(
@@ -393,28 +382,24 @@ def grow_to_pixel_edges(
     Returns:
         ``(box, corners)`` like :func:`min_area_box`.
     """
-    pts = _as_cv_points(points)
-    (_, _), (_, _), angle = cv2.minAreaRect(pts)
+    pts = np.ascontiguousarray(_as_cv_points(points))
+    return _grown(pts, pts)
+
+
+def _grown(pts: np.ndarray, hull: np.ndarray) -> tuple[RotatedBox, np.ndarray]:
+    """:func:`grow_to_pixel_edges` of contiguous points (int32 or float32) whose
+    ``minAreaRect`` is that of ``hull`` (those of them that may lie on their hull)."""
+    from mistool.kernels.boxes import grow_box
+
+    (_, _), (_, _), angle = cv2.minAreaRect(hull)
     t = math.radians(float(angle))
-    c, s = math.cos(t), math.sin(t)
-    e1 = np.array([c, s])  # OpenCV's first side ("width") direction
-    e2 = np.array([-s, c])
-    pf = pts.astype(np.float64)
-    p1 = pf @ e1
-    p2 = pf @ e2
-    a_lo, a_hi = cv2.minMaxLoc(p1)[:2]
-    b_lo, b_hi = cv2.minMaxLoc(p2)[:2]
-    # sides with outward normals +e2, -e2 (spanning e1), +e1, -e1 (spanning e2); the
-    # tangent of normal n is (-n_y, n_x): for +e2 it is -e1, for +e1 it is +e2.
-    normals = [(-s, c), (s, -c), (c, s), (-c, -s)]  # e2, -e2, e1, -e1
-    h = [b_hi, -b_lo, a_hi, -a_lo]
-    t_lo = [-a_hi, a_lo, b_lo, -b_hi]
-    t_hi = [-a_lo, a_hi, b_hi, -b_lo]
-    g0, g1, g2, g3 = (_lattice_gaps(normals, h, t_lo, t_hi) / 2.0).tolist()
-    b_hi, b_lo, a_hi, a_lo = b_hi + g0, b_lo - g1, a_hi + g2, a_lo - g3
-    ca, cb = (a_lo + a_hi) / 2.0, (b_lo + b_hi) / 2.0
-    rect = ((ca * c - cb * s, ca * s + cb * c), (a_hi - a_lo, b_hi - b_lo), float(angle))
-    return _canonical(rect), box_points(rect)
+    # e1 = (c, s): OpenCV's first side ("width"); the kernel projects the points on e1 and
+    # e2 = (-s, c) as numpy's ``points @ e`` does, moves each side out by half its
+    # lattice gap (:func:`_lattice_gaps`) and gives the rectangle and its corners
+    rect, corners = np.empty(4), np.empty((4, 2))
+    grow_box(pts, math.cos(t), math.sin(t), rect, corners)
+    cx, cy, w, h = rect.tolist()
+    return _canonical(((cx, cy), (w, h), float(angle))), corners
 
 
 def mask_box(

@@ -7,6 +7,8 @@ import math
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mistool.geometry import (
     bounding_boxes,
@@ -261,3 +263,190 @@ def test_box_covers_all_pixels_of_a_split_part():
     img[40:50, 120:190] = 160  # the same shaft seen on both sides of an occluder
     box, _ = bounding_boxes(img, PARTS)["shaft"]
     assert (box.cx, box.cy, box.length, box.width) == pytest.approx((99.5, 44.5, 180, 10))
+
+
+# --- the compiled Algorithm 1 (mistool.kernels.boxes) against the definitions it replaced ---
+
+
+def _random_mask(rng: np.random.Generator) -> np.ndarray:
+    """A part mask: lines of any width, filled and hollow circles (holes, components in
+    holes), specks, sometimes noise; non-zero values 255, 1 or 7."""
+    h, w = int(rng.integers(1, 110)), int(rng.integers(1, 110))
+    if rng.random() < 0.2:
+        return (rng.random((h, w)) < rng.uniform(0.05, 0.9)).astype(np.uint8) * np.uint8(255)
+    m = np.zeros((h, w), np.uint8)
+    for _ in range(int(rng.integers(1, 5))):
+        a, b = rng.integers(-10, 120, 2), rng.integers(-10, 120, 2)
+        cv2.line(m, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 255, int(rng.integers(1, 20)))
+    for _ in range(int(rng.integers(0, 4))):
+        c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        colour = int(rng.choice([0, 255]))
+        cv2.circle(m, c, int(rng.integers(1, 25)), colour, int(rng.choice([-1, 1, 2])))
+    for _ in range(int(rng.integers(0, 6))):
+        m[int(rng.integers(0, h)), int(rng.integers(0, w))] = 255
+    return (m > 0).astype(np.uint8) * np.uint8(rng.choice([1, 7, 255]))
+
+
+def _outer_contours_before(mask: np.ndarray, min_area: int) -> np.ndarray:
+    """Points of the outer contours OpenCV gives, of the components with at least
+    ``min_area`` pixels, in OpenCV's order (what ``fit_part`` fitted before)."""
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        return np.zeros((0, 2), np.int32)
+    _, cc, stats, _ = cv2.connectedComponentsWithStats((mask > 0).astype(np.uint8), None, 8)
+    keep = []
+    for c, h in zip(contours, hierarchy[0], strict=True):
+        x, y = c[0, 0]
+        if h[3] < 0 and stats[cc[y, x], cv2.CC_STAT_AREA] >= min_area:
+            keep.append(c.reshape(-1, 2))
+    return np.concatenate(keep) if keep else np.zeros((0, 2), np.int32)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 2, 5, 30, 400]))
+def test_runs_components_crop_and_contours_equal_opencvs(seed, min_area):
+    """fit_mask: the kept pixels (8-connected components of at least min_area pixels),
+    their crop, pixel sums, and every outer contour point in cv2.findContours' order."""
+    from mistool.kernels.boxes import fit_mask, mask_runs
+
+    rng = np.random.default_rng(seed)
+    mask = _random_mask(rng)
+    ry, rx0, rx1, n = mask_runs(mask)
+    runs = np.zeros_like(mask, bool)
+    for y, a, b in zip(ry[:n], rx0[:n], rx1[:n], strict=True):
+        assert not runs[y, a:b].any()
+        runs[y, a:b] = True
+    assert np.array_equal(runs, mask > 0)
+    assert np.all(np.diff(ry[:n].astype(np.int64) * 10**6 + rx0[:n]) > 0)  # raster order
+
+    info, crop, pts, hull = fit_mask(mask, min_area, 30, 40)
+    n_cc, cc, stats, _ = cv2.connectedComponentsWithStats((mask > 0).astype(np.uint8), None, 8)
+    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= max(min_area, 1))
+    kept = np.isin(cc, big[big > 0])
+    assert info[0] == kept.sum()
+    if not kept.any():
+        assert len(pts) == 0 and len(hull) == 0
+        return
+    x, y, w, h = cv2.boundingRect(kept.astype(np.uint8))
+    assert (info[1], info[2]) == (x, y) and np.array_equal(crop, kept[y : y + h, x : x + w])
+    ys, xs = np.nonzero(crop)
+    assert (info[3], info[4]) == (xs.sum(), ys.sum())
+    want = _outer_contours_before(mask, min_area)
+    assert np.array_equal(pts, want + np.array([30, 40], np.int32))
+    # the points minAreaRect sees: the same rectangle, the same hull
+    assert cv2.minAreaRect(hull) == cv2.minAreaRect(pts)
+    assert np.array_equal(cv2.convexHull(hull), cv2.convexHull(pts))
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 14))
+def test_hull_points_give_the_rectangle_of_all_points(seed, n, spread):
+    """Small clouds (duplicates, collinear points): the rectangle of the points kept for
+    minAreaRect is that of all of them; the contours of a few pixels too."""
+    from mistool.kernels.boxes import fit_runs
+
+    rng = np.random.default_rng(seed)
+    pts = rng.integers(0, spread, (n, 2)).astype(np.int32)
+    # a mask of those pixels, as runs: its contours and their hull points
+    mask = np.zeros((spread, spread), np.uint8)
+    mask[pts[:, 1], pts[:, 0]] = 1
+    ys, xs = np.nonzero(mask)
+    idx = np.arange(len(xs), dtype=np.int32)
+    ry, rx0, rx1 = ys.astype(np.int32), xs.astype(np.int32), (xs + 1).astype(np.int32)
+    info, _, contour, hull = fit_runs(ry, rx0, rx1, len(idx), 0, 0, 0)
+    assert info[0] == len(xs)
+    assert cv2.minAreaRect(hull) == cv2.minAreaRect(contour)
+    assert np.array_equal(cv2.convexHull(hull), cv2.convexHull(contour))
+
+
+def _lattice_gaps_numpy(normals, h, t_lo, t_hi) -> np.ndarray:
+    """``geometry._lattice_gaps`` before the kernel (commit 3fc5814): numpy rows."""
+    eps, walk = 1e-4, 64
+    index = np.arange(walk)
+    sides = []
+    for (nx, ny), hs, lo, hi in zip(normals, h, t_lo, t_hi, strict=True):
+        horiz = abs(ny) >= abs(nx)
+        a, b, tangent = (nx, abs(ny), -ny) if horiz else (ny, abs(nx), nx)
+        w0, w1 = hs * a + lo * tangent, hs * a + hi * tangent
+        start = float(math.ceil(min(w0, w1) - eps))
+        full = int(max(math.floor(max(w0, w1) + eps) - start + 1, 1))
+        count = min(full, walk)
+        sides.append((start, full - count, hs + eps, a, b, count))
+    start_, skipped, he, a_, b_, count_ = np.array(sides, np.float64).T[:, :, None]
+    p = start_ + index + np.where(index >= walk // 2, skipped, 0.0)
+    r = (he - a_ * p) / b_
+    frac = r - np.floor(r)
+    frac[index >= count_] = -1.0
+    return b_[:, 0] * (1.0 - frac.max(1)) + eps
+
+
+def _grow_numpy(pts: np.ndarray) -> tuple[tuple, np.ndarray]:
+    """``grow_to_pixel_edges`` before the kernel (commit 3fc5814): numpy's projections
+    (``@``), ``cv2.minMaxLoc``, the numpy lattice walk; OpenCV's rectangle and corners."""
+    (_, _), (_, _), angle = cv2.minAreaRect(pts)
+    t = math.radians(float(angle))
+    c, s = math.cos(t), math.sin(t)
+    pf = pts.astype(np.float64)
+    p1, p2 = pf @ np.array([c, s]), pf @ np.array([-s, c])
+    a_lo, a_hi = cv2.minMaxLoc(p1)[:2]
+    b_lo, b_hi = cv2.minMaxLoc(p2)[:2]
+    normals = [(-s, c), (s, -c), (c, s), (-c, -s)]
+    h = [b_hi, -b_lo, a_hi, -a_lo]
+    t_lo = [-a_hi, a_lo, b_lo, -b_hi]
+    t_hi = [-a_lo, a_hi, b_hi, -b_lo]
+    g0, g1, g2, g3 = (_lattice_gaps_numpy(normals, h, t_lo, t_hi) / 2.0).tolist()
+    b_hi, b_lo, a_hi, a_lo = b_hi + g0, b_lo - g1, a_hi + g2, a_lo - g3
+    ca, cb = (a_lo + a_hi) / 2.0, (b_lo + b_hi) / 2.0
+    rect = ((ca * c - cb * s, ca * s + cb * c), (a_hi - a_lo, b_hi - b_lo), float(angle))
+    return rect, box_points(rect)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2, 3, 8, 50, 400]), st.booleans())
+def test_grown_box_equals_the_numpy_definition_bit_for_bit(seed, n, line):
+    """grow_to_pixel_edges: the projections as numpy's ``@`` rounds them (a single
+    point too), the lattice walk, the rectangle and its corners, to the last bit."""
+    from mistool.geometry import _canonical, grow_to_pixel_edges
+
+    rng = np.random.default_rng(seed)
+    if line:  # points on a few lines at any angle: many exactly on the box's sides
+        t = rng.uniform(0, math.pi)
+        k = np.arange(n)[:, None] * np.array([math.cos(t), math.sin(t)]) * rng.uniform(1, 5)
+        pts = np.round(k + rng.integers(0, 700, 2) + rng.integers(0, 3, (n, 2)))
+        pts = np.clip(pts, 0, 2000).astype(np.int32)
+    else:
+        pts = rng.integers(0, int(rng.choice([3, 50, 1500])), (n, 2)).astype(np.int32)
+    rect, corners = _grow_numpy(pts)
+    box, got = grow_to_pixel_edges(pts)
+    assert box == _canonical(rect)
+    assert got.dtype == np.float64 and np.array_equal(got.view(np.int64), corners.view(np.int64))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 2, 30, 400]))
+def test_fit_part_equals_the_opencv_definition(seed, min_area):
+    """fit_part against its definition before the kernels (commit 3fc5814): OpenCV's
+    speck removal and contours, numpy's projections; any window and offset, masks that
+    are views, values other than 255."""
+    from mistool.geometry import _canonical, _clean, mask_points
+
+    rng = np.random.default_rng(seed)
+    mask = _random_mask(rng)
+    if rng.random() < 0.3:  # a view of a larger array (not contiguous)
+        big = np.zeros((mask.shape[0] + 7, mask.shape[1] + 9), np.uint8)
+        big[3 : 3 + mask.shape[0], 5 : 5 + mask.shape[1]] = mask
+        mask = big[2:-1, 4:-2]
+    offset = (int(rng.integers(0, 600)), int(rng.integers(0, 400)))
+    got = fit_part(mask, min_area, offset)
+    kept, area, contours = _clean(np.ascontiguousarray(mask), min_area)
+    if area == 0:
+        assert got is None
+        return
+    pts = mask_points(kept) if contours is None else np.concatenate(contours).reshape(-1, 2)
+    x, y, bw, bh = cv2.boundingRect(pts)
+    rect, corners = _grow_numpy(pts + np.asarray(offset, np.int32))
+    assert got is not None
+    assert got.box == _canonical(rect) and np.array_equal(got.corners, corners)
+    assert got.area_px == area and got.offset == (offset[0] + x, offset[1] + y)
+    assert np.array_equal(got.kept, kept[y : y + bh, x : x + bw] > 0)
+    assert got.kept.dtype == np.bool_ and got.kept.flags.c_contiguous

@@ -151,7 +151,7 @@ def part_observation(
         box=fit.box,
         corners=fit.corners,
         area_px=fit.area_px,
-        mask=fit.mask.astype(bool),
+        mask=fit.kept,
         offset=fit.offset,
     )
 

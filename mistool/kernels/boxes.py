@@ -1,0 +1,531 @@
+"""Algorithm 1 per part, compiled (:mod:`mistool.geometry`'s ``fit_part`` and
+``grow_to_pixel_edges``): a part's pixels as row runs, its 8-connected specks dropped, its
+kept pixels' crop, their external contours traced as OpenCV traces them, and the box grown
+to the pixel edges.
+
+Each kernel gives the bits of the OpenCV and numpy steps it replaces (tests compare them):
+
+- the contours are Suzuki's border following as ``cv2.findContours(mask, RETR_CCOMP,
+  CHAIN_APPROX_SIMPLE)`` does it (OpenCV 4.10+ / 5.0, ``contours_new.cpp``): each
+  8-connected component's outer border from its first pixel in raster order, a point
+  wherever the chain direction changes; the components in *reverse* raster order, as
+  OpenCV returns them. The order matters: ``cv2.minAreaRect`` starts its hull at the hull
+  point that comes first in its input, which decides between equal-area rectangles.
+- the projections onto the box axes are those of numpy's ``(N, 2) @ (2,)`` on this
+  machine (OpenBLAS's ``dgemv``: ``fma(x, e0, y * e1)``, or ``fma(y, e1, x * e0)`` for a
+  single point): which of several points on one box side rounds farthest out decides
+  the side's last bit.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from llvmlite import ir  # type: ignore[import-untyped]
+from numba import types
+from numba.core.extending import intrinsic
+
+from mistool.kernels import kernel
+
+
+def _fma_typed(typingctx: object, a: object, b: object, c: object) -> tuple[object, object]:
+    """``a * b + c`` rounded once (LLVM's ``llvm.fma.f64``: the FMA instruction, or a
+    correctly rounded library call)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        d = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d]))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+_fma: Any = intrinsic(_fma_typed)
+
+
+#: Columns (or rows) walked per box side by :func:`lattice_gap` (``geometry._GAP_WALK``).
+GAP_WALK = 64
+#: Lattice points this close to a side are on it (``minAreaRect``'s float32 angle).
+GAP_EPS = 1e-4
+
+
+@kernel("float64(float64, float64, float64, float64, float64)")
+def lattice_gap(nx: float, ny: float, h: float, t_lo: float, t_hi: float) -> float:
+    """Distance from the box side ``n . p = h`` (unit outward normal ``n``, between
+    tangent positions ``t_lo`` and ``t_hi``) to the next row of pixel centres beyond it
+    (see ``geometry._lattice_gaps``; the same operations in the same order)."""
+    if abs(ny) >= abs(nx):  # walk the columns; a: the walked coordinate's coefficient
+        a, b, tangent = nx, abs(ny), -ny
+    else:
+        a, b, tangent = ny, abs(nx), nx
+    w0 = h * a + t_lo * tangent
+    w1 = h * a + t_hi * tangent
+    start = np.ceil(min(w0, w1) - GAP_EPS)
+    full = max(np.floor(max(w0, w1) + GAP_EPS) - start + 1.0, 1.0)
+    count = min(full, float(GAP_WALK))
+    skipped = full - count  # a long side: its first and last GAP_WALK / 2 columns
+    he = h + GAP_EPS
+    best = -1.0
+    for k in range(GAP_WALK):
+        if k >= count:
+            break
+        p = (start + k) + (skipped if k >= GAP_WALK // 2 else 0.0)
+        r = (he - a * p) / b
+        frac = r - np.floor(r)
+        if frac > best:
+            best = frac
+    return b * (1.0 - best) + GAP_EPS
+
+
+@kernel(
+    "void(int32[:, ::1], float64, float64, float64[::1], float64[:, ::1])",
+    "void(float32[:, ::1], float64, float64, float64[::1], float64[:, ::1])",
+)
+def grow_box(points: np.ndarray, c: float, s: float, rect: np.ndarray, corners: np.ndarray) -> None:
+    """The minimum-area box of ``points`` ((N, 2) pixel centres, N >= 1) whose first side
+    points along ``(c, s)`` (``minAreaRect``'s angle), each side moved out by half its
+    :func:`lattice_gap`: ``rect`` gets (cx, cy, w, h) (``w`` along ``(c, s)``), ``corners``
+    (4, 2) ``cv2.boxPoints``' corners of it (``geometry.box_points``' formula)."""
+    n = points.shape[0]
+    a_lo = a_hi = b_lo = b_hi = 0.0
+    for i in range(n):
+        x = float(points[i, 0])
+        y = float(points[i, 1])
+        if n >= 2:
+            p1 = _fma(x, c, y * s)
+            p2 = _fma(x, -s, y * c)
+        else:
+            p1 = _fma(y, s, x * c)
+            p2 = _fma(y, c, x * -s)
+        if i == 0:
+            a_lo = a_hi = p1
+            b_lo = b_hi = p2
+            continue
+        if p1 < a_lo:
+            a_lo = p1
+        if p1 > a_hi:
+            a_hi = p1
+        if p2 < b_lo:
+            b_lo = p2
+        if p2 > b_hi:
+            b_hi = p2
+    # sides with outward normals +e2, -e2, +e1, -e1 (e1 = (c, s), e2 = (-s, c))
+    g0 = lattice_gap(-s, c, b_hi, -a_hi, -a_lo) / 2.0
+    g1 = lattice_gap(s, -c, -b_lo, a_lo, a_hi) / 2.0
+    g2 = lattice_gap(c, s, a_hi, b_lo, b_hi) / 2.0
+    g3 = lattice_gap(-c, -s, -a_lo, -b_hi, -b_lo) / 2.0
+    b_hi, b_lo, a_hi, a_lo = b_hi + g0, b_lo - g1, a_hi + g2, a_lo - g3
+    ca = (a_lo + a_hi) / 2.0
+    cb = (b_lo + b_hi) / 2.0
+    cx = ca * c - cb * s
+    cy = ca * s + cb * c
+    w = a_hi - a_lo
+    h = b_hi - b_lo
+    rect[0] = cx
+    rect[1] = cy
+    rect[2] = w
+    rect[3] = h
+    hb = c * 0.5
+    ha = s * 0.5
+    corners[0, 0] = cx - ha * h - hb * w
+    corners[0, 1] = cy + hb * h - ha * w
+    corners[1, 0] = cx + ha * h - hb * w
+    corners[1, 1] = cy - hb * h - ha * w
+    corners[2, 0] = 2 * cx - corners[0, 0]
+    corners[2, 1] = 2 * cy - corners[0, 1]
+    corners[3, 0] = 2 * cx - corners[1, 0]
+    corners[3, 1] = 2 * cy - corners[1, 1]
+
+
+# --- a part's pixels: runs, specks, crop, contours --------------------------------------
+
+
+def _load8_typed(typingctx: object, arr: types.Array, i: types.Integer) -> tuple[object, object]:
+    """The 8 bytes of a C-contiguous uint8 array from flat index ``i``, as one
+    little-endian uint64 (an unaligned load; the caller keeps ``i + 8`` within it)."""
+    sig = types.uint64(arr, types.int64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), ir.IntType(64).as_pointer())
+        return builder.load(ptr, align=1)
+
+    return sig, codegen
+
+
+load8: Any = intrinsic(_load8_typed)
+
+
+def _ctz_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
+    """Trailing zero bits of a non-zero uint64."""
+    sig = types.uint64(types.uint64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        t = ir.IntType(64)
+        fnty = ir.FunctionType(t, [t, ir.IntType(1)])
+        fn = builder.module.declare_intrinsic("llvm.cttz", [t], fnty)
+        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 1)])
+
+    return sig, codegen
+
+
+ctz: Any = intrinsic(_ctz_typed)
+
+
+_LOW7 = np.uint64(0x7F7F7F7F7F7F7F7F)
+_HIGH = np.uint64(0x8080808080808080)
+_ONES = np.uint64(0xFFFFFFFFFFFFFFFF)
+
+_RUNS = "Tuple((int32[::1], int32[::1], int32[::1], int64))"
+
+
+@kernel("int64(uint8[:, ::1], int32[::1], int32[::1], int32[::1])")
+def _mask_runs_into(mask: np.ndarray, ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray) -> int:
+    """:func:`mask_runs` into arrays of a given size; -1 when they are too short."""
+    h, w = mask.shape
+    cap = ry.shape[0]
+    n = 0
+    for y in range(h):
+        base = y * w
+        inside = False
+        x = 0
+        while x < w:
+            if x + 8 <= w:
+                word = load8(mask, base + x)
+                set_ = (((word & _LOW7) + _LOW7) | word) & _HIGH  # bit 7: byte non-zero
+                want = _HIGH if inside else np.uint64(0)
+                if set_ == want:
+                    x += 8
+                    continue
+                # the first byte that changes: one run starts or ends there
+                x += np.int64(ctz(set_ ^ want) >> np.uint64(3))
+            elif (mask[y, x] != 0) == inside:
+                x += 1
+                continue
+            if inside:
+                rx1[n] = x
+                n += 1
+            else:
+                if n == cap:
+                    return -1
+                ry[n] = y
+                rx0[n] = x
+            inside = not inside
+            x += 1
+        if inside:
+            rx1[n] = w
+            n += 1
+    return n
+
+
+@kernel(_RUNS + "(uint8[:, ::1])")
+def mask_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The row runs of non-zero pixels in raster order, ``(ry, rx0, rx1, n)``: run ``i <
+    n`` covers ``rx0[i] <= x < rx1[i]`` of row ``ry[i]``. Eight pixels at a time: a word
+    whose bytes are all zero (outside a run) or all set (inside one) is passed over.
+    (Arrays are never reassigned inside a loop here: numba would count references to
+    them at every turn, ~30 ns each.)"""
+    cap = 2 * mask.shape[0] + 16
+    while True:
+        ry = np.empty(cap, np.int32)
+        rx0 = np.empty(cap, np.int32)
+        rx1 = np.empty(cap, np.int32)
+        n = _mask_runs_into(mask, ry, rx0, rx1)
+        if n >= 0:
+            return ry, rx0, rx1, n
+        cap = 4 * cap
+
+
+@kernel("int64(int32[::1], int64)")
+def _root(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@kernel("int64(int32[::1], int32[::1], int32[::1], int32[::1], int64, int64)")
+def join_runs(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, parent: np.ndarray, n: int, reach: int
+) -> int:
+    """Union-find of ``n`` runs in raster order: runs whose pixels lie within Chebyshev
+    distance ``reach`` of each other (1: 8-connected; 3: 8-connected once dilated by a
+    3x3 square) share a root, the component's first run (the smallest index).
+    ``parent`` gets each run's root; returns the number of components."""
+    for i in range(n):
+        parent[i] = i
+    first = 0  # the first run of the rows within reach above the current one
+    for i in range(n):
+        y = ry[i]
+        while ry[first] < y - reach:
+            first += 1
+        lo, hi = rx0[i] - reach, rx1[i] - 1 + reach
+        for j in range(first, i):
+            if ry[j] == y:
+                break
+            if rx0[j] <= hi and rx1[j] - 1 >= lo:
+                a = _root(parent, i)
+                b = _root(parent, j)
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    count = 0
+    for i in range(n):
+        r = _root(parent, i)
+        parent[i] = r
+        count += r == i
+    return count
+
+
+# chain codes E, NE, N, NW, W, SW, S, SE (OpenCV's), twice: s and s + 8 index the same step
+_DX = np.array([1, 1, 0, -1, -1, -1, 0, 1], np.int64)
+_DY = np.array([0, -1, -1, -1, 0, 1, 1, 1], np.int64)
+
+
+def _next_table() -> np.ndarray:
+    """``[code * 8 + s]``: the first chain code after ``s`` counter-clockwise (``s + 1``,
+    ``s + 2``, ... ``s + 8``, modulo 8) whose bit is set in the neighbourhood ``code``
+    (bit ``k``: the neighbour along chain code ``k`` is part of the component); 8 when
+    none is."""
+    table = np.full(256 * 8, 8, np.uint8)
+    for code in range(256):
+        for s in range(8):
+            for k in range(1, 9):
+                if code >> ((s + k) & 7) & 1:
+                    table[code * 8 + s] = (s + k) & 7
+                    break
+    return table
+
+
+_NEXT = _next_table()
+
+
+@kernel("int64(boolean[:, ::1], int64, int64, int32[:, ::1], int64)")
+def trace_outer(img: np.ndarray, x0: int, y0: int, points: np.ndarray, n: int) -> int:
+    """The outer border of the 8-connected component of ``img`` whose first pixel in
+    raster order is ``(x0, y0)``, as ``cv2.findContours(..., CHAIN_APPROX_SIMPLE)``
+    traces it: the points where the chain direction changes appended to ``points`` from
+    row ``n`` (as ``(x - 1, y - 1)``); returns the new number of rows, or -1 when
+    ``points`` is full. ``img`` has a background frame (its first and last rows and
+    columns are False), so every pixel of the component has its 8 neighbours in it.
+
+    Each step looks up the next chain code in a table of (neighbourhood, code we came
+    from): the same answer as OpenCV's search around the pixel, without its branches."""
+    w = img.shape[1]
+    flat = img.reshape(-1)
+    cap = points.shape[0]
+    if n >= cap:
+        return -1
+    # unsigned flat indices (wrapping adds of the offsets): no negative-index fix-up
+    uw = np.uint64(w)
+    step = np.empty(8, np.uint64)
+    for k in range(8):
+        step[k] = np.uint64(_DX[k] + _DY[k] * w)
+    # the first neighbour clockwise from the west (background: the component's first pixel)
+    i0 = np.uint64(y0 * w + x0)
+    s = 4
+    while True:
+        s = (s - 1) & 7
+        if flat[i0 + step[s]] or s == 4:
+            break
+    if s == 4:  # a single pixel
+        points[n, 0] = x0 - 1
+        points[n, 1] = y0 - 1
+        return n + 1
+    i1 = i0 + step[s]
+    i3 = i0
+    prev = s ^ 4
+    one = np.uint64(1)
+    while True:
+        code = (
+            np.uint64(flat[i3 + one])
+            | np.uint64(flat[i3 + one - uw]) << one
+            | np.uint64(flat[i3 - uw]) << np.uint64(2)
+            | np.uint64(flat[i3 - one - uw]) << np.uint64(3)
+            | np.uint64(flat[i3 - one]) << np.uint64(4)
+            | np.uint64(flat[i3 - one + uw]) << np.uint64(5)
+            | np.uint64(flat[i3 + uw]) << np.uint64(6)
+            | np.uint64(flat[i3 + one + uw]) << np.uint64(7)
+        )
+        s = np.int64(_NEXT[code * np.uint64(8) + np.uint64(s)])
+        i4 = i3 + step[s]
+        if s != prev:
+            if n == cap:
+                return -1
+            points[n, 0] = np.int64(i3 % uw) - 1
+            points[n, 1] = np.int64(i3 // uw) - 1
+            n += 1
+        prev = s
+        if i4 == i0 and i3 == i1:
+            return n
+        i3 = i4
+        s = (s + 4) & 7
+
+
+@kernel(
+    "int64(boolean[:, ::1], int32[::1], int32[::1], int32[::1], boolean[::1], int64, int64, "
+    "int64, int32[:, ::1])"
+)
+def _trace_kept(
+    framed: np.ndarray,
+    rx0: np.ndarray,
+    ry: np.ndarray,
+    parent: np.ndarray,
+    keep: np.ndarray,
+    n: int,
+    x0: int,
+    y0: int,
+    points: np.ndarray,
+) -> int:
+    """The outer borders of the kept components (:func:`trace_outer` in ``framed``, the
+    runs' pixels at ``(x - x0, y - y0)``), in reverse raster order as OpenCV gives them,
+    into ``points``: their number, or -1 when it is full."""
+    m = 0
+    for i in range(n - 1, -1, -1):
+        if parent[i] == i and keep[i]:
+            m = trace_outer(framed, rx0[i] - x0, ry[i] - y0, points, m)
+            if m < 0:
+                return -1
+    return m
+
+
+@kernel("void(int64[::1], int64[::1], boolean[::1], boolean[::1])")
+def hull_rows(lo: np.ndarray, hi: np.ndarray, on_lo: np.ndarray, on_hi: np.ndarray) -> None:
+    """Which row extremes lie on the convex hull's boundary: ``lo[r]`` / ``hi[r]`` are
+    the leftmost / rightmost x of row ``r`` (``lo > hi``: an empty row); ``on_lo`` /
+    ``on_hi`` get True for those on it (two monotone chains over the extremes sorted by
+    (y, x); a point is dropped only at a strict turn, so collinear ones stay)."""
+    rows = lo.shape[0]
+    cx = np.empty(2 * rows, np.int64)
+    cy = np.empty(2 * rows, np.int64)
+    m = 0
+    for r in range(rows):
+        if lo[r] <= hi[r]:
+            cx[m], cy[m] = lo[r], r
+            m += 1
+            if hi[r] != lo[r]:
+                cx[m], cy[m] = hi[r], r
+                m += 1
+    chain = np.empty(m, np.int64)
+    for sign in (1, -1):
+        k = 0
+        for j in range(m):
+            while k >= 2:
+                o, a = chain[k - 2], chain[k - 1]
+                cross = (cx[a] - cx[o]) * (cy[j] - cy[o]) - (cy[a] - cy[o]) * (cx[j] - cx[o])
+                if sign * cross <= 0:
+                    break
+                k -= 1
+            chain[k] = j
+            k += 1
+        for t in range(k):
+            j = chain[t]
+            if cx[j] == lo[cy[j]]:
+                on_lo[cy[j]] = True
+            if cx[j] == hi[cy[j]]:
+                on_hi[cy[j]] = True
+
+
+_FIT = "Tuple((int64[::1], boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
+
+
+@kernel(_FIT + "(int32[::1], int32[::1], int32[::1], int64, int64, int64, int64)")
+def fit_runs(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, min_area: int, ox: int, oy: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A part's pixels given as ``n`` runs in raster order (see :func:`mask_runs`): its
+    8-connected components of fewer than ``min_area`` pixels dropped, then
+
+    - ``info``: (area, x0, y0, sum of x - x0, sum of y - y0) of the kept pixels, ``(x0,
+      y0)`` the top-left of their bounds (area 0: nothing kept, the rest unset);
+    - ``crop``: the kept pixels' (h, w) bool crop at ``(x0, y0)``;
+    - ``points``: (N, 2) int32 external contour points of the kept components, in
+      ``cv2.findContours``' order (see the module docstring), run coordinates plus
+      ``(ox, oy)``;
+    - ``hull``: those of ``points`` that may lie on their convex hull's boundary, every
+      occurrence, in their order: ``cv2.minAreaRect(hull)`` is ``cv2.minAreaRect(points)``
+      bit for bit (``convexHull`` keeps only hull vertices and starts them at the one
+      that comes first in its input): the rows' extremes on the hull's boundary
+      (:func:`hull_rows`; every hull point is one, since the contours' hull is the
+      pixels'), and every point of the first and last rows.
+    """
+    info = np.zeros(5, np.int64)
+    empty = np.zeros((0, 2), np.int32)
+    parent = np.empty(max(n, 1), np.int32)
+    join_runs(ry, rx0, rx1, parent, n, 1)
+    area = np.zeros(max(n, 1), np.int64)  # per root
+    for i in range(n):
+        area[parent[i]] += rx1[i] - rx0[i]
+    keep = np.empty(max(n, 1), np.bool_)
+    total = 0
+    x0 = y0 = 1 << 30
+    x1 = y1 = -1
+    for i in range(n):
+        keep[i] = area[parent[i]] >= min_area
+        if keep[i]:
+            total += rx1[i] - rx0[i]
+            x0 = min(x0, rx0[i])
+            x1 = max(x1, rx1[i])
+            y0 = min(y0, ry[i])
+            y1 = max(y1, ry[i] + 1)
+    if total == 0:
+        return info, np.zeros((0, 0), np.bool_), empty, empty
+    kh, kw = y1 - y0, x1 - x0
+    crop = np.zeros((kh, kw), np.bool_)
+    framed = np.zeros((kh + 2, kw + 2), np.bool_)  # with a background frame for the trace
+    paint = crop.reshape(-1)
+    paint_framed = framed.reshape(-1)
+    lo = np.full(kh, 1 << 30, np.int64)  # each row's extremes
+    hi = np.full(kh, -1, np.int64)
+    sx = sy = 0
+    for i in range(n):
+        if keep[i]:
+            y = ry[i] - y0
+            a, b = rx0[i] - x0, rx1[i] - x0
+            row = y * kw
+            for x in range(np.uint64(row + a), np.uint64(row + b)):  # (unsigned: vectorised)
+                paint[x] = True
+            row = (y + 1) * (kw + 2) + 1
+            for x in range(np.uint64(row + a), np.uint64(row + b)):
+                paint_framed[x] = True
+            sx += (a + b - 1) * (b - a) // 2
+            sy += y * (b - a)
+            lo[y] = min(lo[y], a)
+            hi[y] = max(hi[y], b - 1)
+    info[0], info[1], info[2], info[3], info[4] = total, x0, y0, sx, sy
+    cap = 4 * n + 16
+    m = -1
+    while m < 0:  # (a new array per attempt, never inside the loop below: see mask_runs)
+        points = np.empty((cap, 2), np.int32)
+        m = _trace_kept(framed, rx0, ry, parent, keep, n, x0 - 1, y0 - 1, points)
+        cap *= 4
+    on_lo = np.zeros(kh, np.bool_)
+    on_hi = np.zeros(kh, np.bool_)
+    hull_rows(lo, hi, on_lo, on_hi)
+    on = np.empty(m, np.bool_)
+    count = 0
+    for k in range(m):
+        x, y = points[k, 0], points[k, 1]
+        on[k] = y == 0 or y == kh - 1 or (x == lo[y] and on_lo[y]) or (x == hi[y] and on_hi[y])
+        count += on[k]
+    out = np.empty((m, 2), np.int32)
+    hull = np.empty((count, 2), np.int32)
+    j = 0
+    for k in range(m):
+        out[k, 0] = points[k, 0] + x0 + ox
+        out[k, 1] = points[k, 1] + y0 + oy
+        if on[k]:
+            hull[j, 0] = out[k, 0]
+            hull[j, 1] = out[k, 1]
+            j += 1
+    return info, crop, out, hull
+
+
+@kernel(_FIT + "(uint8[:, ::1], int64, int64, int64)")
+def fit_mask(
+    mask: np.ndarray, min_area: int, ox: int, oy: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`fit_runs` of a mask's non-zero pixels (mask coordinates)."""
+    ry, rx0, rx1, n = mask_runs(mask)
+    return fit_runs(ry, rx0, rx1, n, min_area, ox, oy)
