@@ -31,9 +31,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
+from numba import njit
 from numba.core import types
 from numba.extending import intrinsic
 
@@ -50,6 +51,24 @@ __all__ = [
     "score_axes",
     "segment_d2_rows",
 ]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _inlined(signature: str) -> Callable[[F], F]:
+    """:func:`~mistool.kernels.kernel` for a small function called per point by the
+    kernels here: also compiled into each caller (numba's ``inline="always"``). A call
+    to a cached kernel from another stays a call: 3x the time of the inlined arithmetic
+    in the split's per-pixel loops."""
+
+    def wrap(fn: F) -> F:
+        compiled = njit([signature], cache=True, nogil=True, error_model="numpy", inline="always")(
+            fn
+        )
+        return cast(F, compiled)
+
+    return wrap
+
 
 # numpy's and OpenBLAS's float operations -----------------------------------------------
 
@@ -72,13 +91,13 @@ def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]  # (numba's intrin
 fma = cast(Callable[[float, float, float], float], _fma)
 
 
-@kernel("float64(float64, float64, float64, float64)")
+@_inlined("float64(float64, float64, float64, float64)")
 def dot2(a0: float, a1: float, b0: float, b1: float) -> float:
     """``np.array([a0, a1]) @ np.array([b0, b1])`` (contiguous ``ddot``)."""
     return fma(a1, b1, fma(a0, b0, 0.0))
 
 
-@kernel("float64(float64, float64, float64, float64, boolean)")
+@_inlined("float64(float64, float64, float64, float64, boolean)")
 def row_dot(f0: float, f1: float, x: float, y: float, single: bool) -> float:
     """One element of ``frame @ p.T`` (frame row ``(f0, f1)``, point ``(x, y)``):
     ``dgemm``'s order, or ``dgemv``'s when ``single`` (one point, or ``(N, 2) @ (2,)``)."""
@@ -156,33 +175,44 @@ _SEGMENTS = (
 )
 
 
-@kernel(f"float64(float64, float64, {_SEGMENTS}, int64, boolean)")
-def _d2(
-    x: float,
-    y: float,
-    ends: np.ndarray,
-    dirs: np.ndarray,
-    back: np.ndarray,
-    radius: np.ndarray,
-    k: int,
-    single: bool,
-) -> float:
-    """Point (x, y)'s squared distance to segment ``k`` (``split.segment_d2_rows``: the
-    coordinates along and across by ``dgemm``, less the offsets summed in plain floats;
-    ``single``: one point, ``dgemv``'s order)."""
-    dx, dy = dirs[k, 0], dirs[k, 1]
-    ex, ey = ends[k, 0], ends[k, 1]
-    along = row_dot(dx, dy, x, y, single) - (ex * dx + ey * dy)
-    perp = row_dot(-dy, dx, x, y, single) - (ex * -dy + ey * dx)
-    excess = along if (along >= 0.0 or along != along) else 0.0  # np.maximum(along, 0.0)
-    b = back[k]
-    if math.isfinite(b):
+@kernel(f"float64[:, ::1]({_SEGMENTS})")
+def _frames(ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """(K, 6) per segment, what every point's distance uses: its direction ``(dx, dy)``,
+    the offsets along and across it (``ends . (dx, dy)`` and ``ends . (-dy, dx)`` summed
+    in plain floats, as ``split.segment_d2_rows`` did), ``back`` (NaN: none, not finite),
+    ``1 / radius^2``."""
+    kk = ends.shape[0]
+    seg = np.empty((kk, 6), np.float64)
+    for k in range(kk):
+        dx, dy = dirs[k, 0], dirs[k, 1]
+        ex, ey = ends[k, 0], ends[k, 1]
+        seg[k, 0] = dx
+        seg[k, 1] = dy
+        seg[k, 2] = ex * dx + ey * dy
+        seg[k, 3] = ex * -dy + ey * dx
+        seg[k, 4] = back[k] if math.isfinite(back[k]) else math.nan
+        r = radius[k]
+        seg[k, 5] = 1.0 / (r * r)
+    return seg
+
+
+@_inlined("float64(float64, float64, float64[:, ::1], int64, boolean)")
+def _d2(x: float, y: float, seg: np.ndarray, k: int, single: bool) -> float:
+    """Point (x, y)'s squared distance to segment ``k`` (``seg``: :func:`_frames`), as
+    ``split.segment_d2_rows`` computed it: the coordinates along and across by ``dgemm``
+    (``single``: one point, ``dgemv``'s order), less the offsets; the excess past the
+    distal end and behind the proximal one (``np.maximum(v, 0.0)``: NaN kept)."""
+    dx, dy = seg[k, 0], seg[k, 1]
+    along = row_dot(dx, dy, x, y, single) - seg[k, 2]
+    perp = row_dot(-dy, dx, x, y, single) - seg[k, 3]
+    excess = along if (along >= 0.0 or along != along) else 0.0
+    b = seg[k, 4]
+    if b == b:
         behind = -along - b
         excess += behind if (behind >= 0.0 or behind != behind) else 0.0
     d2 = perp * perp
     d2 += excess * excess
-    r = radius[k]
-    d2 *= 1.0 / (r * r)
+    d2 *= seg[k, 5]
     return d2
 
 
@@ -198,37 +228,28 @@ def segment_d2_rows(
     """``out`` (K, N): squared distances of points ``p`` (N, 2) to the K segments."""
     n = p.shape[0]
     single = n == 1
+    seg = _frames(ends, dirs, back, radius)
     for k in range(ends.shape[0]):
         for i in range(n):
-            out[k, i] = _d2(p[i, 0], p[i, 1], ends, dirs, back, radius, k, single)
+            out[k, i] = _d2(p[i, 0], p[i, 1], seg, k, single)
 
 
-@kernel(f"int64(float64, float64, {_SEGMENTS}, float64, boolean, boolean)")
-def _label(
-    x: float,
-    y: float,
-    ends: np.ndarray,
-    dirs: np.ndarray,
-    back: np.ndarray,
-    radius: np.ndarray,
-    keep_d2: float,
-    keep: bool,
-    single: bool,
-) -> int:
+@_inlined("int64(float64, float64, float64[:, ::1], float64, boolean, boolean)")
+def _label(x: float, y: float, seg: np.ndarray, keep_d2: float, keep: bool, single: bool) -> int:
     """The nearest segment's index (``split._Axes.nearest``): for two segments without
     ``keep``, 1 where the second is strictly nearer; else ``argmin`` (the first of equal
     minima, the first NaN); with ``keep``, K where the least distance (NaN if any) is
     above ``keep_d2``."""
-    kk = ends.shape[0]
-    d0 = _d2(x, y, ends, dirs, back, radius, 0, single)
+    kk = seg.shape[0]
+    d0 = _d2(x, y, seg, 0, single)
     if kk == 2 and not keep:
-        return 1 if _d2(x, y, ends, dirs, back, radius, 1, single) < d0 else 0
+        return 1 if _d2(x, y, seg, 1, single) < d0 else 0
     lab = 0
     best = d0
     least = d0  # np.minimum.reduce: NaN spreads
     nan_at = 0 if d0 != d0 else -1
     for k in range(1, kk):
-        d = _d2(x, y, ends, dirs, back, radius, k, single)
+        d = _d2(x, y, seg, k, single)
         if d != d and nan_at < 0:
             nan_at = k
         if d < best:
@@ -258,8 +279,9 @@ def nearest_labels(
     ``keep_d2`` from all, when ``keep``)."""
     n = p.shape[0]
     single = n == 1
+    seg = _frames(ends, dirs, back, radius)
     for i in range(n):
-        out[i] = _label(p[i, 0], p[i, 1], ends, dirs, back, radius, keep_d2, keep, single)
+        out[i] = _label(p[i, 0], p[i, 1], seg, keep_d2, keep, single)
 
 
 @kernel(
@@ -376,8 +398,9 @@ def refit_axes(
     proj = np.empty(n, np.float64)
     for rnd in range(rounds):
         same = rnd > 0
+        seg = _frames(ends, dirs, back, radius)
         for i in range(n):
-            lab[i] = _label(pts[i, 0], pts[i, 1], ends, dirs, back, radius, keep_d2, keep, single)
+            lab[i] = _label(pts[i, 0], pts[i, 1], seg, keep_d2, keep, single)
             same = same and lab[i] == prev[i]
         if same:
             break  # the same points give the same axes: converged
@@ -409,7 +432,7 @@ def _side_by_side(
     return hi_i - lo_j > radius[i] + radius[j]
 
 
-@kernel("int64(float64[:, ::1], int64, float64, boolean)")
+@_inlined("int64(float64[:, ::1], int64, float64, boolean)")
 def _argmin_column(d2: np.ndarray, i: int, keep_d2: float, keep: bool) -> int:
     """``d2[:, i].argmin()`` (the first of equal minima, the first NaN; ``split.argmin_rows``);
     with ``keep``, K where the least (NaN if any) is above ``keep_d2``."""
@@ -474,3 +497,201 @@ def score_axes(
             if _side_by_side(ends, dirs, radius, i, j, min_angle_deg):
                 return -1.0
     return score
+
+
+# the split's pixels ----------------------------------------------------------------------
+
+
+_ONES = np.uint64(0x0101010101010101)
+
+
+@_inlined("int64(uint64)")
+def _bytes_set(v: int) -> int:
+    """How many of the 8 bytes of ``v`` are non-zero."""
+    t = v | (v >> np.uint64(4))
+    t |= t >> np.uint64(2)
+    t |= t >> np.uint64(1)
+    t &= _ONES
+    return int((t * _ONES) >> np.uint64(56))
+
+
+@kernel("void(uint8[:, ::1], int64, int64, int64, float64[:, ::1])")
+def nonzero_points(mask: np.ndarray, x0: int, y0: int, step: int, out: np.ndarray) -> None:
+    """``out`` (M, 2): full-image (x, y) of every ``step``-th non-zero pixel of ``mask``
+    (row by row, from the first; ``mask`` a crop at (x0, y0)). Eight bytes at a time:
+    words without a sampled pixel are only counted."""
+    w = mask.shape[1]
+    flat = mask.reshape(-1)
+    n = flat.shape[0]
+    words = flat[: n // 8 * 8].view(np.uint64)
+    need = 0  # non-zero pixels to pass before the next sample
+    m = 0
+    i = x = y = 0  # flat index i is pixel (x, y)
+    while i < n:
+        if i % 8 == 0 and i + 8 <= n:
+            v = words[i // 8]
+            c = _bytes_set(v) if v != 0 else 0
+            if c <= need:
+                need -= c
+                i += 8
+                x += 8
+                while x >= w:
+                    x -= w
+                    y += 1
+                continue
+        if flat[i] != 0:
+            if need == 0:
+                out[m, 0] = x + x0
+                out[m, 1] = y + y0
+                m += 1
+                need = step - 1
+            else:
+                need -= 1
+        i += 1
+        x += 1
+        if x == w:
+            x = 0
+            y += 1
+
+
+@_inlined("void(int64[:, ::1], int64, int64, int64, int64, int64)")
+def _grow(bounds: np.ndarray, j: int, xa: int, ya: int, xb: int, yb: int) -> None:
+    """Label ``j``'s window grown to hold the rectangle (xa, ya) - (xb, yb)."""
+    bounds[j, 0] = min(bounds[j, 0], xa)
+    bounds[j, 1] = min(bounds[j, 1], ya)
+    bounds[j, 2] = max(bounds[j, 2], xb)
+    bounds[j, 3] = max(bounds[j, 3], yb)
+
+
+@kernel("boolean[:, ::1](uint8[:, ::1])")
+def _mixed_cells(coarse: np.ndarray) -> np.ndarray:
+    """(ch, cw): whether each cell's 3 x 3 neighbourhood holds two labels (``cv2.dilate
+    != cv2.erode`` of the cells' labels, the image border left out); separable: the
+    least and greatest along rows, then along columns."""
+    ch, cw = coarse.shape
+    lo = np.empty((ch, cw), np.uint8)
+    hi = np.empty((ch, cw), np.uint8)
+    for ci in range(ch):
+        for cj in range(cw):
+            a = b = coarse[ci, cj]
+            if cj > 0:
+                a = min(a, coarse[ci, cj - 1])
+                b = max(b, coarse[ci, cj - 1])
+            if cj + 1 < cw:
+                a = min(a, coarse[ci, cj + 1])
+                b = max(b, coarse[ci, cj + 1])
+            lo[ci, cj] = a
+            hi[ci, cj] = b
+    mixed = np.empty((ch, cw), np.bool_)
+    for ci in range(ch):
+        r0, r1 = max(ci - 1, 0), min(ci + 1, ch - 1)
+        for cj in range(cw):
+            a = min(lo[r0, cj], lo[ci, cj], lo[r1, cj])
+            b = max(hi[r0, cj], hi[ci, cj], hi[r1, cj])
+            mixed[ci, cj] = a != b
+    return mixed
+
+
+@kernel("int64(uint8[:, ::1], int64, uint8[:, ::1], boolean[:, ::1], uint8[:, ::1], int64[:, ::1])")
+def _fill_cells(
+    mask: np.ndarray,
+    s: int,
+    coarse: np.ndarray,
+    mixed: np.ndarray,
+    owner: np.ndarray,
+    bounds: np.ndarray,
+) -> int:
+    """``owner``: each mask pixel its cell's label, 255 off the mask; ``bounds``: the
+    windows of the labels of the cells not ``mixed``. How many mask pixels the mixed
+    cells hold."""
+    h, w = mask.shape
+    ch, cw = coarse.shape
+    rowlab = np.empty(w, np.uint8)
+    count = 0
+    off = np.uint8(255)
+    for ci in range(ch):
+        ya, yb = ci * s, min(ci * s + s, h)
+        for cj in range(cw):
+            xa, xb = cj * s, min(cj * s + s, w)
+            lab = coarse[ci, cj]
+            if mixed[ci, cj]:
+                for y in range(ya, yb):
+                    for x in range(xa, xb):
+                        count += mask[y, x] != 0
+            else:
+                _grow(bounds, lab, xa, ya, xb - 1, yb - 1)
+            for x in range(xa, xb):
+                rowlab[x] = lab
+        for y in range(ya, yb):
+            for x in range(w):
+                owner[y, x] = rowlab[x] if mask[y, x] != 0 else off
+    return count
+
+
+@kernel(
+    f"void(uint8[:, ::1], int64, int64, {_SEGMENTS}, float64, boolean, int64, uint8[:, ::1],"
+    " int64[:, ::1])"
+)
+def shaft_owner(
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    ends: np.ndarray,
+    dirs: np.ndarray,
+    back: np.ndarray,
+    radius: np.ndarray,
+    keep_d2: float,
+    keep: bool,
+    s: int,
+    owner: np.ndarray,
+    bounds: np.ndarray,
+) -> None:
+    """The nearest axis of each pixel of a shaft crop (``mask`` at (x0, y0)), rasterised
+    as ``split._owner_cells`` did: the label (:func:`nearest_labels`) of each ``s`` x ``s``
+    cell's centre, and per pixel only in the cells whose 3 x 3 neighbourhood holds two
+    labels. ``owner`` (h, w): the label of each mask pixel, 255 elsewhere; ``bounds``
+    (K + 1, 4): ``x_lo, y_lo, x_hi, y_hi`` (inclusive, px of the crop) of a window
+    holding every pixel of each label (the cells that may hold it; ``x_hi`` -1: none)."""
+    h, w = mask.shape
+    ch = (h + s - 1) // s
+    cw = (w + s - 1) // s
+    half = 0.5 * (s - 1)
+    coarse = np.empty((ch, cw), np.uint8)
+    single = ch * cw == 1  # (one point: dgemv's order)
+    seg = _frames(ends, dirs, back, radius)
+    for ci in range(ch):
+        cy = (y0 + ci * s) + half
+        for cj in range(cw):
+            cx = (x0 + cj * s) + half
+            coarse[ci, cj] = _label(cx, cy, seg, keep_d2, keep, single)
+    for j in range(bounds.shape[0]):
+        bounds[j, 0] = w
+        bounds[j, 1] = h
+        bounds[j, 2] = -1
+        bounds[j, 3] = -1
+    mixed = _mixed_cells(coarse)
+    one = _fill_cells(mask, s, coarse, mixed, owner, bounds) == 1
+    for ci in range(ch):  # then per pixel in the mixed cells
+        ya, yb = ci * s, min(ci * s + s, h)
+        for cj in range(cw):
+            if not mixed[ci, cj]:
+                continue
+            xa, xb = cj * s, min(cj * s + s, w)
+            for y in range(ya, yb):
+                for x in range(xa, xb):
+                    if mask[y, x] != 0:
+                        lab = _label(x + x0, y + y0, seg, keep_d2, keep, one)
+                        owner[y, x] = lab
+                        _grow(bounds, lab, xa, ya, xb - 1, yb - 1)
+
+
+@kernel("uint8[:, ::1](uint8[:, ::1], int64, int64, int64, int64, int64)")
+def label_mask(owner: np.ndarray, j: int, x_lo: int, y_lo: int, x_hi: int, y_hi: int) -> np.ndarray:
+    """(y_hi - y_lo + 1, x_hi - x_lo + 1) uint8: 255 where ``owner`` is ``j`` in that
+    window, 0 elsewhere."""
+    out = np.zeros((y_hi - y_lo + 1, x_hi - x_lo + 1), np.uint8)
+    for y in range(y_lo, y_hi + 1):
+        for x in range(x_lo, x_hi + 1):
+            if owner[y, x] == j:
+                out[y - y_lo, x - x_lo] = 255
+    return out

@@ -604,66 +604,34 @@ OWNER_CELL_PX = 8
 
 
 def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
-    """(h, w) index of the nearest axis for every pixel of a part's crop (as
-    :func:`nearest_axis`), rasterised: the nearest axis of each cell's centre, refined
-    per pixel only in the cells that border a cell of another axis (the regions are
-    bounded by bisectors and parabolas, smooth on the scale of a cell)."""
-    return _owner_cells(part, ax)[0]
+    """(h, w) index of the nearest axis (as :func:`nearest_axis`, K beyond ``keep_d2``) of
+    every pixel of a part's crop, 255 off its mask: rasterised, the nearest axis of each
+    :data:`OWNER_CELL_PX` cell's centre, refined per pixel only in the cells that border
+    a cell of another axis (the regions are bounded by bisectors and parabolas, smooth on
+    the scale of a cell)."""
+    return _shaft_owner(part, ax)[0]
 
 
-def _label_bounds(
-    coarse: np.ndarray, mixed: np.ndarray, j: int, h: int, w: int
-) -> tuple[int, int, int, int] | None:
-    """``(x, y, w, h)`` px of the (h, w) crop holding every pixel that
-    :func:`_owner_cells`' image gives index ``j``: the bounds of its cells and the
-    mixed ones (None: none)."""
-    s = OWNER_CELL_PX
-    # (numpy, not cv2.compare: OpenCV takes a grid of one to four cells for a scalar)
-    cells = cv2.bitwise_or(np.where(coarse == j, np.uint8(255), np.uint8(0)), mixed)
-    cx, cy, cw, ch = cv2.boundingRect(cells)
-    if cw == 0 or ch == 0:
-        return None
-    x, y = cx * s, cy * s
-    return x, y, min((cx + cw) * s, w) - x, min((cy + ch) * s, h) - y
+def _shaft_owner(part: PartObservation, ax: _Axes) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_owner_image` and the bounds of each index's pixels: (K + 1, 4) ``x_lo,
+    y_lo, x_hi, y_hi`` px of the crop, inclusive (``x_hi`` -1: none); one compiled pass
+    (:func:`mistool.kernels.split.shaft_owner`)."""
+    k = len(ax.dirs)
+    owner = np.empty(part.mask.shape, np.uint8)
+    bounds = np.empty((k + 1, 4), np.int64)
+    kernels.shaft_owner(
+        _mask_u8(part.mask), int(part.offset[0]), int(part.offset[1]), _points(ax.ends),
+        _points(ax.dirs), _values(ax.back), _values(ax.radius),
+        ax.keep_d2 if ax.keep_d2 is not None else 0.0, ax.keep_d2 is not None,
+        OWNER_CELL_PX, owner, bounds,
+    )  # fmt: skip
+    return owner, bounds
 
 
-def _owner_cells(part: PartObservation, ax: _Axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_owner_image`, its cells' nearest axes and where its cells are mixed
-    (uint8, one per :data:`OWNER_CELL_PX` cell)."""
-    h, w = part.mask.shape
-    s = OWNER_CELL_PX
-    x0, y0 = part.offset
-    cx = x0 + np.arange(0, w, s) + 0.5 * (s - 1)
-    cy = y0 + np.arange(0, h, s) + 0.5 * (s - 1)
-    gx, gy = np.meshgrid(cx, cy)
-    centres = np.stack([gx.ravel(), gy.ravel()], 1)
-    coarse = ax.nearest(centres)
-    coarse = coarse.reshape(len(cy), len(cx)).astype(np.uint8)
-    kernel = np.ones((3, 3), np.uint8)
-    mixed = (cv2.dilate(coarse, kernel) != cv2.erode(coarse, kernel)).view(np.uint8)
-    owner = _blow_up(coarse, s, h, w)
-    xs, ys = _pixels_in_cells(part.mask, s, mixed)
-    if len(xs):
-        p = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
-        owner[ys, xs] = ax.nearest(p)
-    return owner, coarse, mixed
-
-
-def _pixels_in_cells(mask: np.ndarray, s: int, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(xs, ys)`` of the mask's (h, w) non-zero pixels in the ``s`` x ``s`` cells where
-    ``cells`` (ceil(h / s), ceil(w / s)) is non-zero (cell by cell): only those cells'
-    blocks of the mask are looked at."""
-    ci, cj = np.nonzero(cells)
-    if not len(ci):
-        return np.empty(0, np.intp), np.empty(0, np.intp)
-    ch, cw = cells.shape
-    h, w = mask.shape
-    padded = np.zeros((ch * s, cw * s), np.uint8)
-    padded[:h, :w] = mask
-    blocks = padded.reshape(ch, s, cw, s)[ci, :, cj, :]  # (M, s, s)
-    xs, rows = _nonzero_xy(blocks.reshape(-1, s))  # row = block * s + dy
-    block = rows // s
-    return cj[block] * s + xs, ci[block] * s + rows % s
+def _mask_u8(mask: np.ndarray) -> np.ndarray:
+    """A bool or uint8 mask as C-contiguous uint8 (a view when it is already)."""
+    m = np.ascontiguousarray(mask)
+    return m.view(np.uint8) if m.dtype == np.bool_ else m.astype(np.uint8, copy=False)
 
 
 def _nonzero_xy(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -676,31 +644,20 @@ def _nonzero_xy(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return xs, ys
 
 
-def _blow_up(cells: np.ndarray, s: int, h: int, w: int) -> np.ndarray:
-    """(h, w) uint8: each value of ``cells`` repeated over its ``s`` x ``s`` pixels
-    (``np.repeat`` on both axes, cropped), by OpenCV's nearest-neighbour resize."""
-    big = cv2.resize(
-        cells, (cells.shape[1] * s, cells.shape[0] * s), interpolation=cv2.INTER_NEAREST
-    )
-    return big[:h, :w]
-
-
 class BlobPixels:
     """A blob's part pixels, computed once and shared by every split hypothesis."""
 
     def __init__(self, inst: InstanceObservation) -> None:
         self.inst = inst
         self._cache: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        self._shaft_idx: np.ndarray | None = None
+        self._count: int | None = None
         self._samples: dict[int, np.ndarray] = {}  # shaft points by step (1: all)
 
-    def _shaft_index(self) -> np.ndarray:
-        """(N,) flat (row-major) indices in the shaft's crop of its pixels: numpy's
-        ``flatnonzero`` of the bool mask (~1.5x faster than OpenCV's ``findNonZero``,
-        ~58,000 px on a crossing blob); only the sampled ones become (x, y)."""
-        if self._shaft_idx is None:
-            self._shaft_idx = np.flatnonzero(self.inst.parts["shaft"].mask)
-        return self._shaft_idx
+    def _shaft_count(self) -> int:
+        """How many shaft pixels the blob has."""
+        if self._count is None:
+            self._count = int(np.count_nonzero(self.inst.parts["shaft"].mask))
+        return self._count
 
     def shaft_points(self) -> np.ndarray:
         """(N, 2) float64 full-image (x, y) of the shaft's pixels, row by row."""
@@ -708,18 +665,17 @@ class BlobPixels:
 
     def shaft_sample(self, max_points: int) -> tuple[np.ndarray, int]:
         """``(shaft_points()[::step], step)`` with ``step = len // max_points`` (at
-        least 1): about ``max_points`` points, the others never converted."""
-        step = max(1, len(self._shaft_index()) // max_points)
+        least 1): about ``max_points`` points, the others never converted (one compiled
+        pass over the mask, :func:`mistool.kernels.split.nonzero_points`)."""
+        step = max(1, self._shaft_count() // max_points)
         return self._sample(step), step
 
     def _sample(self, step: int) -> np.ndarray:
         if step not in self._samples:
             part = self.inst.parts["shaft"]
-            ys, xs = np.divmod(self._shaft_index()[::step], part.mask.shape[1])
-            pts = np.empty((len(xs), 2), np.float64)
-            pts[:, 0] = xs
-            pts[:, 1] = ys
-            pts += part.offset
+            pts = np.empty((-(-self._shaft_count() // step), 2), np.float64)
+            x0, y0 = part.offset
+            kernels.nonzero_points(_mask_u8(part.mask), int(x0), int(y0), step, pts)
             self._samples[step] = pts
         return self._samples[step]
 
@@ -835,19 +791,17 @@ def split_with_heads(
     k = len(fit.expected)
     pieces: list[dict[str, PartObservation]] = [{} for _ in range(k + len(anchors))]
     for name, part in inst.parts.items():
-        if name == "shaft":  # the large part: whole-crop label image, no pixel lists
-            owner_img, coarse, mixed = _owner_cells(part, fit.axes)
-            mask = part.mask.view(np.uint8)
+        if name == "shaft":  # the large part: a label image, no pixel lists
+            owner, bounds = _shaft_owner(part, fit.axes)
             # (shaft pixels far from every axis, index k: a lone anchor's shaft)
             for j in range(k + (len(anchors) == 1)):
-                bounds = _label_bounds(coarse, mixed, j, *mask.shape)
-                if bounds is None:
+                x_lo, y_lo, x_hi, y_hi = bounds[j].tolist()
+                if x_hi < 0:
                     continue
-                bx, by, bw, bh = bounds  # the piece's window of the crop (half of it, typically)
-                win = owner_img[by : by + bh, bx : bx + bw]
-                this = cv2.compare(win, j, cv2.CMP_EQ)  # type: ignore[call-overload]
-                m = cv2.bitwise_and(this, mask[by : by + bh, bx : bx + bw])  # 1 inside
-                x0, y0 = part.offset[0] + bx, part.offset[1] + by
+                # the piece's window of the crop: Algorithm 1 of any window holding all
+                # its pixels is that of the whole crop
+                m = kernels.label_mask(owner, j, x_lo, y_lo, x_hi, y_hi)
+                x0, y0 = part.offset[0] + x_lo, part.offset[1] + y_lo
                 obs = part_observation(name, m, x0, y0, min_area_px)
                 if obs is not None:
                     pieces[j][name] = obs
