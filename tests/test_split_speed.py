@@ -682,3 +682,167 @@ def test_the_shaft_owner_takes_blas_one_point_order_where_numpy_did(where):
     want = _owner_cells_before(part, ax)
     assert np.array_equal(owner[mask], want[mask])
     assert owner[mask][0] == alone[flips[0]] != many[flips[0]]
+
+
+def _split_with_heads_before(pixels: Any, fit: Any, min_area_px: int, anchors: list) -> Any:
+    """``split.split_with_heads`` as it was (commit e3da6b6's parent, 3307ee1): each
+    piece's part mask measured by ``part_observation``, its instance by
+    ``make_instance``."""
+    from mistool.tracking.instances import make_instance, part_observation
+    from mistool.tracking.split import _part_distance, argmin_rows
+
+    inst = pixels.inst
+    k = len(fit.expected)
+    pieces: list[dict] = [{} for _ in range(k + len(anchors))]
+    for name, part in inst.parts.items():
+        if name == "shaft":
+            owner = _owner_cells_before(part, fit.axes)
+            mask = part.mask.view(np.uint8)
+            for j in range(k + (len(anchors) == 1)):
+                m = np.where((owner == j) & (mask > 0), np.uint8(1), np.uint8(0))
+                obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
+                if obs is not None:
+                    pieces[j][name] = obs
+            continue
+        ys, xs, p = pixels.get(name)
+        d2 = _part_distance(name, p, fit.axes, fit.expected)
+        if anchors:
+            d2 = np.concatenate([d2, np.stack([a.distance2(name, p) for a in anchors])])
+        owner = argmin_rows(d2)
+        for j in range(len(pieces)):
+            sel = owner == j
+            if not sel.any():
+                continue
+            m = np.zeros(part.mask.shape, np.uint8)
+            m[ys[sel], xs[sel]] = 255
+            obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
+            if obs is not None:
+                pieces[j][name] = obs
+    if any("shaft" not in parts for parts in pieces[:k]):
+        return None
+    shape = inst.image_shape
+    return (
+        [make_instance(None, parts, shape) for parts in pieces[:k]],
+        [make_instance(None, parts, shape) if parts else None for parts in pieces[k:]],
+    )
+
+
+def _same_instance(a: Any, b: Any) -> bool:
+    if a is None or b is None:
+        return a is b
+    if (a.label, a.centroid_px, a.area_px, a.bbox_xywh, a.image_shape) != (
+        b.label,
+        b.centroid_px,
+        b.area_px,
+        b.bbox_xywh,
+        b.image_shape,
+    ) or list(a.parts) != list(b.parts):
+        return False
+    for name, p in a.parts.items():
+        q = b.parts[name]
+        if (p.part, p.box, p.area_px, p.offset) != (q.part, q.box, q.area_px, q.offset):
+            return False
+        if not (np.array_equal(p.corners, q.corners) and np.array_equal(p.mask, q.mask)):
+            return False
+    return True
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 3), st.integers(0, 2), st.booleans())
+def test_split_pieces_measured_from_runs_are_the_former_pieces(seed, k, n_anchors, keep):
+    """split_with_heads (label images, row runs, Algorithm 1 of the runs, the instance
+    from the runs' sums) gives the former pieces bit for bit: shaft and head parts with
+    specks, anchors with and without head boxes, a lone anchor taking the shaft pixels
+    far from every axis."""
+    from mistool.tracking.instances import make_instance, part_observation
+    from mistool.tracking.split import HeadAnchor, SplitFit, _Axes, split_with_heads
+
+    rng = np.random.default_rng(seed)
+    shape = (576, 720)
+    parts = {}
+    for name in ["shaft", "wrist", "clasper"][: int(rng.integers(1, 4))]:
+        h, w = int(rng.integers(5, 200)), int(rng.integers(5, 200))
+        m = np.zeros((h, w), np.uint8)
+        for _ in range(int(rng.integers(1, 4))):
+            a, b = rng.integers(-10, 210, 2), rng.integers(-10, 210, 2)
+            cv2.line(
+                m, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 255, int(rng.integers(1, 20))
+            )
+        for _ in range(int(rng.integers(0, 5))):  # specks
+            m[int(rng.integers(0, h)), int(rng.integers(0, w))] = 255
+        obs = part_observation(name, m, int(rng.integers(0, 400)), int(rng.integers(0, 300)), 1)
+        if obs is not None:
+            parts[name] = obs
+    if "shaft" not in parts:
+        return
+    inst = make_instance(None, parts, shape)
+    t = rng.uniform(0, 2 * math.pi, k)
+    ends = rng.uniform(0, 500, (k, 2))
+    ax = _Axes(
+        ends=ends,
+        dirs=np.stack([np.cos(t), np.sin(t)], 1),
+        back=np.where(rng.random(k) < 0.5, math.inf, rng.uniform(5, 200, k)),
+        radius=rng.uniform(2, 15, k),
+        limit_end=ends - rng.uniform(0, 20, (k, 2)),
+        start_dirs=np.zeros((k, 2)),
+        margin=np.zeros(k),
+        head_len=rng.uniform(5, 60, k) if rng.random() < 0.5 else None,
+        keep_d2=float(rng.uniform(1, 30)) if keep else None,
+    )
+
+    def box() -> RotatedBox:
+        length = float(rng.uniform(2, 80))
+        x, y = rng.uniform(0, 600, 2)
+        return RotatedBox(
+            float(x),
+            float(y),
+            length,
+            length * float(rng.uniform(0.1, 1)),
+            float(rng.uniform(0, 180)),
+        )
+
+    expected = [
+        {"shaft": box(), **{p: box() for p in ("wrist", "clasper") if rng.random() < 0.6}}
+        for _ in range(k)
+    ]
+    anchors = [
+        HeadAnchor(
+            {p: box() for p in ("wrist", "clasper") if rng.random() < 0.5},
+            rng.uniform(0, 600, 2),
+            float(rng.uniform(5, 40)),
+        )
+        for _ in range(n_anchors)
+    ]
+    fit = SplitFit(0.5, ax, expected)
+    min_area = int(rng.choice([1, 20, 300]))
+    got = split_with_heads(BlobPixels(inst), fit, min_area, anchors)
+    want = _split_with_heads_before(BlobPixels(inst), fit, min_area, anchors)
+    if want is None:
+        assert got is None
+        return
+    assert got is not None
+    assert len(got[0]) == len(want[0]) and len(got[1]) == len(want[1])
+    for a, b in zip(got[0] + got[1], want[0] + want[1], strict=True):
+        assert _same_instance(a, b)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 5), st.integers(1, 90), st.integers(1, 90))
+def test_label_runs_are_each_labels_mask_runs(seed, nlab, h, w):
+    """kernels.split.label_runs: per label, the row runs mask_runs gives for its mask
+    (long stretches of one label, single pixels, 255 off the part)."""
+    from mistool.kernels.boxes import mask_runs
+    from mistool.kernels.split import label_runs
+
+    rng = np.random.default_rng(seed)
+    owner = rng.integers(0, nlab + 1, (h, w)).astype(np.uint8)
+    owner[owner == nlab] = 255
+    if rng.random() < 0.5:  # long runs
+        owner = np.repeat(owner[:, : max(1, w // 9)], 9, 1)[:, :w].copy()
+        w = owner.shape[1]
+    ry, rx0, rx1, n = label_runs(owner, nlab)
+    for j in range(nlab):
+        wy, wx0, wx1, wn = mask_runs(np.where(owner == j, np.uint8(1), np.uint8(0)))
+        assert n[j] == wn
+        assert np.array_equal(ry[j, :wn], wy[:wn]) and np.array_equal(rx0[j, :wn], wx0[:wn])
+        assert np.array_equal(rx1[j, :wn], wx1[:wn])

@@ -685,13 +685,79 @@ def shaft_owner(
                         _grow(bounds, lab, xa, ya, xb - 1, yb - 1)
 
 
-@kernel("uint8[:, ::1](uint8[:, ::1], int64, int64, int64, int64, int64)")
-def label_mask(owner: np.ndarray, j: int, x_lo: int, y_lo: int, x_hi: int, y_hi: int) -> np.ndarray:
-    """(y_hi - y_lo + 1, x_hi - x_lo + 1) uint8: 255 where ``owner`` is ``j`` in that
-    window, 0 elsewhere."""
-    out = np.zeros((y_hi - y_lo + 1, x_hi - x_lo + 1), np.uint8)
-    for y in range(y_lo, y_hi + 1):
-        for x in range(x_lo, x_hi + 1):
-            if owner[y, x] == j:
-                out[y - y_lo, x - x_lo] = 255
-    return out
+_RUNS = "Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))"
+
+
+@intrinsic
+def _load8(typingctx, arr, i):  # type: ignore[no-untyped-def]  # (numba's intrinsic protocol)
+    sig = types.uint64(arr, types.int64)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        word = context.get_value_type(types.uint64)
+        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), word.as_pointer())
+        return builder.load(ptr, align=1)
+
+    return sig, codegen
+
+
+#: ``load8(a, i)``: bytes ``i .. i + 7`` of a C-contiguous 1-D uint8 array as one
+#: little-endian uint64 (unaligned; the caller keeps ``i + 8`` within the array).
+load8 = cast(Callable[[np.ndarray, int], int], _load8)
+
+
+@kernel("boolean(uint8[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1])")
+def _label_runs_into(
+    owner: np.ndarray, ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: np.ndarray
+) -> bool:
+    """:func:`label_runs` into arrays of a given size; False when they are too short.
+    Eight pixels at a time where they all hold the label of the run going on."""
+    h, w = owner.shape
+    flat = owner.reshape(-1)
+    nlab, cap = ry.shape
+    for j in range(nlab):
+        n[j] = 0
+    for y in range(h):
+        base = y * w
+        v = owner[y, 0]
+        same = np.uint64(v) * _ONES
+        start = 0
+        x = 1
+        while x <= w:
+            if x + 8 <= w and load8(flat, base + x) == same:
+                x += 8
+                continue
+            u = owner[y, x] if x < w else np.uint8(255)
+            if u != v or x == w:
+                if v < nlab:
+                    k = n[v]
+                    if k == cap:
+                        return False
+                    ry[v, k] = y
+                    rx0[v, k] = start
+                    rx1[v, k] = x
+                    n[v] = k + 1
+                v = u
+                same = np.uint64(v) * _ONES
+                start = x
+            x += 1
+    return True
+
+
+@kernel(_RUNS + "(uint8[:, ::1], int64)")
+def label_runs(
+    owner: np.ndarray, nlab: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The row runs of each label ``j < nlab`` of an (h, w) label image, in raster order
+    (as :func:`mistool.kernels.boxes.mask_runs` gives them for the mask ``owner == j``):
+    ``(ry, rx0, rx1, n)``, run ``i < n[j]`` of label ``j`` covers ``rx0[j, i] <= x <
+    rx1[j, i]`` of row ``ry[j, i]``. Other values (255: off the part) have none."""
+    cap = 2 * owner.shape[0] + 16
+    n = np.zeros(nlab, np.int64)
+    while True:
+        ry = np.empty((nlab, cap), np.int32)
+        rx0 = np.empty((nlab, cap), np.int32)
+        rx1 = np.empty((nlab, cap), np.int32)
+        if _label_runs_into(owner, ry, rx0, rx1, n):
+            return ry, rx0, rx1, n
+        cap = 4 * cap

@@ -16,10 +16,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mistool.geometry import fit_of
 from mistool.kernels import split as kernels
+from mistool.kernels.boxes import fit_runs
 from mistool.kernels.split import DOT_SERIAL_MAX
 from mistool.model import InstanceObservation, PartObservation, RotatedBox
-from mistool.tracking.instances import make_instance, part_observation, unit_vector
+from mistool.tracking.instances import unit_vector
 
 __all__ = [
     "Axis",
@@ -786,46 +788,96 @@ def split_with_heads(
     an expected shaft) when they lie nearer to them, and, with one anchor, the shaft
     pixels the fit left out (``fit.axes.keep_d2``) to it: ``(pieces, head pieces)``, one
     per anchor (None: no part of at least ``min_area_px`` pixels); None when a fitted
-    instrument's piece has no shaft left."""
+    instrument's piece has no shaft left.
+
+    Each part's pixels get the index of their piece in a label image (the shaft's:
+    :func:`_shaft_owner`; a head part's: its nearest head, :func:`_part_distance`), whose
+    row runs per index are measured (Algorithm 1, :func:`_runs_parts`)."""
     inst = pixels.inst
     k = len(fit.expected)
-    pieces: list[dict[str, PartObservation]] = [{} for _ in range(k + len(anchors))]
+    n = k + len(anchors)
+    got: dict[str, list[_Measured | None]] = {}
+    if "shaft" in inst.parts:
+        owner, _ = _shaft_owner(inst.parts["shaft"], fit.axes)
+        # (shaft pixels far from every axis, index k: a lone anchor's shaft)
+        nlab = k + (len(anchors) == 1)
+        got["shaft"] = _runs_parts("shaft", owner, nlab, inst.parts["shaft"].offset, min_area_px)
+    if any(m is None for m in got.get("shaft", [None])[:k]):
+        return None
     for name, part in inst.parts.items():
-        if name == "shaft":  # the large part: a label image, no pixel lists
-            owner, bounds = _shaft_owner(part, fit.axes)
-            # (shaft pixels far from every axis, index k: a lone anchor's shaft)
-            for j in range(k + (len(anchors) == 1)):
-                x_lo, y_lo, x_hi, y_hi = bounds[j].tolist()
-                if x_hi < 0:
-                    continue
-                # the piece's window of the crop: Algorithm 1 of any window holding all
-                # its pixels is that of the whole crop
-                m = kernels.label_mask(owner, j, x_lo, y_lo, x_hi, y_hi)
-                x0, y0 = part.offset[0] + x_lo, part.offset[1] + y_lo
-                obs = part_observation(name, m, x0, y0, min_area_px)
-                if obs is not None:
-                    pieces[j][name] = obs
+        if name == "shaft":
             continue
         ys, xs, p = pixels.get(name)
         d2 = _part_distance(name, p, fit.axes, fit.expected)
         if anchors:
             d2 = np.concatenate([d2, np.stack([a.distance2(name, p) for a in anchors])])
-        owner = argmin_rows(d2)
-        for j in range(len(pieces)):
-            sel = owner == j
-            if not sel.any():
-                continue
-            m = np.zeros(part.mask.shape, np.uint8)
-            m[ys[sel], xs[sel]] = 255
-            obs = part_observation(name, m, part.offset[0], part.offset[1], min_area_px)
-            if obs is not None:
-                pieces[j][name] = obs
-    if any("shaft" not in parts for parts in pieces[:k]):
-        return None
+        owner = np.full(part.mask.shape, 255, np.uint8)
+        owner[ys, xs] = argmin_rows(d2)
+        got[name] = _runs_parts(name, owner, n, part.offset, min_area_px)
+    pieces: list[dict[str, _Measured]] = [{} for _ in range(n)]
+    for name in inst.parts:  # (the blob's order of parts)
+        for j, m in enumerate(got[name]):
+            if m is not None:
+                pieces[j][name] = m
     shape = inst.image_shape
     return (
-        [make_instance(None, parts, shape) for parts in pieces[:k]],
-        [make_instance(None, parts, shape) if parts else None for parts in pieces[k:]],
+        [_instance(parts, shape) for parts in pieces[:k]],
+        [_instance(parts, shape) if parts else None for parts in pieces[k:]],
+    )
+
+
+@dataclass(frozen=True)
+class _Measured:
+    """A piece's part measured, with its pixels' coordinate sums (its instance's
+    centroid)."""
+
+    obs: PartObservation
+    sum_x: int
+    """Sum of the pixels' full-image x, px."""
+    sum_y: int
+
+
+def _runs_parts(
+    name: str, owner: np.ndarray, nlab: int, offset: tuple[int, int], min_area_px: int
+) -> list[_Measured | None]:
+    """Part ``name`` of each piece ``j < nlab``: the pixels labelled ``j`` in ``owner``
+    (a label image of the part's crop at ``offset``), Algorithm 1 of their row runs
+    (:func:`mistool.kernels.boxes.fit_runs`: the result of
+    :func:`~mistool.tracking.instances.part_observation` on their mask), None when no
+    pixel is kept."""
+    ry, rx0, rx1, count = kernels.label_runs(owner, nlab)
+    ox, oy = int(offset[0]), int(offset[1])
+    out: list[_Measured | None] = []
+    for j, n in enumerate(count.tolist()):
+        found = fit_runs(ry[j], rx0[j], rx1[j], n, min_area_px, ox, oy) if n else None
+        fit = None if found is None else fit_of(found, (ox, oy))
+        if found is None or fit is None:
+            out.append(None)
+            continue
+        obs = PartObservation(name, fit.box, fit.corners, fit.area_px, fit.kept, fit.offset)
+        area, sx, sy = int(found[0][0]), int(found[0][3]), int(found[0][4])
+        out.append(_Measured(obs, sx + area * fit.offset[0], sy + area * fit.offset[1]))
+    return out
+
+
+def _instance(parts: dict[str, _Measured], shape: tuple[int, int] | None) -> InstanceObservation:
+    """:func:`~mistool.tracking.instances.make_instance` of measured parts: the same
+    values (its centroid's sums are exact integers in float64, so the parts' own sums
+    give its bits)."""
+    area = sum(m.obs.area_px for m in parts.values())
+    sx = sum(m.sum_x for m in parts.values())
+    sy = sum(m.sum_y for m in parts.values())
+    x0 = min(m.obs.offset[0] for m in parts.values())
+    y0 = min(m.obs.offset[1] for m in parts.values())
+    x1 = max(m.obs.offset[0] + m.obs.mask.shape[1] for m in parts.values())
+    y1 = max(m.obs.offset[1] + m.obs.mask.shape[0] for m in parts.values())
+    return InstanceObservation(
+        label=None,
+        parts={name: m.obs for name, m in parts.items()},
+        centroid_px=(float(sx) / area, float(sy) / area),
+        area_px=area,
+        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)),
+        image_shape=shape,
     )
 
 
