@@ -54,7 +54,7 @@ from mistool.sequence import (
     VideoSource,
     read_label_image,
 )
-from mistool.tracking.instances import foreground_bounds
+from mistool.tracking.instances import LabelRuns, scan_labels
 from mistool.tracking.split import border_runs
 
 #: Frames per task sent to a local worker process: enough to amortise the inter-process
@@ -157,22 +157,32 @@ def unknown_values(
     config: Config,
     lossy: bool = False,
     bounds: tuple[int, int, int, int] | None = None,
+    runs: LabelRuns | None = None,
 ) -> np.ndarray:
-    """``tracking.unknown_values``, on the values present (an 8-bit histogram is ~7x faster
-    than scanning the image in numpy), within ``bounds`` (the non-zero pixels' ``(x, y,
-    w, h)``, :func:`mistool.tracking.instances.foreground_bounds`) when given: 0 is never
-    unknown, so the pixels outside do not matter.
+    """``tracking.unknown_values``, on the values present, within ``bounds`` (the non-zero
+    pixels' ``(x, y, w, h)``, :func:`mistool.tracking.instances.foreground_bounds`) when
+    given: 0 is never unknown, so the pixels outside do not matter. An 8-bit image's
+    values are counted from its runs (:func:`mistool.tracking.instances.scan_labels`)
+    when given, else with an 8-bit histogram (~7x faster than scanning the image in
+    numpy).
 
     In a mask video (``lossy``) the codec smears values around every edge, so a value
     counts only where it covers at least ``min_area_px`` pixels of the frame, and values
     up to :data:`~mistool.sequence.VIDEO_TOLERANCE` are background."""
+    if runs is not None:
+        bounds = runs.bounds
     if bounds is not None:
         x, y, w, h = bounds
         if w == 0 or h == 0:
             return np.zeros(0, np.int64)
         labels = labels[y : y + h, x : x + w]
     if labels.dtype == np.uint8 and labels.ndim == 2:
-        hist = cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel()
+        if runs is not None:
+            from mistool.kernels.instances import value_counts
+
+            hist = value_counts(runs.rv, runs.rx0, runs.rx1, runs.n)
+        else:
+            hist = cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel()
         values = np.flatnonzero(hist >= (max(config.min_area_px, 1) if lossy else 1))
         if lossy:
             values = values[values > VIDEO_TOLERANCE]
@@ -191,16 +201,18 @@ def observe_labels(
     likely split, its pose then thrown away. Only where the work is done changes: the
     caller measures the deferred frames' instances after the identity step, with the
     same function, so the output is the same whatever ``defer_below``."""
-    bounds = foreground_bounds(labels)  # shared by the instances and the unknown values
-    instances = tracking.observe_frame(labels, config, bounds=bounds)
+    runs = scan_labels(labels)  # one pass: shared by the instances and the unknown values
+    instances = tracking.observe_frame(labels, config, runs=runs)
     shape = (int(labels.shape[0]), int(labels.shape[1]))
-    unknown = unknown_values(labels, config, lossy, bounds)
+    unknown = unknown_values(labels, config, lossy, runs=runs)
     # the identity step's border runs, here rather than in the (sequential) caller
-    runs = [border_runs(i) for i in instances] if any(i.label is None for i in instances) else None
+    runs_in = (
+        [border_runs(i) for i in instances] if any(i.label is None for i in instances) else None
+    )
     if metric and config.camera is not None and 0 < len(instances) < defer_below:
-        return FrameResult(instances, [], unknown, shape, runs=runs, deferred=True)
+        return FrameResult(instances, [], unknown, shape, runs=runs_in, deferred=True)
     metrics = [measure(inst, shape, config, metric) for inst in instances]
-    return FrameResult(instances, metrics, unknown, shape, runs=runs)
+    return FrameResult(instances, metrics, unknown, shape, runs=runs_in)
 
 
 @dataclass(frozen=True)

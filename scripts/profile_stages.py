@@ -6,8 +6,10 @@ timers wrapped around each stage's entry point (CPU time, ``time.process_time``;
 stage's own time, nested stages excluded):
 
 - decode: reading a frame's label image (``parallel._load``);
-- boxes: Algorithm 1 per part (``geometry.fit_part`` called by ``observe_frame``);
-- instances: the rest of ``observe_frame`` (masks, components, grouping);
+- boxes: Algorithm 1 per part (``instances._fit_runs`` and ``geometry.fit_part`` called
+  by ``observe_frame``);
+- instances: the rest of ``observe_frame`` (components, grouping) and the label image's
+  runs it reads (``scan_labels``: foreground bounds, runs);
 - identity: ``IdentityTracker.resolve`` (including the blob splits and the boxes of the
   split pieces): the sequential step;
 - pose: the per-frame metric pose (``parallel.measure``; also the split pieces');
@@ -89,6 +91,8 @@ def profiled_run(seq: Path, out_csv: Path, prof: cProfile.Profile | None) -> Sta
     saved = (
         parallel._load,
         instances.fit_part,
+        instances._fit_runs,
+        parallel.scan_labels,
         parallel.tracking.observe_frame,
         IdentityTracker.resolve,
         parallel.measure,
@@ -105,6 +109,8 @@ def profiled_run(seq: Path, out_csv: Path, prof: cProfile.Profile | None) -> Sta
     try:
         parallel._load = clock.wrap("decode", parallel._load)
         instances.fit_part = clock.wrap("boxes", instances.fit_part, inside="identity")
+        instances._fit_runs = clock.wrap("boxes", instances._fit_runs)
+        parallel.scan_labels = clock.wrap("instances", parallel.scan_labels)
         parallel.tracking.observe_frame = clock.wrap("instances", instances.observe_frame)
         IdentityTracker.resolve = clock.wrap("identity", resolve)  # type: ignore[method-assign]
         parallel.measure = clock.wrap("pose", parallel.measure)
@@ -116,6 +122,8 @@ def profiled_run(seq: Path, out_csv: Path, prof: cProfile.Profile | None) -> Sta
         (
             parallel._load,
             instances.fit_part,
+            instances._fit_runs,
+            parallel.scan_labels,
             parallel.tracking.observe_frame,
             IdentityTracker.resolve,
             parallel.measure,

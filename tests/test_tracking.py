@@ -624,32 +624,3 @@ def test_split_instance_takes_shafts_on_one_line_pointing_at_each_other():
     left, right = (g.parts["shaft"].box for g in got)
     assert left.cx < 360.0 < right.cx
     assert left.length == pytest.approx(right.length, abs=20.0)
-
-
-@pytest.mark.parametrize("seed", range(12))
-def test_component_counts_equal_numpys_bincount(seed: int) -> None:
-    """Per-component pixel counts of masks, in each component's bounds (few components)
-    or all at once (many): the former definition's values, ``np.bincount``."""
-    from mistool.tracking.instances import _components, component_counts, labelled_components
-
-    rng = np.random.default_rng(seed)
-    h, w = int(rng.integers(20, 90)), int(rng.integers(20, 90))
-    union = np.zeros((h, w), np.uint8)
-    for _ in range(int(rng.integers(1, 6))):
-        cv2.circle(
-            union,
-            (int(rng.integers(0, w)), int(rng.integers(0, h))),
-            int(rng.integers(2, 15)),
-            255,
-            -1,
-        )
-    specks = rng.random((h, w)) < (0.05 if seed % 2 else 0.002)  # many components, or few
-    union[specks] = 255
-    shaft = cv2.bitwise_and(union, (rng.random((h, w)) < 0.6).astype(np.uint8) * 255)
-    bridged, _, contours, hierarchy = _components(union)
-    n, cc, stats = labelled_components(bridged, contours, hierarchy)
-    got = component_counts(cc, stats, [union, shaft])
-    for mask, counts in zip([union, shaft], got, strict=True):
-        want = np.bincount(cc[mask > 0], minlength=n)
-        assert counts.dtype == want.dtype
-        np.testing.assert_array_equal(counts, want)

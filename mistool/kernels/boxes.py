@@ -158,6 +158,24 @@ def _load8_typed(typingctx: object, arr: types.Array, i: types.Integer) -> tuple
 load8: Any = intrinsic(_load8_typed)
 
 
+def _load8_bytes_typed(
+    typingctx: object, arr: types.Array, i: types.Integer
+) -> tuple[object, object]:
+    """The 8 bytes of a C-contiguous array (any dtype) from byte offset ``i``."""
+    sig = types.uint64(arr, types.int64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        base = builder.bitcast(ary.data, ir.IntType(8).as_pointer())
+        ptr = builder.bitcast(builder.gep(base, [args[1]]), ir.IntType(64).as_pointer())
+        return builder.load(ptr, align=1)
+
+    return sig, codegen
+
+
+load8_bytes: Any = intrinsic(_load8_bytes_typed)
+
+
 def _ctz_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
     """Trailing zero bits of a non-zero uint64."""
     sig = types.uint64(types.uint64)
@@ -238,14 +256,6 @@ def mask_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int
         cap = 4 * cap
 
 
-@kernel("int64(int32[::1], int64)")
-def _root(parent: np.ndarray, i: int) -> int:
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
-
-
 @kernel("int64(int32[::1], int32[::1], int32[::1], int32[::1], int64, int64)")
 def join_runs(
     ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, parent: np.ndarray, n: int, reach: int
@@ -262,19 +272,24 @@ def join_runs(
         while ry[first] < y - reach:
             first += 1
         lo, hi = rx0[i] - reach, rx1[i] - 1 + reach
-        for j in range(first, i):
-            if ry[j] == y:
-                break
+        for j in range(first, i):  # (the row's own runs too: within reach when it is > 1)
             if rx0[j] <= hi and rx1[j] - 1 >= lo:
-                a = _root(parent, i)
-                b = _root(parent, j)
-                if a != b:
-                    parent[max(a, b)] = min(a, b)
+                a = i  # the two roots (path halving), the larger joining the smaller
+                while parent[a] != a:
+                    parent[a] = parent[parent[a]]
+                    a = parent[a]
+                b = j
+                while parent[b] != b:
+                    parent[b] = parent[parent[b]]
+                    b = parent[b]
+                if a < b:
+                    parent[b] = a
+                elif b < a:
+                    parent[a] = b
     count = 0
-    for i in range(n):
-        r = _root(parent, i)
-        parent[i] = r
-        count += r == i
+    for i in range(n):  # every run's root (a root's index is below its members')
+        parent[i] = parent[parent[i]]
+        count += parent[i] == i
     return count
 
 

@@ -18,12 +18,19 @@ Two ways to tell instruments apart, chosen by the config:
 Every part's box is Algorithm 1 (:mod:`mistool.geometry`) over all of that part's pixels
 in the instance, after dropping specks smaller than ``config.min_area_px``. Everything
 here is pure and per frame (it runs in worker processes).
+
+The pixels are read once (:func:`scan_labels`: the foreground bounds, then the runs of
+equal values in them); components, their labels, bounds and pixel counts, and each
+part's Algorithm 1 come from those runs in compiled kernels
+(:mod:`mistool.kernels.instances`, :mod:`mistool.kernels.boxes`) giving what OpenCV's
+masks, ``connectedComponents`` and ``findContours`` gave, bit for bit
+(``tests/test_instances_speed.py``).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,7 +39,7 @@ import numpy as np
 
 from mistool.config import Config
 from mistool.errors import MaskFormatError
-from mistool.geometry import as_cv_labels, fit_part, range_mask
+from mistool.geometry import as_cv_labels, fit_of, fit_part
 from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
 
 __all__ = [
@@ -157,10 +164,53 @@ def part_observation(
 
 
 def _foreground(img: np.ndarray) -> tuple[int, int, int, int]:
-    """(x, y, w, h) bounds of the non-zero pixels."""
-    nz = img if img.dtype == np.uint8 else (img != 0).view(np.uint8)
-    x, y, w, h = cv2.boundingRect(nz)
+    """(x, y, w, h) bounds of the non-zero pixels of a C-contiguous image."""
+    from mistool.kernels.instances import foreground
+
+    x, y, w, h = foreground(img)
     return int(x), int(y), int(w), int(h)
+
+
+@dataclass(frozen=True)
+class LabelRuns:
+    """A label image's runs of equal non-zero values within its foreground bounds (what
+    :func:`observe_frame` and :func:`mistool.parallel.unknown_values` read instead of the
+    pixels)."""
+
+    bounds: tuple[int, int, int, int]
+    """``(x, y, w, h)`` of the non-zero pixels (:func:`foreground_bounds`)."""
+    ry: np.ndarray
+    """(>= n,) int32 run rows, relative to the bounds' top."""
+    rx0: np.ndarray
+    """(>= n,) int32 first column of each run, relative to the bounds' left."""
+    rx1: np.ndarray
+    """(>= n,) int32 column after each run's last."""
+    rv: np.ndarray
+    """(>= n,) int32 each run's value."""
+    n: int
+    """Number of runs (raster order)."""
+    shape: tuple[int, int]
+    """``(H, W)`` of the label image."""
+    dtype: np.dtype
+    """The label image's dtype as OpenCV saw it (:func:`mistool.geometry.as_cv_labels`)."""
+
+
+def scan_labels(labels: np.ndarray, bounds: tuple[int, int, int, int] | None = None) -> LabelRuns:
+    """The runs of a label image (one pass over its foreground bounds).
+
+    Raises:
+        MaskFormatError: if ``labels`` is not a 2-D integer image.
+    """
+    from mistool.kernels.instances import label_runs
+
+    img = np.ascontiguousarray(_check_labels(labels))
+    box = _foreground(img) if bounds is None else bounds
+    shape = (int(img.shape[0]), int(img.shape[1]))
+    if box[2] == 0 or box[3] == 0:
+        none = np.zeros(0, np.int32)
+        return LabelRuns(box, none, none, none, none, 0, shape, img.dtype)
+    ry, rx0, rx1, rv, n = label_runs(img, box)
+    return LabelRuns(box, ry, rx0, rx1, rv, int(n), shape, img.dtype)
 
 
 def make_instance(
@@ -197,11 +247,15 @@ def foreground_bounds(labels: np.ndarray) -> tuple[int, int, int, int]:
     Raises:
         MaskFormatError: if ``labels`` is not a 2-D integer image.
     """
-    return _foreground(_check_labels(labels))
+    return _foreground(np.ascontiguousarray(_check_labels(labels)))
 
 
 def observe_frame(
-    labels: np.ndarray, config: Config, *, bounds: tuple[int, int, int, int] | None = None
+    labels: np.ndarray,
+    config: Config,
+    *,
+    bounds: tuple[int, int, int, int] | None = None,
+    runs: LabelRuns | None = None,
 ) -> list[InstanceObservation]:
     """Every instrument in one label image, with Algorithm 1's box for each visible part.
 
@@ -212,6 +266,7 @@ def observe_frame(
             ``config.colour_masks``).
         config: part value ranges, instruments, ``min_area_px``.
         bounds: :func:`foreground_bounds` of ``labels`` when the caller has them.
+        runs: :func:`scan_labels` of ``labels`` when the caller has them.
 
     Returns:
         With ``config.instruments``: one observation per instrument that has a visible
@@ -221,127 +276,174 @@ def observe_frame(
     Raises:
         MaskFormatError: if ``labels`` is not a 2-D integer image.
     """
-    img = _check_labels(labels)
-    shape = (int(img.shape[0]), int(img.shape[1]))
-    fx, fy, fw, fh = _foreground(img) if bounds is None else bounds
-    if fw == 0 or fh == 0:
+    if runs is None:
+        runs = scan_labels(labels, bounds)
+    if runs.n == 0:  # (every part pixel is non-zero: the runs cover them all)
         return []
-    crop = img[fy : fy + fh, fx : fx + fw]  # every part pixel is non-zero: work on its bounds
     if config.instruments:
-        return _own_labels(crop, (fx, fy), shape, config)
-    return _merged(crop, (fx, fy), shape, config)
+        return _own_labels(runs, config)
+    return _merged(runs, config)
 
 
-def _own_labels(
-    crop: np.ndarray, origin: tuple[int, int], shape: tuple[int, int], config: Config
-) -> list[InstanceObservation]:
+def _value_range(rng: tuple[int, int], dtype: np.dtype) -> tuple[int, int]:
+    """A part's inclusive value range as ``range_mask`` clips it to the image's dtype
+    (empty: lo > hi)."""
+    info = np.iinfo(dtype)
+    return max(int(rng[0]), int(info.min)), min(int(rng[1]), int(info.max))
+
+
+#: ``fit_selected``'s members for runs all labelled 0: every run.
+_ALL = np.ones(1, np.bool_)
+
+
+def _fit_runs(
+    runs: LabelRuns,
+    part: str,
+    rng: tuple[int, int],
+    label: np.ndarray,
+    members: np.ndarray,
+    min_area: int,
+) -> tuple[PartObservation, int, int] | None:
+    """Algorithm 1 of the pixels of ``runs`` with a value in ``rng`` and a ``label`` among
+    ``members``: the part's observation and its pixels' sums of x - x0 and y - y0
+    (``(x0, y0)``: its crop's offset), or None when no pixel is left."""
+    from mistool.kernels.instances import fit_selected
+
+    lo, hi = _value_range(rng, runs.dtype)
+    fx, fy = runs.bounds[0], runs.bounds[1]
+    found = fit_selected(
+        runs.ry, runs.rx0, runs.rx1, runs.rv, label, runs.n, lo, hi, members, min_area, fx, fy
+    )
+    fit = fit_of(found, (fx, fy))
+    if fit is None:
+        return None
+    obs = PartObservation(
+        part=part,
+        box=fit.box,
+        corners=fit.corners,
+        area_px=fit.area_px,
+        mask=fit.kept,
+        offset=fit.offset,
+    )
+    info = found[0]
+    return obs, int(info[3]), int(info[4])
+
+
+def _instance(
+    label: str | None,
+    fits: list[tuple[PartObservation, int, int]],
+    shape: tuple[int, int],
+) -> InstanceObservation:
+    """:func:`make_instance` of part observations whose pixel sums are known."""
+    parts = {obs.part: obs for obs, _, _ in fits}
+    area = sum(obs.area_px for obs, _, _ in fits)
+    sx = sy = 0.0
+    x0 = y0 = math.inf
+    x1 = y1 = -math.inf
+    for obs, sum_x, sum_y in fits:  # (the same float operations as make_instance's)
+        sx += float(sum_x) + obs.offset[0] * obs.area_px
+        sy += float(sum_y) + obs.offset[1] * obs.area_px
+        h, w = obs.mask.shape
+        x0, y0 = min(x0, obs.offset[0]), min(y0, obs.offset[1])
+        x1, y1 = max(x1, obs.offset[0] + w), max(y1, obs.offset[1] + h)
+    return InstanceObservation(
+        label=label,
+        parts=parts,
+        centroid_px=(sx / area, sy / area),
+        area_px=area,
+        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)),
+        image_shape=shape,
+    )
+
+
+def _own_labels(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
     """One instance per config instrument with a visible part (own label values)."""
+    label = np.zeros(max(runs.n, 1), np.int32)
     out = []
     for spec in config.instruments:
-        parts: dict[str, PartObservation] = {}
+        fits = []
         for part in PARTS:
             if part in spec.parts and spec.parts[part][1] > 0:
-                mask = range_mask(crop, spec.parts[part])
-                obs = part_observation(part, mask, *origin, config.min_area_px)
-                if obs is not None:
-                    parts[part] = obs
-        if parts:
-            out.append(make_instance(spec.name, parts, shape))
+                got = _fit_runs(runs, part, spec.parts[part], label, _ALL, config.min_area_px)
+                if got is not None:
+                    fits.append(got)
+        if fits:
+            out.append(_instance(spec.name, fits, runs.shape))
     return out
 
 
-def _components(
-    union: np.ndarray,
-) -> tuple[np.ndarray, int, Sequence[np.ndarray], np.ndarray | None]:
-    """The union mask bridged over :data:`MERGE_GAP_PX` when it has several components,
-    the number of (bridged) components, and the returned mask's ``RETR_CCOMP`` contours
-    and hierarchy (outer outlines: hierarchy parent < 0)."""
-    contours, hierarchy = cv2.findContours(union, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
-    n_inst = int((hierarchy[0][:, 3] < 0).sum()) if contours else 0
-    if n_inst <= 1 or MERGE_GAP_PX <= 0:  # one connected foreground needs no bridging
-        return union, n_inst, contours, hierarchy
-    # the crop holds every foreground pixel, so no padding is needed for the gaps
-    k = 2 * MERGE_GAP_PX + 1
-    bridged = cv2.dilate(union, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
-    contours, hierarchy = cv2.findContours(bridged, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
-    return bridged, int((hierarchy[0][:, 3] < 0).sum()), contours, hierarchy
+class _LazyLabels:
+    """The component label image of the dilated union, painted when first sliced (only
+    the pixel gap between two nearby groups needs it)."""
+
+    def __init__(self, runs: LabelRuns, label: np.ndarray) -> None:
+        self._runs = runs
+        self._label = label
+        self._img: np.ndarray | None = None
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        if self._img is None:
+            from mistool.kernels.instances import paint_components
+
+            r = self._runs
+            _, _, w, h = r.bounds
+            self._img = paint_components(r.ry, r.rx0, r.rx1, self._label, r.n, w, h)
+        return self._img[key]
 
 
-def labelled_components(
-    mask: np.ndarray, contours: Sequence[np.ndarray], hierarchy: np.ndarray | None
-) -> tuple[int, np.ndarray, np.ndarray]:
-    """``cv2.connectedComponentsWithStats(mask, connectivity=8)``'s labels and the
-    (x, y, w, h) columns of its stats, several times faster.
-
-    OpenCV's statistics pass costs ~20x its labelling on our crops; the bounds come
-    instead from the mask's ``RETR_CCOMP`` outer outlines (``contours``, ``hierarchy``
-    as ``cv2.findContours`` gives them): each 8-connected component has exactly one, and
-    its bounds are the component's. Falls back to OpenCV's statistics when the outlines
-    and the labels disagree in number.
-
-    Returns:
-        ``(n, labels, stats)``: ``n`` labels (0: background), the (H, W) label image
-        (uint16, or int32 beyond 65,534 components), (n, 4) int32 bounds (row 0, the
-        background's, left zero).
-    """
-    rows = hierarchy[0] if hierarchy is not None else np.zeros((0, 4), np.int32)
-    # 16-bit labels when they fit (one outer outline per component): less to write
-    small = len(rows) < np.iinfo(np.uint16).max
-    n, cc = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_16U if small else cv2.CV_32S)
-    outer = [c for c, h in zip(contours, rows, strict=True) if h[3] < 0]
-    if len(outer) != n - 1:  # pragma: no cover - findContours and the labelling agree
-        n, cc, full, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        return n, cc, np.ascontiguousarray(full[:, :4])
-    stats = np.zeros((n, 4), np.int32)
-    for c in outer:
-        x, y = c[0, 0]
-        stats[cc[y, x]] = cv2.boundingRect(c)
-    return n, cc, stats
-
-
-def _merged(
-    crop: np.ndarray, origin: tuple[int, int], shape: tuple[int, int], config: Config
-) -> list[InstanceObservation]:
+def _merged(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
     """Instances of merged masks (see the module docstring), largest first."""
+    from mistool.kernels.instances import components
+
     min_area = config.min_area_px
     part_names = [p for p in PARTS if p in config.parts and config.parts[p][1] > 0]
     if not part_names:
         return []
-    masks = {p: range_mask(crop, config.parts[p]) for p in part_names}
-    union = masks[part_names[0]]
-    for p in part_names[1:]:
-        union = cv2.bitwise_or(union, masks[p])
-    bridged, n_inst, contours, hierarchy = _components(union)
-    if n_inst == 0:
-        return []
-    if n_inst == 1:  # one (bridged) component: everything belongs to it
-        parts = _parts_in(masks, origin, min_area)
-        if parts and sum(o.area_px for o in parts.values()) >= max(min_area, 1):
-            return [make_instance(None, parts, shape)]
-        return []
-    n, cc, stats = labelled_components(bridged, contours, hierarchy)
-    if "shaft" in masks:
-        counts, shaft_counts = component_counts(cc, stats, [union, masks["shaft"]])
-    else:
-        (counts,) = component_counts(cc, stats, [union])
-        shaft_counts = np.zeros(n, np.int64)
-    fx, fy = origin
-    border = (
-        (stats[:, 0] + fx <= 0)
-        | (stats[:, 1] + fy <= 0)
-        | (stats[:, 0] + stats[:, 2] + fx >= shape[1])
-        | (stats[:, 1] + stats[:, 3] + fy >= shape[0])
+    ranges = np.array([_value_range(config.parts[p], runs.dtype) for p in part_names], np.int64)
+    shaft = part_names.index("shaft") if "shaft" in part_names else -1
+    fx, fy, fw, fh = runs.bounds
+    shape = runs.shape
+    n, label, stats, counts, shaft_counts, border = components(
+        runs.ry,
+        runs.rx0,
+        runs.rx1,
+        runs.rv,
+        runs.n,
+        ranges,
+        shaft,
+        fx,
+        fy,
+        fw,
+        fh,
+        shape[1],
+        shape[0],
     )
+    if n == 1:
+        return []
+
+    def fits_of(members: np.ndarray) -> list[tuple[PartObservation, int, int]]:
+        fits = []
+        for p in part_names:
+            got = _fit_runs(runs, p, config.parts[p], label, members, min_area)
+            if got is not None:
+                fits.append(got)
+        return fits
+
+    if n == 2:  # one (bridged) component: everything belongs to it
+        fits = fits_of(np.ones(2, np.bool_))
+        if fits and sum(obs.area_px for obs, _, _ in fits) >= max(min_area, 1):
+            return [_instance(None, fits, shape)]
+        return []
+    memo: dict[tuple[int, ...], InstanceObservation | None] = {}
 
     def instance_of(group: list[int]) -> InstanceObservation | None:
-        x0 = min(int(stats[i, 0]) for i in group)
-        y0 = min(int(stats[i, 1]) for i in group)
-        x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
-        y1 = max(int(stats[i, 1] + stats[i, 3]) for i in group)
-        inside = member_mask(cc[y0:y1, x0:x1], group)
-        window = {p: cv2.bitwise_and(m[y0:y1, x0:x1], inside) for p, m in masks.items()}
-        parts = _parts_in(window, (fx + x0, fy + y0), min_area)
-        return make_instance(None, parts, shape) if parts else None
+        key = tuple(group)
+        if key not in memo:
+            members = np.zeros(n, np.bool_)
+            members[group] = True
+            fits = fits_of(members)
+            memo[key] = _instance(None, fits, shape) if fits else None
+        return memo[key]
 
     def on_axis(piece: list[int], targets: list[list[int]]) -> int | None:
         """The target on whose shaft's distal extension the piece lies (index), among
@@ -359,44 +461,18 @@ def _merged(
         return None if host is None else ones[host - 1][0]
 
     groups = group_components(
-        counts, shaft_counts, stats, max(min_area, 1), cc, border, prefer=on_axis
+        counts,
+        shaft_counts,
+        stats,
+        max(min_area, 1),
+        _LazyLabels(runs, label),
+        border,
+        prefer=on_axis,
     )
     found = [inst for inst in map(instance_of, groups) if inst is not None]
     found = join_by_axis(found, min_area, shape)
     found.sort(key=lambda inst: -inst.area_px)
     return found
-
-
-#: :func:`component_counts` counts each component in its own bounds up to this many
-#: components (a few cv2 calls each), beyond it all at once with numpy.
-PER_COMPONENT_COUNTS_MAX = 16
-
-
-def component_counts(
-    labels: np.ndarray, stats: np.ndarray, masks: list[np.ndarray]
-) -> list[np.ndarray]:
-    """For each mask, its non-zero pixels in each component: ``np.bincount(labels[mask >
-    0], minlength=n)``, the same values (int64), without a pass over the whole image
-    per mask when there are few components.
-
-    Args:
-        labels: (H, W) component labels (:func:`labelled_components`).
-        stats: (n, >= 4) each component's (x, y, w, h) bounds, which hold all of its
-            pixels that the masks may count.
-        masks: (H, W) uint8 masks, each non-zero only on labelled pixels.
-
-    Returns:
-        One (n,) int64 array per mask (index 0: the background's pixels are not counted).
-    """
-    n = len(stats)
-    if n - 1 > PER_COMPONENT_COUNTS_MAX:
-        return [np.bincount(labels[m > 0], minlength=n) for m in masks]
-    out = [np.zeros(n, np.int64) for _ in masks]
-    for i, (x, y, w, h) in enumerate(stats[1:, :4].tolist(), start=1):
-        inside = _compare(labels[y : y + h, x : x + w], i, cv2.CMP_EQ)
-        for k, m in enumerate(masks):
-            out[k][i] = cv2.countNonZero(cv2.bitwise_and(inside, m[y : y + h, x : x + w]))
-    return out
 
 
 def member_mask(labels: np.ndarray, members: list[int]) -> np.ndarray:
@@ -410,18 +486,6 @@ def member_mask(labels: np.ndarray, members: list[int]) -> np.ndarray:
 
 #: ``cv2.compare`` (its stubs omit the scalar second operand it accepts).
 _compare: Any = cv2.compare
-
-
-def _parts_in(
-    masks: dict[str, np.ndarray], origin: tuple[int, int], min_area: int
-) -> dict[str, PartObservation]:
-    """Part observations of part masks (crops at ``origin``), proximal to distal."""
-    parts = {}
-    for p, m in masks.items():
-        obs = part_observation(p, m, origin[0], origin[1], min_area)
-        if obs is not None:
-            parts[p] = obs
-    return parts
 
 
 class _Groups:
@@ -453,7 +517,7 @@ class _Gap:
     """Pixel gap between two groups (bounds first; pixels only when the bounds are within
     the limit), memoised while neither group grows."""
 
-    def __init__(self, groups: _Groups, cc: np.ndarray) -> None:
+    def __init__(self, groups: _Groups, cc: np.ndarray | _LazyLabels) -> None:
         self._g = groups
         self._cc = cc
         self._memo: dict[tuple[int, int, int, int, int], float] = {}
@@ -477,7 +541,7 @@ def group_components(
     shaft_counts: np.ndarray,
     stats: np.ndarray,
     min_area: int,
-    cc: np.ndarray,
+    cc: np.ndarray | _LazyLabels,
     border: np.ndarray,
     prefer: Callable[[list[int], list[list[int]]], int | None] | None = None,
 ) -> list[list[int]]:
@@ -495,7 +559,7 @@ def group_components(
         stats: (n, >= 4) component bounds (x, y, w, h), the first columns of
             ``cv2.connectedComponentsWithStats``' stats.
         min_area: specks and shafts below this many pixels.
-        cc: (H, W) component label image.
+        cc: (H, W) component label image (or one painted when first sliced).
         border: (n,) True where a component touches the image border.
         prefer: see above (``observe_frame``: the shaft whose distal extension the head
             lies on, :func:`_head_host`).
@@ -578,7 +642,12 @@ def _nearest_pair(
 
 
 def _pixel_gap(
-    cc: np.ndarray, a: list[int], b: list[int], box_a: list[int], box_b: list[int], reach: int
+    cc: np.ndarray | _LazyLabels,
+    a: list[int],
+    b: list[int],
+    box_a: list[int],
+    box_b: list[int],
+    reach: int,
 ) -> float:
     """Smallest distance (px) from a pixel labelled in ``a`` to one labelled in ``b`` in the
     component label image ``cc``, looked for within ``reach`` px of ``a``'s bounds

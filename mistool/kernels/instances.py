@@ -1,0 +1,448 @@
+"""One frame's instruments, compiled (:func:`mistool.tracking.observe_frame`): the label
+image's foreground bounds, its row runs of equal values, the instruments' connected
+components from those runs, and Algorithm 1 of a selection of them
+(:func:`mistool.kernels.boxes.fit_runs`).
+
+Each kernel gives what the OpenCV and numpy steps it replaces gave (tests compare them):
+
+- components are those of ``cv2.connectedComponents(mask, connectivity=8)`` on the
+  union of the part masks dilated by a 3x3 square (``instances.MERGE_GAP_PX``), labelled
+  in OpenCV's order: by the first 2x2 block of the image (rows 0-1, 2-3, ...; then
+  columns) that holds a pixel of the component (its block-based labelling numbers
+  provisional labels in that order and keeps the smallest of each set);
+- their bounds are ``connectedComponentsWithStats``' (x, y, w, h) of the dilated mask
+  (clipped to the image), their pixel counts those of the part masks.
+
+Runs are ``(ry, rx0, rx1, rv)``: run ``i`` covers ``rx0[i] <= x < rx1[i]`` of row
+``ry[i]``, value ``rv[i]``, in raster order, coordinates relative to the scanned window.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mistool.kernels import kernel
+from mistool.kernels.boxes import ctz, fit_runs, join_runs, load8, load8_bytes
+
+_BOUNDS = "UniTuple(int64, 4)"
+
+
+@kernel(
+    "int64(uint8[:, ::1], int64, int64)",
+    "int64(uint16[:, ::1], int64, int64)",
+    "int64(int32[:, ::1], int64, int64)",
+)
+def _first_set(img: np.ndarray, lo: int, hi: int) -> int:
+    """The first non-zero pixel among pixels ``lo`` to ``hi - 1`` (flat indices) of
+    ``img``, or -1: 64 bytes at a time, then the byte from the word's trailing zeros."""
+    size = img.itemsize
+    i, end = lo * size, hi * size
+    while i + 64 <= end:
+        word = load8_bytes(img, i) | load8_bytes(img, i + 8)
+        word |= load8_bytes(img, i + 16) | load8_bytes(img, i + 24)
+        word |= load8_bytes(img, i + 32) | load8_bytes(img, i + 40)
+        word |= load8_bytes(img, i + 48) | load8_bytes(img, i + 56)
+        if word != 0:
+            break
+        i += 64
+    while i + 8 <= end:
+        word = load8_bytes(img, i)
+        if word != 0:
+            return (i + np.int64(ctz(word) >> np.uint64(3))) // size
+        i += 8
+    flat = img.reshape(-1)
+    for j in range(i // size, hi):  # (i: a whole number of pixels from lo)
+        if flat[j] != 0:
+            return j
+    return -1
+
+
+@kernel(
+    "int64(uint8[:, ::1], int64, int64)",
+    "int64(uint16[:, ::1], int64, int64)",
+    "int64(int32[:, ::1], int64, int64)",
+)
+def _last_set(img: np.ndarray, lo: int, hi: int) -> int:
+    """The last non-zero pixel among pixels ``lo`` to ``hi - 1`` of ``img``, or -1."""
+    size = img.itemsize
+    start, i = lo * size, hi * size
+    while i - 64 >= start:
+        word = load8_bytes(img, i - 64) | load8_bytes(img, i - 56)
+        word |= load8_bytes(img, i - 48) | load8_bytes(img, i - 40)
+        word |= load8_bytes(img, i - 32) | load8_bytes(img, i - 24)
+        word |= load8_bytes(img, i - 16) | load8_bytes(img, i - 8)
+        if word != 0:
+            break
+        i -= 64
+    while i - 8 >= start:
+        word = load8_bytes(img, i - 8)
+        if word != 0:
+            k = 7
+            while (word >> np.uint64(8 * k)) & np.uint64(0xFF) == 0:
+                k -= 1
+            return (i - 8 + k) // size
+        i -= 8
+    flat = img.reshape(-1)
+    for j in range(i // size - 1, lo - 1, -1):
+        if flat[j] != 0:
+            return j
+    return -1
+
+
+@kernel(
+    _BOUNDS + "(uint8[:, ::1])",
+    _BOUNDS + "(uint16[:, ::1])",
+    _BOUNDS + "(int32[:, ::1])",
+)
+def foreground(labels: np.ndarray) -> tuple[int, int, int, int]:
+    """``(x, y, w, h)`` bounds of the non-zero pixels (``cv2.boundingRect`` of them;
+    ``(0, 0, 0, 0)`` when there is none). Rows, and the parts of rows outside the bounds
+    found so far, are searched 64 bytes at a time."""
+    h, w = labels.shape
+    first = _first_set(labels, 0, h * w)
+    if first < 0:
+        return 0, 0, 0, 0
+    y0, y1 = first // w, _last_set(labels, 0, h * w) // w
+    x0, x1 = w, -1  # first and last non-zero column found so far
+    for y in range(y0, y1 + 1):
+        first = _first_set(labels, y * w, y * w + x0)
+        if first >= 0:
+            x0 = first - y * w
+        last = _last_set(labels, y * w + x1 + 1, (y + 1) * w)
+        if last >= 0:
+            x1 = last - y * w
+    return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+
+
+_BROADCAST = np.uint64(0x0101010101010101)
+
+
+@kernel(
+    "int64(uint8[:, ::1], int64, int64, int64, int64, int32[::1], int32[::1], int32[::1], "
+    "int32[::1])"
+)
+def _runs_u8(
+    labels: np.ndarray,
+    x0: int,
+    y0: int,
+    x1: int,
+    y1: int,
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    rv: np.ndarray,
+) -> int:
+    """:func:`label_runs` of an 8-bit image into arrays of a given size (-1: too short).
+    Eight pixels at a time: a word of eight pixels of the current value is passed over;
+    otherwise the first pixel that differs is found from the word's bits."""
+    w = labels.shape[1]
+    cap = ry.shape[0]
+    n = 0
+    for y in range(y0, y1):
+        base = y * w
+        x = x0
+        start = x0
+        v = labels[y, x0]
+        while True:
+            if x + 8 <= x1:
+                diff = load8(labels, base + x) ^ (np.uint64(v) * _BROADCAST)
+                if diff == 0:
+                    x += 8
+                    continue
+                x += np.int64(ctz(diff) >> np.uint64(3))
+            else:
+                while x < x1 and labels[y, x] == v:
+                    x += 1
+            if v != 0:  # the run of v ends at x
+                if n == cap:
+                    return -1
+                ry[n] = y - y0
+                rx0[n] = start - x0
+                rx1[n] = x - x0
+                rv[n] = v
+                n += 1
+            if x >= x1:
+                break
+            start = x
+            v = labels[y, x]
+    return n
+
+
+@kernel(
+    "int64(uint16[:, ::1], int64, int64, int64, int64, int32[::1], int32[::1], int32[::1], "
+    "int32[::1])",
+    "int64(int32[:, ::1], int64, int64, int64, int64, int32[::1], int32[::1], int32[::1], "
+    "int32[::1])",
+)
+def _runs_any(
+    labels: np.ndarray,
+    x0: int,
+    y0: int,
+    x1: int,
+    y1: int,
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    rv: np.ndarray,
+) -> int:
+    """:func:`label_runs` of a 16- or 32-bit image, a pixel at a time."""
+    cap = ry.shape[0]
+    n = 0
+    for y in range(y0, y1):
+        start = x0
+        v = labels[y, x0]
+        for x in range(x0 + 1, x1 + 1):
+            if x < x1 and labels[y, x] == v:
+                continue
+            if v != 0:
+                if n == cap:
+                    return -1
+                ry[n] = y - y0
+                rx0[n] = start - x0
+                rx1[n] = x - x0
+                rv[n] = v
+                n += 1
+            if x < x1:
+                start = x
+                v = labels[y, x]
+    return n
+
+
+def label_runs(
+    labels: np.ndarray, bounds: tuple[int, int, int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """The runs of equal non-zero values of ``labels`` (2-D C-contiguous uint8, uint16
+    or int32) within ``bounds`` = (x, y, w, h): ``(ry, rx0, rx1, rv, n)``, coordinates
+    relative to (x, y)."""
+    x, y, w, h = bounds
+    runs = _runs_u8 if labels.dtype == np.uint8 else _runs_any
+    cap = 4 * h + 64
+    while True:
+        ry = np.empty(cap, np.int32)
+        rx0 = np.empty(cap, np.int32)
+        rx1 = np.empty(cap, np.int32)
+        rv = np.empty(cap, np.int32)
+        n = runs(labels, x, y, x + w, y + h, ry, rx0, rx1, rv)
+        if n >= 0:
+            return ry, rx0, rx1, rv, n
+        cap *= 4
+
+
+@kernel("int64[::1](int32[::1], int32[::1], int32[::1], int64)")
+def value_counts(rv: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int) -> np.ndarray:
+    """Pixels per value 0..255 of ``n`` runs of 8-bit values."""
+    hist = np.zeros(256, np.int64)
+    for i in range(n):
+        hist[rv[i]] += rx1[i] - rx0[i]
+    return hist
+
+
+@kernel(
+    "int64(int32[::1], int32[::1], int32[::1], int32[::1], int64, int64[:, ::1], int64[::1], "
+    "int32[::1], int32[::1], int32[::1])"
+)
+def _union_runs(
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    rv: np.ndarray,
+    n: int,
+    ranges: np.ndarray,
+    of_run: np.ndarray,
+    uy: np.ndarray,
+    ux0: np.ndarray,
+    ux1: np.ndarray,
+) -> int:
+    """The runs of the union of the part masks (value runs with a value in one of
+    ``ranges``, adjacent ones of a row merged) into ``uy, ux0, ux1``; ``of_run`` gets
+    each value run's union run (-1: none); returns their number."""
+    m = 0
+    for i in range(n):
+        of_run[i] = -1
+        inside = False
+        for p in range(ranges.shape[0]):
+            if ranges[p, 0] <= rv[i] <= ranges[p, 1]:
+                inside = True
+        if not inside:
+            continue
+        if m > 0 and uy[m - 1] == ry[i] and ux1[m - 1] == rx0[i]:
+            ux1[m - 1] = rx1[i]
+        else:
+            uy[m], ux0[m], ux1[m] = ry[i], rx0[i], rx1[i]
+            m += 1
+        of_run[i] = m - 1
+    return m
+
+
+@kernel("void(int32[::1], int32[::1], int32[::1], int32[::1], int64, int64, int32[::1])")
+def _opencv_labels(
+    uy: np.ndarray,
+    ux0: np.ndarray,
+    ux1: np.ndarray,
+    parent: np.ndarray,
+    m: int,
+    count: int,
+    of_root: np.ndarray,
+) -> None:
+    """``of_root[r]``: the label 1..count ``cv2.connectedComponents`` gives the dilated
+    component of root run ``r``: components in the order of their first 2x2 block (row
+    pair, then column). A union run of row y lights rows y - 1 .. y + 1, columns
+    x0 - 1 .. x1 (clipped at 0)."""
+    block_row = np.full(max(m, 1), 1 << 40, np.int64)  # per root
+    for j in range(m):
+        r = parent[j]
+        block_row[r] = min(block_row[r], max(uy[j] - 1, 0) // 2)
+    key = np.full(max(m, 1), 1 << 62, np.int64)
+    for j in range(m):
+        r = parent[j]
+        k = block_row[r]  # rows 2k, 2k + 1 of the dilated component: union rows 2k-1..2k+2
+        if 2 * k - 1 <= uy[j] <= 2 * k + 2:
+            key[r] = min(key[r], k * (1 << 32) + max(ux0[j] - 1, 0) // 2)
+    roots = np.empty(count, np.int64)
+    c = 0
+    for j in range(m):
+        if parent[j] == j:
+            roots[c] = j
+            c += 1
+    order = np.argsort(key[roots])
+    for t in range(count):
+        of_root[roots[order[t]]] = t + 1
+
+
+_COMPONENTS = "Tuple((int64, int32[::1], int32[:, ::1], int64[::1], int64[::1], boolean[::1]))"
+
+
+@kernel(
+    _COMPONENTS + "(int32[::1], int32[::1], int32[::1], int32[::1], int64, int64[:, ::1], "
+    "int64, int64, int64, int64, int64, int64, int64)"
+)
+def components(
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    rv: np.ndarray,
+    n: int,
+    ranges: np.ndarray,
+    shaft: int,
+    fx: int,
+    fy: int,
+    fw: int,
+    fh: int,
+    img_w: int,
+    img_h: int,
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The instruments' components of a window's value runs (merged masks): the part
+    pixels (values in any of ``ranges``, (P, 2) inclusive) bridged over one background
+    pixel (8-connected once dilated by a 3x3 square), labelled 1.. in OpenCV's order.
+
+    Args:
+        ry, rx0, rx1, rv, n: the window's value runs (:func:`label_runs`).
+        ranges: (P, 2) inclusive part value ranges.
+        shaft: index in ``ranges`` of the shaft's (-1: none).
+        fx, fy, fw, fh: the window (x, y, w, h) in the image.
+        img_w, img_h: the image's size (its border).
+
+    Returns:
+        ``(count, label, stats, counts, shaft_counts, border)``: ``count`` components
+        + 1 (the background, label 0); ``label``: each value run's component (0: a value
+        of no part); ``stats``: (count, 4) (x, y, w, h) bounds of each dilated
+        component in the window (row 0 zero); ``counts`` / ``shaft_counts``: part /
+        shaft pixels per component; ``border``: the component touches the image border.
+    """
+    size = max(n, 1)
+    of_run = np.empty(size, np.int64)
+    uy = np.empty(size, np.int32)
+    ux0 = np.empty(size, np.int32)
+    ux1 = np.empty(size, np.int32)
+    m = _union_runs(ry, rx0, rx1, rv, n, ranges, of_run, uy, ux0, ux1)
+    parent = np.empty(max(m, 1), np.int32)
+    count = join_runs(uy, ux0, ux1, parent, m, 3)  # 3: 8-connected once dilated
+    of_root = np.zeros(max(m, 1), np.int32)
+    _opencv_labels(uy, ux0, ux1, parent, m, count, of_root)
+    lo = np.full((count + 1, 2), 1 << 40, np.int64)  # x0, y0 of each dilated component
+    hi = np.full((count + 1, 2), -(1 << 40), np.int64)  # x1, y1 (inclusive)
+    counts = np.zeros(count + 1, np.int64)
+    for j in range(m):
+        t = of_root[parent[j]]
+        lo[t, 0] = min(lo[t, 0], ux0[j] - 1)
+        lo[t, 1] = min(lo[t, 1], uy[j] - 1)
+        hi[t, 0] = max(hi[t, 0], ux1[j])
+        hi[t, 1] = max(hi[t, 1], uy[j] + 1)
+        counts[t] += ux1[j] - ux0[j]
+    stats = np.zeros((count + 1, 4), np.int32)
+    border = np.zeros(count + 1, np.bool_)
+    for t in range(1, count + 1):
+        xa, ya = max(lo[t, 0], 0), max(lo[t, 1], 0)
+        xb, yb = min(hi[t, 0], fw - 1), min(hi[t, 1], fh - 1)
+        stats[t, 0], stats[t, 1] = xa, ya
+        stats[t, 2], stats[t, 3] = xb - xa + 1, yb - ya + 1
+        border[t] = xa + fx <= 0 or ya + fy <= 0 or xb + 1 + fx >= img_w or yb + 1 + fy >= img_h
+    label = np.zeros(size, np.int32)
+    shaft_counts = np.zeros(count + 1, np.int64)
+    for i in range(n):
+        if of_run[i] >= 0:
+            t = of_root[parent[of_run[i]]]
+            label[i] = t
+            if shaft >= 0 and ranges[shaft, 0] <= rv[i] <= ranges[shaft, 1]:
+                shaft_counts[t] += rx1[i] - rx0[i]
+    return count + 1, label, stats, counts, shaft_counts, border
+
+
+_FIT = "Tuple((int64[::1], boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
+
+
+@kernel(
+    _FIT + "(int32[::1], int32[::1], int32[::1], int32[::1], int32[::1], int64, int64, int64, "
+    "boolean[::1], int64, int64, int64)"
+)
+def fit_selected(
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    rv: np.ndarray,
+    label: np.ndarray,
+    n: int,
+    lo: int,
+    hi: int,
+    members: np.ndarray,
+    min_area: int,
+    ox: int,
+    oy: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`mistool.kernels.boxes.fit_runs` of the pixels of the value runs whose
+    value lies in ``[lo, hi]`` and whose ``label`` is one of ``members`` (True at the
+    labels wanted; ``members[0]`` with every ``label`` 0 takes all): one part of one
+    instance. Adjacent selected runs of a row are merged first."""
+    sy = np.empty(max(n, 1), np.int32)
+    sx0 = np.empty(max(n, 1), np.int32)
+    sx1 = np.empty(max(n, 1), np.int32)
+    m = 0
+    for i in range(n):
+        if lo <= rv[i] <= hi and members[label[i]]:
+            if m > 0 and sy[m - 1] == ry[i] and sx1[m - 1] == rx0[i]:
+                sx1[m - 1] = rx1[i]
+            else:
+                sy[m], sx0[m], sx1[m] = ry[i], rx0[i], rx1[i]
+                m += 1
+    return fit_runs(sy, sx0, sx1, m, min_area, ox, oy)
+
+
+@kernel("int32[:, ::1](int32[::1], int32[::1], int32[::1], int32[::1], int64, int64, int64)")
+def paint_components(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, label: np.ndarray, n: int, w: int, h: int
+) -> np.ndarray:
+    """The (h, w) image of the dilated components (:func:`components`' labels): each
+    labelled run's pixels and their 8 neighbours get its label (the label image
+    ``cv2.connectedComponents`` gave of the dilated union)."""
+    out = np.zeros((h, w), np.int32)
+    flat = out.reshape(-1)
+    for i in range(n):
+        t = label[i]
+        if t == 0:
+            continue
+        a, b = max(rx0[i] - 1, 0), min(rx1[i] + 1, w)
+        for y in range(max(ry[i] - 1, 0), min(ry[i] + 2, h)):
+            row = y * w
+            for x in range(np.uint64(row + a), np.uint64(row + b)):
+                flat[x] = t
+    return out

@@ -1,0 +1,400 @@
+"""One frame's instruments from the label image's runs (mistool.kernels.instances) equal
+the OpenCV mask pipeline they replace, bit for bit (issue 13: the workers' per-frame
+cost): foreground bounds, runs, components and their OpenCV labels, Algorithm 1 of a
+selection of runs, and every instance observe_frame returns."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mistool.config import Config, InstrumentSpec
+from mistool.geometry import fit_part, range_mask
+from mistool.kernels.instances import (
+    components,
+    fit_selected,
+    foreground,
+    label_runs,
+    paint_components,
+)
+from mistool.model import InstanceObservation, PartObservation
+from mistool.tracking import instances
+from mistool.tracking.instances import (
+    MERGE_GAP_PX,
+    _head_host,
+    _one_shaft,
+    group_components,
+    join_by_axis,
+    make_instance,
+    member_mask,
+    observe_frame,
+    part_observation,
+    scan_labels,
+)
+
+DTYPES = [np.uint8, np.uint16, np.int32]
+
+
+def _label_image(rng: np.random.Generator, dtype: type, values: Sequence[int]) -> np.ndarray:
+    """Tools drawn as thick lines of one value with heads of others, specks, gaps cut
+    by thin background lines (occluders), sometimes noise; any size (widths not a
+    multiple of 8 too)."""
+    h, w = int(rng.integers(1, 140)), int(rng.integers(1, 140))
+    img = np.zeros((h, w), np.int32)
+    if rng.random() < 0.15:
+        img[rng.random((h, w)) < rng.uniform(0, 0.5)] = int(rng.choice(values))
+        return img.astype(dtype)
+    for _ in range(int(rng.integers(0, 5))):
+        a, b = rng.integers(-20, 160, 2), rng.integers(-20, 160, 2)
+        value = int(rng.choice(values))
+        cv2.line(
+            img, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), value, int(rng.integers(1, 22))
+        )
+        head = int(rng.choice(values))
+        cv2.circle(img, (int(b[0]), int(b[1])), int(rng.integers(1, 14)), head, -1)
+    for _ in range(int(rng.integers(0, 3))):  # occluders: thin background lines
+        a, b = rng.integers(-20, 160, 2), rng.integers(-20, 160, 2)
+        cv2.line(img, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 0, int(rng.integers(1, 4)))
+    for _ in range(int(rng.integers(0, 12))):
+        img[int(rng.integers(0, h)), int(rng.integers(0, w))] = int(rng.choice(values))
+    return img.astype(dtype)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(DTYPES))
+def test_foreground_is_opencvs_bounding_rect(seed, dtype):
+    rng = np.random.default_rng(seed)
+    img = np.zeros((int(rng.integers(1, 90)), int(rng.integers(1, 90))), dtype)
+    for _ in range(int(rng.integers(0, 5))):
+        y, x = int(rng.integers(0, img.shape[0])), int(rng.integers(0, img.shape[1]))
+        img[y, x] = int(rng.integers(1, 200)) * (
+            1 if dtype != np.int32 or rng.random() < 0.5 else -1
+        )
+    want = cv2.boundingRect((img != 0).astype(np.uint8))
+    assert foreground(img) == tuple(want)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(DTYPES))
+def test_label_runs_are_the_images_runs_of_equal_values(seed, dtype):
+    rng = np.random.default_rng(seed)
+    img = _label_image(rng, dtype, [1, 2, 3, 70, 160, 255])
+    bounds = foreground(img)
+    ry, rx0, rx1, rv, n = label_runs(img, bounds)
+    x, y, w, h = bounds
+    got = np.zeros((h, w), np.int64)
+    for i in range(n):
+        assert rx0[i] < rx1[i] and rv[i] != 0
+        assert not got[ry[i], rx0[i] : rx1[i]].any()
+        got[ry[i], rx0[i] : rx1[i]] = rv[i]
+        if rx1[i] < w:  # maximal: the next pixel has another value
+            assert img[y + ry[i], x + rx1[i]] != rv[i]
+        if rx0[i] > 0:
+            assert img[y + ry[i], x + rx0[i] - 1] != rv[i]
+    assert np.array_equal(got, img[y : y + h, x : x + w].astype(np.int64))
+    keys = ry[:n].astype(np.int64) * 10**6 + rx0[:n]
+    assert np.all(np.diff(keys) > 0)  # raster order
+
+
+def _components_before(crop: np.ndarray, ranges: np.ndarray) -> tuple:
+    """The former definition: part masks by ``range_mask``, their union dilated by a 3x3
+    square, ``cv2.connectedComponentsWithStats`` (labels, bounds), pixel counts by
+    ``np.bincount``."""
+    masks = [range_mask(crop, (int(lo), int(hi))) for lo, hi in ranges]
+    union = masks[0]
+    for m in masks[1:]:
+        union = cv2.bitwise_or(union, m)
+    k = 2 * MERGE_GAP_PX + 1
+    bridged = cv2.dilate(union, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    n, cc, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
+    counts = np.bincount(cc[union > 0], minlength=n)
+    shaft_counts = np.bincount(cc[masks[0] > 0], minlength=n)
+    return n, cc, stats[:, :4], counts, shaft_counts, union
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(DTYPES), st.integers(1, 2))
+def test_components_equal_opencvs_labels_bounds_and_counts(seed, dtype, threads):
+    """Labels in OpenCV's order (its block-based labelling's: single- or multi-threaded),
+    bounds of the dilated components, part and shaft pixels per component, the border."""
+    rng = np.random.default_rng(seed)
+    img = _label_image(rng, dtype, [10, 20, 30, 99])  # 99: a value of no part
+    ranges = np.array([[10, 10], [20, 20], [30, 30]], np.int64)
+    bounds = foreground(img)
+    x, y, w, h = bounds
+    if w == 0:
+        return
+    ry, rx0, rx1, rv, n = label_runs(img, bounds)
+    got_n, label, stats, counts, shaft_counts, border = components(
+        ry, rx0, rx1, rv, n, ranges, 0, x, y, w, h, img.shape[1], img.shape[0]
+    )
+    crop = img[y : y + h, x : x + w]
+    saved = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    try:
+        want_n, cc, want_stats, want_counts, want_shaft, union = _components_before(crop, ranges)
+    finally:
+        cv2.setNumThreads(saved)
+    if not union.any():
+        assert got_n == 1
+        return
+    assert got_n == want_n
+    assert np.array_equal(stats[1:], want_stats[1:]) and not stats[0].any()
+    assert np.array_equal(counts, want_counts) and np.array_equal(shaft_counts, want_shaft)
+    touch = (
+        (want_stats[:, 0] + x <= 0)
+        | (want_stats[:, 1] + y <= 0)
+        | (want_stats[:, 0] + want_stats[:, 2] + x >= img.shape[1])
+        | (want_stats[:, 1] + want_stats[:, 3] + y >= img.shape[0])
+    )
+    assert np.array_equal(border[1:], touch[1:])
+    for i in range(n):  # each run's label is OpenCV's at its pixels (0: not a part value)
+        want = cc[ry[i], rx0[i]] if union[ry[i], rx0[i]] else 0
+        assert label[i] == want
+    assert np.array_equal(paint_components(ry, rx0, rx1, label, n, w, h), cc.astype(np.int32))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 20, 300]))
+def test_fit_of_selected_runs_is_fit_part_of_their_pixels(seed, min_area):
+    """Algorithm 1 of the runs of some labels and a value range is fit_part of the mask
+    of their pixels (fit_part itself is checked against OpenCV in test_geometry)."""
+    from mistool.geometry import fit_of
+
+    rng = np.random.default_rng(seed)
+    img = _label_image(rng, np.uint8, [10, 11, 20, 30])
+    bounds = foreground(img)
+    x, y, w, h = bounds
+    if w == 0:
+        return
+    ry, rx0, rx1, rv, n = label_runs(img, bounds)
+    label = rng.integers(0, 4, max(n, 1)).astype(np.int32)
+    members = rng.random(4) < 0.6
+    lo, hi = (
+        (10, 11) if rng.random() < 0.5 else (int(rng.integers(0, 40)), int(rng.integers(0, 40)))
+    )
+    mask = np.zeros((h, w), np.uint8)
+    for i in range(n):
+        if lo <= rv[i] <= hi and members[label[i]]:
+            mask[ry[i], rx0[i] : rx1[i]] = 255
+    offset = (x, y)
+    found = fit_selected(ry, rx0, rx1, rv, label, n, lo, hi, members, min_area, *offset)
+    got, want = fit_of(found, offset), fit_part(mask, min_area, offset)
+    if want is None:
+        assert got is None
+        return
+    assert got is not None and got.box == want.box
+    assert np.array_equal(got.corners, want.corners) and got.area_px == want.area_px
+    assert got.offset == want.offset and np.array_equal(got.kept, want.kept)
+    ys, xs = np.nonzero(got.kept)
+    assert (found[0][3], found[0][4]) == (xs.sum(), ys.sum())
+
+
+# --- observe_frame against the former mask pipeline (commit 3307ee1) ------------------------
+
+
+def _labelled_components_before(
+    mask: np.ndarray, contours: Sequence[np.ndarray], hierarchy: np.ndarray | None
+) -> tuple[int, np.ndarray, np.ndarray]:
+    rows = hierarchy[0] if hierarchy is not None else np.zeros((0, 4), np.int32)
+    n, cc = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_16U)
+    outer = [c for c, h in zip(contours, rows, strict=True) if h[3] < 0]
+    assert len(outer) == n - 1
+    stats = np.zeros((n, 4), np.int32)
+    for c in outer:
+        x, y = c[0, 0]
+        stats[cc[y, x]] = cv2.boundingRect(c)
+    return n, cc, stats
+
+
+def _merged_before(
+    crop: np.ndarray, origin: tuple[int, int], shape: tuple[int, int], config: Config
+) -> list[InstanceObservation]:
+    """``instances._merged`` as it was: masks, contours, OpenCV's components."""
+    min_area = config.min_area_px
+    part_names = [p for p in ("shaft", "wrist", "clasper") if p in config.parts]
+    masks = {p: range_mask(crop, config.parts[p]) for p in part_names}
+    union = masks[part_names[0]]
+    for p in part_names[1:]:
+        union = cv2.bitwise_or(union, masks[p])
+    contours, hierarchy = cv2.findContours(union, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    n_inst = int((hierarchy[0][:, 3] < 0).sum()) if contours else 0
+    bridged = union
+    if n_inst > 1:
+        k = 2 * MERGE_GAP_PX + 1
+        bridged = cv2.dilate(union, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+        contours, hierarchy = cv2.findContours(bridged, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+        n_inst = int((hierarchy[0][:, 3] < 0).sum())
+    if n_inst == 0:
+        return []
+
+    def parts_in(window: dict[str, np.ndarray], x0: int, y0: int) -> dict[str, PartObservation]:
+        parts = {}
+        for p, m in window.items():
+            obs = part_observation(p, m, x0, y0, min_area)
+            if obs is not None:
+                parts[p] = obs
+        return parts
+
+    if n_inst == 1:
+        parts = parts_in(masks, *origin)
+        if parts and sum(o.area_px for o in parts.values()) >= max(min_area, 1):
+            return [make_instance(None, parts, shape)]
+        return []
+    n, cc, stats = _labelled_components_before(bridged, contours, hierarchy)
+    counts = np.bincount(cc[union > 0], minlength=n)
+    shaft_counts = np.bincount(cc[masks["shaft"] > 0], minlength=n)
+    fx, fy = origin
+    border = (
+        (stats[:, 0] + fx <= 0)
+        | (stats[:, 1] + fy <= 0)
+        | (stats[:, 0] + stats[:, 2] + fx >= shape[1])
+        | (stats[:, 1] + stats[:, 3] + fy >= shape[0])
+    )
+
+    def instance_of(group: list[int]) -> InstanceObservation | None:
+        x0 = min(int(stats[i, 0]) for i in group)
+        y0 = min(int(stats[i, 1]) for i in group)
+        x1 = max(int(stats[i, 0] + stats[i, 2]) for i in group)
+        y1 = max(int(stats[i, 1] + stats[i, 3]) for i in group)
+        inside = member_mask(cc[y0:y1, x0:x1], group)
+        window = {p: cv2.bitwise_and(m[y0:y1, x0:x1], inside) for p, m in masks.items()}
+        parts = parts_in(window, fx + x0, fy + y0)
+        return make_instance(None, parts, shape) if parts else None
+
+    def on_axis(piece: list[int], targets: list[list[int]]) -> int | None:
+        head = instance_of(piece)
+        if head is None:
+            return None
+        ones = [(k, i) for k, g in enumerate(targets) if (i := instance_of(g)) and _one_shaft(i)]
+        host = _head_host(head, [head] + [i for _, i in ones], 0, shape) if ones else None
+        return None if host is None else ones[host - 1][0]
+
+    groups = group_components(
+        counts, shaft_counts, stats, max(min_area, 1), cc, border, prefer=on_axis
+    )
+    found = [inst for inst in map(instance_of, groups) if inst is not None]
+    found = join_by_axis(found, min_area, shape)
+    found.sort(key=lambda inst: -inst.area_px)
+    return found
+
+
+def _observe_before(labels: np.ndarray, config: Config) -> list[InstanceObservation]:
+    img = instances._check_labels(labels)
+    shape = (int(img.shape[0]), int(img.shape[1]))
+    x, y, w, h = cv2.boundingRect(img if img.dtype == np.uint8 else (img != 0).view(np.uint8))
+    if w == 0:
+        return []
+    crop = img[y : y + h, x : x + w]
+    if not config.instruments:
+        return _merged_before(crop, (x, y), shape, config)
+    out = []
+    for spec in config.instruments:
+        parts = {}
+        for part in ("shaft", "wrist", "clasper"):
+            if part in spec.parts and spec.parts[part][1] > 0:
+                obs = part_observation(
+                    part, range_mask(crop, spec.parts[part]), x, y, config.min_area_px
+                )
+                if obs is not None:
+                    parts[part] = obs
+        if parts:
+            out.append(make_instance(spec.name, parts, shape))
+    return out
+
+
+def _bits(values: object) -> list[int]:
+    return np.asarray(values, np.float64).view(np.int64).tolist()
+
+
+def _key(inst: InstanceObservation) -> tuple:
+    parts = [
+        (
+            name,
+            _bits(dataclasses.astuple(p.box)),
+            _bits(p.corners),
+            p.area_px,
+            p.offset,
+            p.mask.dtype.str,
+            p.mask.shape,
+            p.mask.tobytes(),
+        )
+        for name, p in inst.parts.items()
+    ]
+    return (
+        inst.label,
+        parts,
+        _bits(inst.centroid_px),
+        inst.area_px,
+        inst.bbox_xywh,
+        inst.image_shape,
+    )
+
+
+MERGED = Config(
+    labels="endovis17", parts={"shaft": (10, 10), "wrist": (20, 20), "clasper": (30, 30)}
+)
+OWN = Config(
+    parts={},
+    instruments=(
+        InstrumentSpec("a", {"shaft": (10, 11), "clasper": (30, 30)}),
+        InstrumentSpec("b", {"shaft": (40, 40), "wrist": (20, 20), "clasper": (50, 60)}),
+    ),
+)
+
+
+@settings(max_examples=250, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.sampled_from(DTYPES),
+    st.sampled_from([0, 1, 20, 150]),
+    st.booleans(),
+)
+def test_observe_frame_equals_the_former_mask_pipeline(seed, dtype, min_area, own):
+    """Every instance (boxes and corners to the last bit, masks, offsets, centroids,
+    order): tools, heads, specks, occluder cuts, values of no part; merged masks and
+    instruments with their own values."""
+    rng = np.random.default_rng(seed)
+    if own:
+        config = dataclasses.replace(OWN, min_area_px=min_area)
+        values = [10, 11, 20, 30, 40, 50, 55, 60, 99]
+    else:
+        config = dataclasses.replace(MERGED, min_area_px=min_area)
+        values = [10, 10, 10, 20, 30, 99]
+    img = _label_image(rng, dtype, values)
+    want = [_key(i) for i in _observe_before(img, config)]
+    got = [_key(i) for i in observe_frame(img, config)]
+    assert got == want
+    runs = scan_labels(img)
+    assert [_key(i) for i in observe_frame(img, config, runs=runs)] == want
+
+
+def test_the_pixel_gap_reads_the_painted_component_image_only_when_needed():
+    """Two heads far apart: no pixel gap asked, the component image is never painted;
+    near: painted once."""
+    img = np.zeros((200, 300), np.uint8)
+    cv2.line(img, (10, 100), (120, 100), 10, 9)
+    cv2.circle(img, (126, 100), 4, 30, -1)  # a head one pixel gap away is bridged
+    cv2.circle(img, (280, 20), 5, 30, -1)  # far away: its own instance
+    cv2.circle(img, (150, 110), 4, 20, -1)  # within reach: the gap is measured
+    config = dataclasses.replace(MERGED, min_area_px=5)
+    want = [_key(i) for i in _observe_before(img, config)]
+    painted = []
+    original = instances._LazyLabels.__getitem__
+
+    def spy(self, key):  # type: ignore[no-untyped-def]
+        painted.append(self._img is None)
+        return original(self, key)
+
+    instances._LazyLabels.__getitem__ = spy  # type: ignore[method-assign]
+    try:
+        got = [_key(i) for i in observe_frame(img, config)]
+    finally:
+        instances._LazyLabels.__getitem__ = original  # type: ignore[method-assign]
+    assert got == want
+    assert painted and painted[0] and not any(painted[1:])
