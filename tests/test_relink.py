@@ -132,6 +132,20 @@ def test_a_piece_farther_than_an_occluder_or_beside_a_shaft_is_no_fragment():
         assert set(out[out["frame"] == 0]["instrument"]) == {"1", "2"}, with_shaft
 
 
+def test_jaws_cut_off_past_a_tools_wrist_are_that_tools():
+    """Held-out seed 7, frame 29: a tool showing its shaft and wrist, its jaws cut off by
+    an occluder and named apart for one frame, 50 px on beyond the wrist along the shaft:
+    the tool's. The same piece off to the side of the tool keeps its name."""
+    for dy, absorbed in ((0.0, True), (80.0, False)):
+        rows = []
+        for f in range(12):
+            rows.append(_row(f, "1", "shaft", 560.0, 100.0, 290.0, 40.0))
+            rows.append(_row(f, "1", "wrist", 400.0, 100.0, 30.0, 20.0))
+        rows.append(_row(0, "2", "clasper", 335.0, 100.0 + dy, 40.0, 12.0))
+        out = relink(_table(rows), 25.0)
+        assert (set(out[out["frame"] == 0]["instrument"]) == {"1"}) == absorbed, dy
+
+
 def test_a_tool_back_farther_than_the_online_search_gets_its_name_back():
     """A tool leaves the view at the right border and comes back 46 frames later with its
     shaft entering 150 px lower (four-tool leaving-view seeds 4 and 5: a new name, 80.3 /

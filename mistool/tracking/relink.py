@@ -186,8 +186,8 @@ def _absorb_fragments(rows: _Rows, tracklets: list[_Tracklet]) -> None:
         for k in np.flatnonzero(hosts):
             o = tracklets[k]
             during = o.rows[(rows.frame[o.rows] >= t.first) & (rows.frame[o.rows] <= t.last)]
-            if (rows.part[during] == "shaft").any():
-                continue  # not a head entering the view (a cut-off head joins its shaft)
+            if (rows.part[during] == "shaft").any() and not _beyond_head(rows, t, during):
+                continue  # a tool beside it, not its head cut off
             gap = max(
                 _frame_gap(rows, t.rows[rows.frame[t.rows] == f], during[rows.frame[during] == f])
                 for f in t.frames
@@ -196,6 +196,33 @@ def _absorb_fragments(rows: _Rows, tracklets: list[_Tracklet]) -> None:
                 best = (gap, o)
         if best is not None:
             t.host = best[1]
+
+
+#: A piece lies beyond a tool's head when the direction from the tool's head to it is
+#: within this angle (deg) of the tool's shaft direction (distal).
+BEYOND_HEAD_DEG = 30.0
+
+
+def _beyond_head(rows: _Rows, t: _Tracklet, host: np.ndarray) -> bool:
+    """Whether, in each of its frames, the piece ``t`` shows only parts the tool's rows
+    ``host`` lack there and lies beyond the tool's head along its shaft (a head cut off
+    by an occluder past the tool's wrist)."""
+    for f in t.frames:
+        mine = t.rows[rows.frame[t.rows] == f]
+        theirs = host[rows.frame[host] == f]
+        if np.isin(rows.part[mine], rows.part[theirs]).any():
+            return False
+        shaft = theirs[rows.part[theirs] == "shaft"]
+        head = theirs[rows.part[theirs] != "shaft"]
+        if len(shaft) == 0 or len(head) == 0:
+            return False
+        hc = np.average(rows.xy[head], axis=0, weights=np.maximum(rows.area[head], 1.0))
+        distal = hc - rows.xy[shaft[0]]
+        ahead = np.average(rows.xy[mine], axis=0, weights=np.maximum(rows.area[mine], 1.0)) - hc
+        cos = float(distal @ ahead) / max(float(np.hypot(*distal) * np.hypot(*ahead)), 1e-9)
+        if cos < math.cos(math.radians(BEYOND_HEAD_DEG)):
+            return False
+    return True
 
 
 def _anchor(rows: _Rows, t: _Tracklet, frames: np.ndarray) -> np.ndarray:
