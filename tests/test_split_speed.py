@@ -684,12 +684,50 @@ def test_the_shaft_owner_takes_blas_one_point_order_where_numpy_did(where):
     assert owner[mask][0] == alone[flips[0]] != many[flips[0]]
 
 
+def _part_distance_before(name: str, p: np.ndarray, ax: Any, expected: list) -> np.ndarray:
+    """``split._part_distance`` as it was (commit 40eb396): (K, N) distances of a head
+    part's pixels to each instrument's head segment or, when nearer, its expected box of
+    that part moved with its shaft's end."""
+    from mistool.tracking.instances import unit_vector
+    from mistool.tracking.split import HEAD_LENGTH_WIDTHS
+
+    length = 2.0 * HEAD_LENGTH_WIDTHS * ax.radius if ax.head_len is None else ax.head_len
+    out = _segment_d2_before(p, ax.ends + length[:, None] * ax.dirs, ax.dirs, length, ax.radius).T
+    idx = [k for k, e in enumerate(expected) if name in e]
+    if not idx:
+        return out
+    boxes = [expected[k][name] for k in idx]
+    shift = (ax.ends - ax.limit_end)[idx]
+    u = np.array([unit_vector(b.angle_deg) for b in boxes])
+    h = np.array([0.5 * b.length for b in boxes])
+    c = np.array([[b.cx, b.cy] for b in boxes]) + shift
+    r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
+    box = _segment_d2_before(p, c + h[:, None] * u, u, 2 * h, r).T
+    out[idx] = np.minimum(out[idx], box)
+    return out
+
+
+def _anchor_distance_before(anchor: Any, name: str, p: np.ndarray) -> np.ndarray:
+    """``split.HeadAnchor.distance2`` as it was (commit 40eb396)."""
+    from mistool.tracking.instances import unit_vector
+
+    boxes = [anchor.boxes[name]] if name in anchor.boxes else list(anchor.boxes.values())
+    if not boxes:
+        d = p - anchor.centre
+        return np.einsum("nd,nd->n", d, d) / (anchor.radius * anchor.radius)
+    u = np.array([unit_vector(b.angle_deg) for b in boxes])
+    h = np.array([0.5 * b.length for b in boxes])
+    c = np.array([[b.cx, b.cy] for b in boxes])
+    r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
+    return np.minimum.reduce(_segment_d2_before(p, c + h[:, None] * u, u, 2 * h, r).T)
+
+
 def _split_with_heads_before(pixels: Any, fit: Any, min_area_px: int, anchors: list) -> Any:
-    """``split.split_with_heads`` as it was (commit e3da6b6's parent, 3307ee1): each
-    piece's part mask measured by ``part_observation``, its instance by
-    ``make_instance``."""
+    """``split.split_with_heads`` as it was (commit 3307ee1): each piece's part mask
+    measured by ``part_observation``, its instance by ``make_instance``; head parts'
+    distances in numpy."""
     from mistool.tracking.instances import make_instance, part_observation
-    from mistool.tracking.split import _part_distance, argmin_rows
+    from mistool.tracking.split import argmin_rows
 
     inst = pixels.inst
     k = len(fit.expected)
@@ -705,9 +743,11 @@ def _split_with_heads_before(pixels: Any, fit: Any, min_area_px: int, anchors: l
                     pieces[j][name] = obs
             continue
         ys, xs, p = pixels.get(name)
-        d2 = _part_distance(name, p, fit.axes, fit.expected)
+        d2 = _part_distance_before(name, p, fit.axes, fit.expected)
         if anchors:
-            d2 = np.concatenate([d2, np.stack([a.distance2(name, p) for a in anchors])])
+            d2 = np.concatenate(
+                [d2, np.stack([_anchor_distance_before(a, name, p) for a in anchors])]
+            )
         owner = argmin_rows(d2)
         for j in range(len(pieces)):
             sel = owner == j
@@ -846,3 +886,28 @@ def test_label_runs_are_each_labels_mask_runs(seed, nlab, h, w):
         assert n[j] == wn
         assert np.array_equal(ry[j, :wn], wy[:wn]) and np.array_equal(rx0[j, :wn], wx0[:wn])
         assert np.array_equal(rx1[j, :wn], wx1[:wn])
+
+
+def test_a_one_pixel_head_part_takes_blas_one_point_order():
+    """A head part of one pixel: its head distances as numpy computed them for that one
+    point (BLAS's one-point order), which here differ from the same point's among
+    others."""
+    from mistool.tracking.split import _head_owner
+
+    c = 238.0
+    ax = _mirror_axes(c)
+    ax.head_len = np.full(2, 30.0)
+    xs = np.arange(150.0, 420.0, 1.0)
+    line = np.stack([xs, np.full(len(xs), c)], 1)
+    many = _part_distance_before("clasper", line, ax, [{}, {}]).argmin(0)
+    alone = np.array(
+        [_part_distance_before("clasper", q[None], ax, [{}, {}]).argmin(0)[0] for q in line]
+    )
+    flips = np.flatnonzero(many != alone)
+    assert len(flips), "no point whose head turns on BLAS's order"
+    x, y = line[flips[0]]
+    mask = np.ones((1, 1), bool)
+    box = RotatedBox(0.0, 0.0, 1.0, 1.0, 0.0)
+    part = PartObservation("clasper", box, np.zeros((4, 2)), 1, mask, (int(x), int(y)))
+    owner = _head_owner(part, ax, [{}, {}], [])
+    assert owner[0, 0] == alone[flips[0]] != many[flips[0]]

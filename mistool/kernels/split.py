@@ -677,12 +677,16 @@ def shaft_owner(
             if not mixed[ci, cj]:
                 continue
             xa, xb = cj * s, min(cj * s + s, w)
+            seen = 0  # the labels given in this cell, as bits
             for y in range(ya, yb):
                 for x in range(xa, xb):
                     if mask[y, x] != 0:
                         lab = _label(x + x0, y + y0, seg, keep_d2, keep, one)
                         owner[y, x] = lab
-                        _grow(bounds, lab, xa, ya, xb - 1, yb - 1)
+                        seen |= 1 << lab
+            for j in range(bounds.shape[0]):
+                if seen >> j & 1:
+                    _grow(bounds, j, xa, ya, xb - 1, yb - 1)
 
 
 _RUNS = "Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))"
@@ -761,3 +765,65 @@ def label_runs(
         if _label_runs_into(owner, ry, rx0, rx1, n):
             return ry, rx0, rx1, n
         cap = 4 * cap
+
+
+@kernel(
+    f"void(uint8[:, ::1], int64, int64, {_SEGMENTS}, int64[::1], float64[:, ::1], boolean[::1],"
+    " uint8[:, ::1])"
+)
+def head_owner(
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    ends: np.ndarray,
+    dirs: np.ndarray,
+    back: np.ndarray,
+    radius: np.ndarray,
+    row: np.ndarray,
+    centres: np.ndarray,
+    is_centre: np.ndarray,
+    owner: np.ndarray,
+) -> None:
+    """The nearest of R heads of each pixel of a head part's crop (``mask`` at (x0,
+    y0)), as ``split.split_with_heads`` computed it in numpy: head ``r``'s distance is
+    the least (``np.minimum``, NaN spreading) over the segments ``s`` with ``row[s] ==
+    r``, in their order, or, where ``is_centre[r]``, ``|p - c|^2 / rr`` with ``(cx, cy,
+    rr) = centres[r]`` (``np.einsum``: ``dx * dx + dy * dy``); the nearest head is the
+    first of equal least distances, the first NaN (``split.argmin_rows``). ``owner``
+    (h, w): its index at each mask pixel, 255 elsewhere."""
+    h, w = mask.shape
+    nrow = is_centre.shape[0]
+    nseg = row.shape[0]
+    seg = _frames(ends, dirs, back, radius)
+    first = np.zeros(nseg, np.bool_)  # the first segment of its head
+    taken = np.zeros(nrow, np.bool_)
+    for k in range(nseg):
+        first[k] = not taken[row[k]]
+        taken[row[k]] = True
+    count = 0
+    for y in range(h):
+        for x in range(w):
+            count += mask[y, x] != 0
+    single = count == 1  # (one point: dgemv's order)
+    d2 = np.empty((nrow, 1), np.float64)
+    for y in range(h):
+        for x in range(w):
+            if mask[y, x] == 0:
+                owner[y, x] = 255
+                continue
+            px = float(x + x0)
+            py = float(y + y0)
+            for r in range(nrow):
+                if is_centre[r]:
+                    dx = px - centres[r, 0]
+                    dy = py - centres[r, 1]
+                    d2[r, 0] = (dx * dx + dy * dy) / centres[r, 2]
+            for k in range(nseg):
+                d = _d2(px, py, seg, k, single)
+                r = row[k]
+                if first[k]:
+                    d2[r, 0] = d
+                else:
+                    v = d2[r, 0]
+                    d2[r, 0] = v if (v <= d or v != v) else d  # np.minimum(v, d)
+            owner[y, x] = _argmin_column(d2, 0, 0.0, False)

@@ -501,26 +501,30 @@ def _score(ax: _Axes, pts: np.ndarray) -> float | None:
     return None if score < 0.0 else float(score)
 
 
-def _part_distance(
-    name: str, p: np.ndarray, ax: _Axes, expected: list[dict[str, RotatedBox]]
-) -> np.ndarray:
-    """(K, N) squared distances (in half-widths) of a head part's pixels to each
-    instrument: to its head segment (:func:`head_distance2`), or, when it is nearer,
-    to its expected box of that part moved with the shaft's distal end (its last shape
-    seen apart: a bent wrist, open jaws)."""
-    out = _head_d2_rows(p, ax)
-    idx = [k for k, e in enumerate(expected) if name in e]
+def _head_segments(
+    name: str, ax: _Axes, expected: list[dict[str, RotatedBox]]
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """The segments of each instrument's head for a head part ``name`` (its distances,
+    in half-widths, are the least over its segments): its head segment
+    (:func:`head_distance2`), and its expected box of that part moved with the shaft's
+    distal end (its last shape seen apart: a bent wrist, open jaws). ``([ends, dirs,
+    back, radius], row)``: (S, 2), (S, 2), (S,), (S,) segments and each one's
+    instrument, head segments first, computed as the former numpy distances did."""
+    length = 2.0 * HEAD_LENGTH_WIDTHS * ax.radius if ax.head_len is None else ax.head_len
+    k = len(ax.dirs)
+    seg = [ax.ends + length[:, None] * ax.dirs, ax.dirs, length, ax.radius]
+    idx = [j for j, e in enumerate(expected) if name in e]
     if not idx:
-        return out
-    boxes = [expected[k][name] for k in idx]
+        return seg, np.arange(k)
+    boxes = [expected[j][name] for j in idx]
     shift = (ax.ends - ax.limit_end)[idx]  # the other parts move with their shaft's end
     u = np.array([unit_vector(b.angle_deg) for b in boxes])
     h = np.array([0.5 * b.length for b in boxes])
     c = np.array([[b.cx, b.cy] for b in boxes]) + shift
     r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
-    box = segment_d2_rows(p, c + h[:, None] * u, u, 2 * h, r)
-    out[idx] = np.minimum(out[idx], box)
-    return out
+    box = [c + h[:, None] * u, u, 2 * h, r]
+    both = [np.concatenate([a, b]) for a, b in zip(seg, box, strict=True)]
+    return both, np.concatenate([np.arange(k), idx])
 
 
 #: A head (wrist and jaws) lies on its shaft's distal extension: from the shaft's end
@@ -769,16 +773,26 @@ class HeadAnchor:
 
     def distance2(self, name: str, p: np.ndarray) -> np.ndarray:
         """(N,) squared distances of part ``name``'s pixels (N, 2) to it, in units of
-        the box's half-width (or of ``radius``)."""
-        boxes = [self.boxes[name]] if name in self.boxes else list(self.boxes.values())
-        if not boxes:
+        the box's half-width (the least over :meth:`segments`; without boxes, to
+        ``centre`` in units of ``radius``)."""
+        seg = self.segments(name)
+        if seg is None:
             d = p - self.centre
             return np.einsum("nd,nd->n", d, d) / (self.radius * self.radius)
+        return np.minimum.reduce(segment_d2_rows(p, *seg))
+
+    def segments(self, name: str) -> list[np.ndarray] | None:
+        """The segments of part ``name``'s expected box, or of all its boxes when it
+        has none of that part: ``[ends, dirs, back, radius]`` ((B, 2), (B, 2), (B,),
+        (B,)); None without boxes."""
+        boxes = [self.boxes[name]] if name in self.boxes else list(self.boxes.values())
+        if not boxes:
+            return None
         u = np.array([unit_vector(b.angle_deg) for b in boxes])
         h = np.array([0.5 * b.length for b in boxes])
         c = np.array([[b.cx, b.cy] for b in boxes])
         r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
-        return np.minimum.reduce(segment_d2_rows(p, c + h[:, None] * u, u, 2 * h, r))
+        return [c + h[:, None] * u, u, 2 * h, r]
 
 
 def split_with_heads(
@@ -791,7 +805,7 @@ def split_with_heads(
     instrument's piece has no shaft left.
 
     Each part's pixels get the index of their piece in a label image (the shaft's:
-    :func:`_shaft_owner`; a head part's: its nearest head, :func:`_part_distance`), whose
+    :func:`_shaft_owner`; a head part's: its nearest head, :func:`_head_owner`), whose
     row runs per index are measured (Algorithm 1, :func:`_runs_parts`)."""
     inst = pixels.inst
     k = len(fit.expected)
@@ -807,12 +821,7 @@ def split_with_heads(
     for name, part in inst.parts.items():
         if name == "shaft":
             continue
-        ys, xs, p = pixels.get(name)
-        d2 = _part_distance(name, p, fit.axes, fit.expected)
-        if anchors:
-            d2 = np.concatenate([d2, np.stack([a.distance2(name, p) for a in anchors])])
-        owner = np.full(part.mask.shape, 255, np.uint8)
-        owner[ys, xs] = argmin_rows(d2)
+        owner = _head_owner(part, fit.axes, fit.expected, anchors)
         got[name] = _runs_parts(name, owner, n, part.offset, min_area_px)
     pieces: list[dict[str, _Measured]] = [{} for _ in range(n)]
     for name in inst.parts:  # (the blob's order of parts)
@@ -824,6 +833,39 @@ def split_with_heads(
         [_instance(parts, shape) for parts in pieces[:k]],
         [_instance(parts, shape) if parts else None for parts in pieces[k:]],
     )
+
+
+def _head_owner(
+    part: PartObservation,
+    ax: _Axes,
+    expected: list[dict[str, RotatedBox]],
+    anchors: list[HeadAnchor],
+) -> np.ndarray:
+    """(h, w) uint8 index of the nearest head of every pixel of a head part's crop (255
+    off its mask): the instruments' (:func:`_head_segments`), then the anchors' (their
+    boxes' segments, or their centre), the first of equal distances; one compiled pass
+    (:func:`mistool.kernels.split.head_owner`)."""
+    segs, rows = _head_segments(part.part, ax, expected)
+    parts = [segs]
+    row = [rows]
+    centres = np.zeros((len(ax.dirs) + len(anchors), 3))
+    for a, anchor in enumerate(anchors, start=len(ax.dirs)):
+        seg = anchor.segments(part.part)
+        if seg is None:
+            centres[a] = (anchor.centre[0], anchor.centre[1], anchor.radius * anchor.radius)
+            continue
+        parts.append(seg)
+        row.append(np.full(len(seg[2]), a))
+    ends, dirs, back, radius = (np.concatenate(c) for c in zip(*parts, strict=True))
+    is_centre = np.ones(len(centres), np.bool_)
+    is_centre[np.concatenate(row)] = False
+    owner = np.empty(part.mask.shape, np.uint8)
+    kernels.head_owner(
+        _mask_u8(part.mask), int(part.offset[0]), int(part.offset[1]), _points(ends),
+        _points(dirs), _values(back), _values(radius), np.concatenate(row).astype(np.int64),
+        centres, is_centre, owner,
+    )  # fmt: skip
+    return owner
 
 
 @dataclass(frozen=True)
