@@ -423,20 +423,3 @@ def test_robust_line_fit_ignores_outliers():
     assert abs(line[2] - (-5.0 * n[1])) < 0.1  # offset within 0.1 px
     assert sigma < 0.4
     assert not np.isin(np.arange(0, 600, 7), inl).any()
-
-
-def test_jaw_tips_finds_both_open_jaws_and_returns_four_empty_lists_for_no_clasper() -> None:
-    from mistool.pose.measure import _jaw_tips
-
-    crop = np.zeros((100, 100), np.uint8)  # two 5 px jaws from J = (10, 50), crop at (100, 200)
-    cv2.line(crop, (10, 50), (80, 25), 1, 5)
-    cv2.line(crop, (10, 50), (80, 75), 1, 5)
-    jpx = np.array([110.0, 250.0])
-    ends, nears, dirs, halfw = _jaw_tips(crop, (100, 200), jpx, 5.0)
-    assert len(ends) == len(nears) == len(dirs) == len(halfw) == 2
-    for drawn in ((180.0, 225.0), (180.0, 275.0)):  # each drawn jaw end, capped by 2.5 px
-        assert min(math.dist(drawn, e) for e in ends) < 4.0
-    for end, d in zip(ends, dirs, strict=True):
-        assert math.isclose(float(np.linalg.norm(d)), 1.0) and float(d @ (end - jpx)) > 0
-    # no outline: four empty lists (it used to return two, which the caller cannot unpack)
-    assert _jaw_tips(np.zeros((10, 10), np.uint8), (0, 0), jpx, 5.0) == ([], [], [], [])

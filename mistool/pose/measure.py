@@ -11,7 +11,8 @@ Steps (camera frame, mm; see the package docstring for the conventions):
    shaft's free end cap) lies where the viewing rays meet the cylinder at J's axial
    coordinate, so J's axial coordinate is the median over those boundary points of the
    axial coordinate where their rays meet the cylinder (entry point next to the clasper,
-   nearest-to-proximal point of the chord next to background).
+   nearest-to-proximal point of the chord next to background). On a short visible
+   stretch the lines are fitted once more with the points proximal of that J.
 4. Tip: the clasper's far end in the image (the mid-point of the jaw ends), at the depth
    along its ray that best fits the known clasper length and a small bend from the shaft
    axis; when the tip is cut by the image border, J + length x the least-bent direction
@@ -20,10 +21,17 @@ Steps (camera frame, mm; see the package docstring for the conventions):
 
 Never a confident wrong answer: where the geometry is degenerate (one limb line, the
 shaft seen end-on, J out of the image, numerically unstable solutions) the cells are NaN.
+
+Where the work runs: this module gathers the masks' outlines (OpenCV's contours), then
+compiled kernels (:mod:`mistool.kernels.pose`, imported at the first pose: numba is not
+loaded by a program that only imports mistool) do steps 1-4 on them in a few passes; the
+parameters below are passed to them as one array (:func:`_params`). With a distorted lens
+the points are undistorted (:mod:`mistool.lens`) between the kernels.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -34,28 +42,16 @@ import numpy as np
 from mistool.config import Camera
 from mistool.lens import distort_points, undistort_points
 from mistool.model import InstanceObservation, PartObservation
-from mistool.pose.cylinder import (
-    axis_from_image_lines,
-    closest_on_axis,
-    pixel_rays,
-    quat_from_z,
-    ray_cylinder,
-)
-from mistool.pose.quality import hull_of_cylinder, iou_polygon_mask
+from mistool.pose.quality import Rims, cylinder_iou, rims_iou
 from mistool.pose.silhouette import (
-    BG,
     FIT_MAX_POINTS,
+    FIT_THRESH_PX,
     OTHER,
+    SHAFT,
     Boundary,
-    Canvas,
-    add_rows,
-    boundary_points,
-    fit_line_robust,
-    make_canvas,
-    regular_subsample,
-    sub_rows,
-    sum_rows,
-    take_rows,
+    as_mask,
+    outline_points,
+    paste,
 )
 from mistool.pose.status import AUX_STATUS, reason_code
 
@@ -121,122 +117,84 @@ _MIN_LINE_SPAN_PX = 12.0
 _END_ON_DEG = 30.0
 
 
+#: RANSAC hypotheses of the limb-line fit (``silhouette.fit_line_robust``).
+_FIT_ITERS = 12
+
+
 _NAN_ROW = {k: math.nan for k in POSE_KEYS + AUX_KEYS}
+
+#: The shaft row's cells the kernel fills (``mistool.kernels.pose.OUT["row"]`` onward).
+_SHAFT_CELLS: tuple[str, ...] = (
+    "aux_distal",
+    "aux_l1a",
+    "aux_l1b",
+    "aux_l1c",
+    "aux_l2a",
+    "aux_l2b",
+    "aux_l2c",
+    "aux_u_px",
+    "aux_v_px",
+    "aux_su_px",
+    "aux_sv_px",
+    "aux_sigma_mm",
+    "aux_sigma_deg",
+    "end_x_mm",
+    "end_y_mm",
+    "end_z_mm",
+    "axis_x",
+    "axis_y",
+    "axis_z",
+    "start_x_mm",
+    "start_y_mm",
+    "start_z_mm",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+)
+_CLASPER_CELLS = ("end_x_mm", "end_y_mm", "end_z_mm", "axis_x", "axis_y", "axis_z")
+_QUAT_CELLS = ("qw", "qx", "qy", "qz")
+_START_CELLS = ("start_x_mm", "start_y_mm", "start_z_mm")
 
 
 def _nan_row() -> dict[str, float]:
     return _NAN_ROW.copy()
 
 
-def _as_u8(mask: np.ndarray) -> np.ndarray:
-    m = np.ascontiguousarray(mask)
-    return m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).astype(np.uint8)
+@functools.cache
+def _params() -> np.ndarray:
+    """The pose's parameters in the kernels' order (``mistool.kernels.pose.PARAMS``)."""
+    from mistool.kernels.pose import PARAMS
+
+    values = {
+        "max_sigma_mm": MAX_SIGMA_MM,
+        "max_sigma_deg": MAX_SIGMA_DEG,
+        "px_noise": _PX_NOISE,
+        "px_bias": _PX_BIAS,
+        "max_cap_spread_mm": _MAX_CAP_SPREAD_MM,
+        "min_line_points": _MIN_LINE_POINTS,
+        "min_line_span_px": _MIN_LINE_SPAN_PX,
+        "end_on_deg": _END_ON_DEG,
+        "fit_max_points": FIT_MAX_POINTS,
+        "fit_thresh_px": FIT_THRESH_PX,
+        "fit_iters": _FIT_ITERS,
+        "tip_length_factor": _TIP_LENGTH_FACTOR,
+        "tip_length_sigma": _TIP_LENGTH_SIGMA,
+        "tip_bend_sigma_rad": _TIP_BEND_SIGMA_RAD,
+        "jaw_sep": _JAW_SEP,
+        "jaw_rad": _JAW_RAD,
+    }
+    return np.array([float(values[name]) for name in PARAMS])
 
 
-def _outline(
-    mask_u8: np.ndarray,
-    offset: tuple[int, int],
-    contours: Sequence[np.ndarray] | None = None,
-) -> tuple[np.ndarray, dict[str, float]]:
-    """Outline pixels (N, 2) of a mask (full-image px) and its region moments.
-
-    A region's extreme points in any direction are outline pixels, so the outline
-    replaces the full pixel list wherever only extremes are needed (much faster).
-    """
-    if contours is None:
-        contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if len(contours) == 1:
-        pts = contours[0].reshape(-1, 2).astype(np.float64)
-    else:
-        pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
-    mom = {"m00": 0.0, "m10": 0.0, "m01": 0.0, "m20": 0.0, "m11": 0.0, "m02": 0.0}
-    for c in contours:
-        m = cv2.moments(c)
-        for k in mom:
-            mom[k] += m[k]
-    if mom["m00"] < 1.0:  # degenerate outlines (lines of pixels): count pixels instead
-        m = cv2.moments(mask_u8, binaryImage=True)
-        mom = {k: m[k] for k in mom}
-    add_rows(pts, offset)
-    return pts, mom
+#: The quality IoU's canvas is sampled every other pixel beyond this size (px).
+_QUALITY_MAX_PIXELS = 40000
 
 
-def _mean_rows(v: np.ndarray, select: np.ndarray) -> np.ndarray:
-    """``v[select].mean(axis=0)`` of (N, 2) points, bit for bit, faster; NaN for no row."""
-    rows = take_rows(v, select)
-    if not len(rows):
-        return rows.mean(axis=0)
-    return sum_rows(rows) / len(rows)
-
-
-def _median_rows(v: np.ndarray) -> np.ndarray:
-    """Column-wise median (as ``np.median(v, axis=0)``) of an (N, 2) array, N >= 1."""
-    n = len(v)
-    k = n // 2
-    if n % 2:
-        return np.partition(v, k, axis=0)[k]
-    part = np.partition(v, (k - 1, k), axis=0)
-    return 0.5 * (part[k - 1] + part[k])
-
-
-def _median1(v: np.ndarray) -> float:
-    """Median of a 1-D array (as ``np.median``, without its overhead), len >= 1."""
-    n = len(v)
-    k = n // 2
-    if n % 2:
-        return float(np.partition(v, k)[k])
-    part = np.partition(v, (k - 1, k))
-    return 0.5 * float(part[k - 1] + part[k])
-
-
-def _ray(px: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Unit viewing ray (3,) of one pixel (2,) (``pixel_rays`` for a single pixel)."""
-    u, v = px.tolist()
-    x = (u - K.item(0, 2)) / K.item(0, 0)
-    y = (v - K.item(1, 2)) / K.item(1, 1)
-    n = math.sqrt(x * x + y * y + 1.0)
-    return np.array([x / n, y / n, 1.0 / n])
-
-
-_UNIT_GRID = np.linspace(0.0, 1.0, 81)
-
-
-def _closest1(px: np.ndarray, K: np.ndarray, p0: np.ndarray, a: np.ndarray) -> float:
-    """``closest_on_axis`` for a single pixel's ray (mm)."""
-    d = _ray(px, K)
-    da, dp, ap = float(d @ a), float(d @ p0), float(a @ p0)
-    return (da * dp - ap) / max(1.0 - da * da, 1e-12)
-
-
-def _window_max(x: np.ndarray, size: int) -> np.ndarray:
-    """Sliding maximum: ``out[i] = x[i:i + size].max()`` for every full window."""
-    m, w = x, 1
-    while 2 * w <= size:  # m[i] = max(x[i:i + w])
-        m = np.maximum(m[:-w], m[w:])
-        w *= 2
-    n_out = len(x) - size + 1
-    return np.maximum(m[:n_out], m[size - w : size - w + n_out])
-
-
-def _on_border(
-    px: np.ndarray,
-    image_shape: tuple[int, int],
-    bounds: tuple[int, int, int, int] | None = None,
-) -> np.ndarray:
-    """(N,) bool: the pixel (N, 2) is on the image border. ``bounds``: ``(x0, y0, x1, y1)``
-    known to hold every pixel (inclusive), so that only the sides they reach are tested."""
-    H, W = image_shape
-    x0, y0, x1, y1 = bounds if bounds is not None else (0, 0, W - 1, H - 1)
-    out = np.zeros(len(px), dtype=bool)
-    if x0 <= 0:
-        out |= px[:, 0] <= 0
-    if y0 <= 0:
-        out |= px[:, 1] <= 0
-    if x1 >= W - 1:
-        out |= px[:, 0] >= W - 1
-    if y1 >= H - 1:
-        out |= px[:, 1] >= H - 1
-    return out
+@functools.lru_cache(maxsize=16)
+def _intrinsics(camera: Camera) -> np.ndarray:
+    """``camera.K`` (3, 3) float64, built once per camera (not to be written)."""
+    return np.ascontiguousarray(camera.K, dtype=np.float64)
 
 
 def _crop_bounds(mask: np.ndarray, offset: tuple[int, int]) -> tuple[int, int, int, int]:
@@ -271,156 +229,6 @@ def _ideal_px(px: np.ndarray, camera: Camera) -> np.ndarray:
     return undistort_points(px[None], camera)[0] if camera.distorted else px
 
 
-def _fill_pose(
-    row: dict[str, float], end: np.ndarray | None, axis: np.ndarray | None, start: np.ndarray | None
-) -> None:
-    if end is not None:
-        row["end_x_mm"], row["end_y_mm"], row["end_z_mm"] = end.tolist()
-    if axis is not None:
-        row["axis_x"], row["axis_y"], row["axis_z"] = axis.tolist()
-        row["qw"], row["qx"], row["qy"], row["qz"] = quat_from_z(axis).tolist()
-    if start is not None:
-        row["start_x_mm"], row["start_y_mm"], row["start_z_mm"] = start.tolist()
-
-
-def _joint_t(
-    pts: np.ndarray,
-    is_other: np.ndarray,
-    p0: np.ndarray,
-    a: np.ndarray,
-    radius: float,
-    K: np.ndarray,
-) -> tuple[float, float]:
-    """J's axial coordinate (mm) and the points' robust spread (mm) from the shaft's
-    distal outline points.
-
-    Next to background the outline is exactly where the ray's chord through the infinite
-    cylinder first reaches J's axial coordinate (``min(t_in, t_out) == t_J``); next to the
-    clasper it is where the ray enters the cylinder at ``t_J`` (exact for a clasper or
-    wrist as wide as the shaft; a narrower clasper seen over the shaft's end face biases it
-    distally), so background points are preferred when there are enough of them.
-    """
-    rays = pixel_rays(pts, K)
-    t_in, t_out, _ = ray_cylinder(rays, p0, a, radius)
-    bg = ~is_other
-    if np.count_nonzero(bg) >= 5:
-        v = np.minimum(t_in, t_out)[bg]
-    else:
-        v = np.where(is_other, t_in, np.minimum(t_in, t_out))
-    med = _median1(v)
-    return med, 1.4826 * _median1(np.abs(v - med))
-
-
-class _LineStats:
-    """A fitted limb line's support: centre (2,) px, span (px), inliers, RMS (px)."""
-
-    __slots__ = ("centre", "n", "sigma", "span")
-
-    def __init__(self, centre: np.ndarray, span: float, n: int, sigma: float) -> None:
-        self.centre, self.span, self.n, self.sigma = centre, span, n, sigma
-
-
-def _fit_limbs(
-    pts: np.ndarray,
-    s: np.ndarray,
-    q: np.ndarray,
-    keep: np.ndarray,
-    centre: np.ndarray,
-    rng: np.random.Generator | None,
-) -> tuple[list[np.ndarray | None], list[_LineStats | None]]:
-    """One robust line per side of the axis; interior (the centre) on the positive side."""
-    lines: list[np.ndarray | None] = []
-    stats: list[_LineStats | None] = []
-    for side in (q < 0, q > 0):
-        use = np.flatnonzero(keep & side)
-        if len(use) > FIT_MAX_POINTS:  # the fit's own regular subsample, taken here
-            use = use[regular_subsample(len(use), FIT_MAX_POINTS)]
-        enough = len(use) >= _MIN_LINE_POINTS
-        fit = fit_line_robust(take_rows(pts, use), s[use], rng) if enough else None
-        if fit is not None:
-            line, inl, sig = fit
-            idx = use[inl]
-            n_in = len(idx)
-            s_in = s[idx]
-            span = float(s_in.max() - s_in.min()) if n_in else 0.0
-            if n_in >= _MIN_LINE_POINTS and span >= _MIN_LINE_SPAN_PX:
-                if line[:2] @ centre + line[2] < 0:
-                    line = -line
-                lines.append(line)
-                stats.append(_LineStats(sum_rows(take_rows(pts, idx)) / n_in, span, n_in, sig))
-                continue
-        lines.append(None)
-        stats.append(None)
-    s0, s1 = stats
-    if (
-        lines[0] is not None
-        and lines[1] is not None
-        and s0 is not None
-        and s1 is not None
-        and float(lines[0][:2] @ lines[1][:2]) > 0
-    ):
-        # both fits found the same limb (e.g. the other one is out of the view and the
-        # visible part's centroid is off-axis): keep the better one
-        worse = 0 if s0.sigma > s1.sigma else 1
-        lines[worse] = None
-        stats[worse] = None
-    return lines, stats
-
-
-def _uncertainty(
-    lines: Sequence[np.ndarray],
-    stats: Sequence[_LineStats],
-    K: np.ndarray,
-    radius: float,
-    ref: np.ndarray,
-    a: np.ndarray,
-) -> tuple[float, float]:
-    """1-sigma error of a reference axis point (mm) and of the axis direction (deg),
-    propagated by finite differences from each line's offset and angle uncertainty.
-
-    Each line's errors come from its fit: residual RMS (at least ``_PX_NOISE``, the
-    quantisation floor) over ``n_eff`` independent points (boundary errors are correlated
-    over a few pixels: ``n_eff <= span / 2``), plus ``_PX_BIAS`` of unknown systematic
-    offset (e.g. segmentation bias).
-    """
-    # plain floats: four solves of 3-vectors are much cheaper without numpy's overhead
-    k_rows = K.tolist()
-    rx, ry, rz = ref.tolist()
-    nr = math.sqrt(rx * rx + ry * ry + rz * rz)
-    ux, uy, uz = rx / nr, ry / nr, rz / nr
-    ax_, ay_, az_ = a.tolist()
-    base = [lines[0].tolist(), lines[1].tolist()]
-    variants = []
-    for k in (0, 1):
-        st = stats[k]
-        n_eff = max(2.0, min(float(st.n), st.span / 2.0))
-        sig = max(st.sigma, _PX_NOISE)
-        la, lb, lc = base[k]
-        shifted = [la, lb, lc - math.hypot(sig / math.sqrt(n_eff), _PX_BIAS)]  # offset
-        ang = sig * math.sqrt(12.0 / n_eff) / max(st.span, 1.0)  # angle, about the centre
-        co, si = math.cos(ang), math.sin(ang)
-        na, nb = co * la - si * lb, si * la + co * lb
-        cx_, cy_ = st.centre.tolist()
-        turned = [na, nb, -(na * cx_ + nb * cy_)]
-        for ln in (shifted, turned):
-            variants.append((ln, base[1]) if k == 0 else (base[0], ln))
-    var_p = var_a = 0.0
-    for la, lb in variants:
-        sol = axis_from_image_lines(la, lb, k_rows, radius)
-        if sol is None:
-            return math.inf, math.inf
-        (px, py, pz), (cx, cy, cz) = sol
-        # the axis point closest to the reference ray
-        da = cx * ux + cy * uy + cz * uz
-        dp = px * ux + py * uy + pz * uz
-        ap = cx * px + cy * py + cz * pz
-        t = (da * dp - ap) / max(1.0 - da * da, 1e-12)
-        ex, ey, ez = px + t * cx - rx, py + t * cy - ry, pz + t * cz - rz
-        var_p += ex * ex + ey * ey + ez * ez
-        var_a += math.degrees(math.acos(min(1.0, abs(cx * ax_ + cy * ay_ + cz * az_)))) ** 2
-    return math.sqrt(var_p), math.sqrt(var_a)
-
-
 @dataclass(frozen=True)
 class _ShaftPoints:
     """Every image point of the shaft that the pose uses (full-image px).
@@ -435,8 +243,9 @@ class _ShaftPoints:
     """(N, 2) outline pixels of the measured shaft region (ideal image, see below)."""
     centre: np.ndarray
     """(2,) the region's centroid (ideal image)."""
-    moments: dict[str, float]
-    """Region moments of that region (crop coordinates, as ``cv2.moments``)."""
+    moments: np.ndarray
+    """(6,) its region moments ``m00, m10, m01, m20, m11, m02`` (crop coordinates, as
+    ``cv2.moments``)."""
     offset: tuple[int, int]
     """(x0, y0) of the crop the moments refer to."""
     bnd: Boundary
@@ -448,68 +257,6 @@ class _ShaftPoints:
     """The measured shaft region (bool crop at ``offset``), for the quality IoU."""
     merged: bool
     """Two shafts were found in the instance (only the larger is measured)."""
-
-
-@dataclass(frozen=True)
-class _ShaftFrame:
-    """The shaft's image frame: centroid and axis direction (distal when known)."""
-
-    centre: np.ndarray
-    """(2,) region centroid (px)."""
-    e: np.ndarray
-    """(2,) unit image direction of the axis, distal when ``distal_seen``."""
-    eperp: np.ndarray
-    """(2,) ``e`` turned by +90 degrees."""
-    s_pix: np.ndarray
-    """(N,) the outline pixels' coordinate along ``e`` from the centre (px)."""
-    s_min: float
-    s_max: float
-    distal_seen: bool
-    """The distal direction was seen (other parts, or one end at the image border)."""
-    prox_at_border: bool
-    """The proximal end of the outline touches the image border."""
-    dist_at_border: bool
-    """The distal end of the outline touches the image border."""
-    med_other: np.ndarray | None
-    """(2,) median of the boundary points next to other parts (the joint's pixel), or None."""
-    width: float
-    """Widest apparent width across ``e`` (px)."""
-
-
-@dataclass(frozen=True)
-class _LimbPoints:
-    """The background boundary points that may lie on the limb lines."""
-
-    pts: np.ndarray
-    """(M, 2) background boundary points (px)."""
-    s: np.ndarray
-    """(M,) their coordinate along the axis direction (px)."""
-    q: np.ndarray
-    """(M,) their coordinate across it (px; the side of the axis)."""
-    keep_base: np.ndarray
-    """(M,) bool: away from the proximal end zone and from other parts."""
-    keep: np.ndarray
-    """(M,) bool: ``keep_base`` and away from the distal end zone."""
-    zone: float
-    """Length (px) of the end zones left out."""
-
-
-@dataclass(frozen=True)
-class _ShaftSolution:
-    """The shaft's axis (camera frame, mm) and joint, with the limb lines they came from."""
-
-    lines: tuple[np.ndarray, np.ndarray]
-    stats: tuple[_LineStats, _LineStats]
-    p0: np.ndarray
-    """(3,) a point of the axis (mm)."""
-    a: np.ndarray
-    """(3,) unit axis direction, distal."""
-    xc: np.ndarray
-    """(3,) the axis point seen at the region's centroid (mm)."""
-    joint: np.ndarray | None
-    """(3,) J (mm), or None."""
-    joint_why: str
-    """Why there is no joint (:mod:`mistool.pose.status`); empty when there is one."""
 
 
 #: A shaft separated from its own wrist or clasper by a thin gap (a segmentation that
@@ -525,21 +272,37 @@ def _across_gap(
     bnd: Boundary,
     shaft_mask: np.ndarray,
     offset: tuple[int, int],
+    contours: Sequence[np.ndarray],
     others: list[tuple[np.ndarray, tuple[int, int]]],
     image_shape: tuple[int, int],
-    pix: np.ndarray,
 ) -> Boundary:
     """The boundary points with the instrument's other parts grown by
     :data:`_JUNCTION_GAP_PX` (a thin gap at the junction closed), when that finds the
-    junction; else ``bnd`` unchanged."""
+    junction; else ``bnd`` unchanged.
+
+    The other parts count within the shaft's crop and a margin (``2 + gap`` px); grown,
+    they reach ``gap`` px further, so only the window of their crops (within that margin)
+    plus ``gap`` px is labelled and grown."""
     g = _JUNCTION_GAP_PX
-    canvas = make_canvas(shaft_mask, offset, others, image_shape, margin=2 + g)
-    lab = canvas.labels
+    H, W = image_shape
+    h, w = shaft_mask.shape
+    cx0, cy0 = max(offset[0] - 2 - g, 0), max(offset[1] - 2 - g, 0)
+    cx1, cy1 = min(offset[0] + w + 2 + g, W), min(offset[1] + h + 2 + g, H)
+    x0, y0, x1, y1 = cx1, cy1, cx0, cy0  # the others' crops within the shaft's
+    for m, (ox, oy) in others:
+        x0, y0 = min(x0, max(ox, cx0)), min(y0, max(oy, cy0))
+        x1, y1 = max(x1, min(ox + m.shape[1], cx1)), max(y1, min(oy + m.shape[0], cy1))
+    x0, y0, x1, y1 = max(x0 - g, cx0), max(y0 - g, cy0), min(x1 + g, cx1), min(y1 + g, cy1)
+    if x0 >= x1 or y0 >= y1:
+        return bnd
+    lab = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
+    for m, (ox, oy) in others:
+        paste(lab, x0, y0, as_mask(m), ox, oy, OTHER)
+    paste(lab, x0, y0, shaft_mask, offset[0], offset[1], SHAFT)
     near = cv2.dilate(cv2.compare(lab, OTHER, cv2.CMP_EQ), _GAP_DISK) > 0  # type: ignore[call-overload]
-    grown = lab.copy()
-    grown[(lab == BG) & near] = OTHER
-    found = boundary_points(Canvas(grown, canvas.x0, canvas.y0), pix)
-    return found if len(found.other) >= 3 else bnd
+    # the grown other parts: every pixel near one (the shaft's own stay the shaft's)
+    found = outline_points(shaft_mask, offset, contours, [(near, (x0, y0))], image_shape)
+    return found[2] if len(found[2].other) >= 3 else bnd
 
 
 #: Shaft pieces are one shaft cut across when their directions agree within this (deg)
@@ -554,37 +317,25 @@ def _one_cut_shaft(contours: Sequence[np.ndarray], areas: np.ndarray, big: int) 
     across: each piece's centroid on the pieces' common axis (within
     :data:`_CUT_OFFSET_FRAC` of its own width across it) and each elongated piece along
     it (:data:`_CUT_ANGLE_DEG`); two tools side by side are half a width off it."""
-    pieces = [c for c, a in zip(contours, areas, strict=True) if a >= 0.25 * areas[big]]
-    pts = np.concatenate([c.reshape(-1, 2) for c in pieces])
-    x0, y0 = pts.min(axis=0)
-    union = np.zeros((int(pts[:, 1].max() - y0) + 1, int(pts[:, 0].max() - x0) + 1), np.uint8)
-    cv2.drawContours(union, [c - np.array([x0, y0]) for c in pieces], -1, 1, thickness=-1)
-    m = cv2.moments(union, binaryImage=True)
-    if m["m00"] <= 0:
-        return False
-    theta = 0.5 * math.atan2(2.0 * m["mu11"], m["mu20"] - m["mu02"])
-    e = np.array([math.cos(theta), math.sin(theta)])
-    n = np.array([-e[1], e[0]])
-    c0 = np.array([m["m10"] / m["m00"] + x0, m["m01"] / m["m00"] + y0])
-    for c in pieces:
-        p = c.reshape(-1, 2).astype(np.float64)
-        across = float(np.ptp(p @ n))
-        along = float(np.ptp(p @ e))
-        mk = cv2.moments(c)
-        if mk["m00"] <= 0:
-            return False
-        ck = np.array([mk["m10"], mk["m01"]]) / mk["m00"]
-        if abs(float((ck - c0) @ n)) > _CUT_OFFSET_FRAC * across:
-            return False
-        if along >= 1.5 * across:  # elongated: its own direction must agree
-            tk = 0.5 * math.atan2(2.0 * mk["mu11"], mk["mu20"] - mk["mu02"])
-            if abs((math.degrees(tk - theta) + 90.0) % 180.0 - 90.0) > _CUT_ANGLE_DEG:
-                return False
-    return True
+    from mistool.kernels.pose import one_cut_shaft
+
+    pieces = [
+        c.reshape(-1, 2) for c, a in zip(contours, areas, strict=True) if a >= 0.25 * areas[big]
+    ]
+    pts = np.concatenate(pieces)
+    x0, y0 = pts.min(axis=0).tolist()
+    x1, y1 = pts.max(axis=0).tolist()
+    union = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
+    cv2.drawContours(union, [c - np.array([x0, y0], np.int32) for c in pieces], -1, 1, thickness=-1)
+    starts = np.cumsum([0] + [len(c) for c in pieces]).astype(np.int64)
+    return bool(one_cut_shaft(pts, starts, union, x0, y0, _CUT_ANGLE_DEG, _CUT_OFFSET_FRAC))
 
 
 def _shaft_points(
-    parts: Mapping[str, PartObservation], image_shape: tuple[int, int], camera: Camera
+    parts: Mapping[str, PartObservation],
+    image_shape: tuple[int, int],
+    camera: Camera,
+    distorted: bool,
 ) -> _ShaftPoints | None:
     """Gather the shaft's image points (the pose's pixel input, in the ideal image of
     ``camera``), or None for no region.
@@ -593,10 +344,11 @@ def _shaft_points(
     shaft is kept (and ``merged`` set: the clasper, whose jaws may be either tool's, is
     then left empty). Pieces of one shaft cut across (a specular streak, a thread, a
     segmentation gap: :func:`_one_cut_shaft`) are kept together: they share its limb lines.
+    ``distorted``: ``camera.distorted``.
     """
     shaft = parts["shaft"]
-    smask = _as_u8(shaft.mask)
-    shaft_mask = shaft.mask
+    shaft_mask = as_mask(shaft.mask)
+    smask = shaft_mask.view(np.uint8)
     contours, _ = cv2.findContours(smask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     merged = False
     if len(contours) > 1:
@@ -612,19 +364,23 @@ def _shaft_points(
             shaft_mask = smask.view(bool)
             contours = (contours[big],)
     others = [(p.mask, p.offset) for n, p in parts.items() if n != "shaft"]
-    canvas = make_canvas(shaft_mask, shaft.offset, others, image_shape)
-    pix, mom = _outline(smask, shaft.offset, contours)
-    if mom["m00"] <= 0:
+    pix, border, bnd, mom = outline_points(shaft_mask, shaft.offset, contours, others, image_shape)
+    if mom[0] < 1.0:  # degenerate outlines (lines of pixels): count pixels instead
+        m = cv2.moments(smask, binaryImage=True)
+        mom = np.array([m["m00"], m["m10"], m["m01"], m["m20"], m["m11"], m["m02"]])
+    if mom[0] <= 0:
         return None
-    border = _on_border(pix, image_shape, _crop_bounds(shaft_mask, shaft.offset))  # camera's
-    bnd = boundary_points(canvas, pix)
     if len(bnd.other) < 3 and others:  # a thin gap between the shaft and its head?
-        bnd = _across_gap(bnd, shaft_mask, shaft.offset, others, image_shape, pix)
-    ideal_pix, bnd = ideal_outline(pix, bnd, camera)
-    centre = (mom["m10"] / mom["m00"] + shaft.offset[0], mom["m01"] / mom["m00"] + shaft.offset[1])
+        bnd = _across_gap(bnd, shaft_mask, shaft.offset, contours, others, image_shape)
+    m00, m10, m01 = mom[:3].tolist()
+    centre = np.array([m10 / m00 + shaft.offset[0], m01 / m00 + shaft.offset[1]])
+    ideal_pix = pix
+    if distorted:
+        ideal_pix, bnd = ideal_outline(pix, bnd, camera)
+        centre = _ideal_px(centre, camera)
     return _ShaftPoints(
         pix=ideal_pix,
-        centre=_ideal_px(np.array(centre), camera),
+        centre=centre,
         moments=mom,
         offset=shaft.offset,
         bnd=bnd,
@@ -632,356 +388,6 @@ def _shaft_points(
         mask=shaft_mask,
         merged=merged,
     )
-
-
-def _initial_direction(
-    sp: _ShaftPoints, centre: np.ndarray, mu: tuple[float, ...], med_other: np.ndarray | None
-) -> np.ndarray:
-    """(2,) unit image direction of the axis (sign not yet distal).
-
-    The principal axis of the region, except where it fails: on a short visible stretch (as
-    wide as long, or wider) the joint is on the axis, so the direction toward the
-    shaft-clasper boundary is the axis' direction whatever the shape; without a clasper, a
-    short stretch uses the direction away from where the shaft leaves the view.
-    ``med_other``: the median of the boundary points next to other parts (at least 3),
-    or None.
-    """
-    mu20, mu02, mu11 = mu
-    theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
-    e = np.array([math.cos(theta), math.sin(theta)])
-    tr, det = mu20 + mu02, mu20 * mu02 - mu11 * mu11
-    disc = math.sqrt(max(tr * tr / 4.0 - det, 0.0))
-    d0: np.ndarray | None = None
-    if med_other is not None:
-        d0 = med_other - centre
-    elif tr / 2.0 + disc < 9.0 * max(tr / 2.0 - disc, 1e-9):
-        if sp.border.any():
-            d0 = centre - _mean_rows(sp.pix, sp.border)
-    nd0 = math.hypot(d0[0], d0[1]) if d0 is not None else 0.0
-    if d0 is not None and nd0 > 2.0:
-        e = d0 / nd0
-    return e
-
-
-def _distal_sign(sp: _ShaftPoints, centre: np.ndarray, e: np.ndarray, s_pix: np.ndarray) -> int:
-    """+1 / -1 when ``e`` / ``-e`` is distal (toward the other parts, else away from the
-    image border), 0 when nothing tells."""
-    if len(sp.bnd.other) >= 3:
-        return 1 if float(((sp.bnd.other - centre) @ e).sum()) >= 0 else -1
-    lo, hi = s_pix.min(), s_pix.max()
-    t_lo = bool(np.any(sp.border & (s_pix <= lo + 2.0)))
-    t_hi = bool(np.any(sp.border & (s_pix >= hi - 2.0)))
-    return 1 if (t_lo and not t_hi) else (-1 if (t_hi and not t_lo) else 0)
-
-
-def _shaft_frame(sp: _ShaftPoints) -> _ShaftFrame:
-    """The shaft's image frame from its region moments and outline."""
-    mom = sp.moments
-    xm, ym = mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]
-    mu20 = mom["m20"] / mom["m00"] - xm * xm
-    mu02 = mom["m02"] / mom["m00"] - ym * ym
-    mu11 = mom["m11"] / mom["m00"] - xm * ym
-    centre = sp.centre
-    med_other = _median_rows(sp.bnd.other) if len(sp.bnd.other) >= 3 else None
-    e = _initial_direction(sp, centre, (mu20, mu02, mu11), med_other)
-    rel = sub_rows(sp.pix, centre)
-    s_pix = rel @ e
-    distal = _distal_sign(sp, centre, e, s_pix)
-    if distal < 0:
-        e = -e
-        s_pix = -s_pix
-    s_min, s_max = float(s_pix.min()), float(s_pix.max())
-    eperp = np.array([-e[1], e[0]])
-    across = rel @ eperp
-    at_border = sp.border.any()
-    return _ShaftFrame(
-        centre=centre,
-        e=e,
-        eperp=eperp,
-        s_pix=s_pix,
-        s_min=s_min,
-        s_max=s_max,
-        distal_seen=distal != 0,
-        prox_at_border=bool(at_border and (sp.border & (s_pix <= s_min + 2.0)).any()),
-        dist_at_border=bool(at_border and (sp.border & (s_pix >= s_max - 2.0)).any()),
-        med_other=med_other,
-        width=float(across.max() - across.min()),
-    )
-
-
-def _limb_points(sp: _ShaftPoints, fr: _ShaftFrame) -> _LimbPoints:
-    """The limb-line candidates: background boundary points minus the end zones (the
-    joint's cap; the proximal end when inside the image) and points next to other parts."""
-    # the joint's end cap reaches at most about half the width along the axis; on short
-    # visible stretches keep most of the stretch for the lines (the robust fit rejects
-    # the cap's points that curve away)
-    zone = min(0.6 * fr.width + 2.0, max(3.0, 0.15 * (fr.s_max - fr.s_min)))
-    pts = sp.bnd.bg
-    rel = sub_rows(pts, fr.centre)
-    s = rel @ fr.e
-    keep_base = np.ones(len(pts), dtype=bool)
-    if not fr.prox_at_border:
-        keep_base &= s > fr.s_min + zone
-    other = sp.bnd.other
-    if len(other):  # leave out points within 2 px of another part
-        keep_base[_near(pts, other)] = False
-    return _LimbPoints(
-        pts=pts,
-        s=s,
-        q=rel @ fr.eperp,
-        keep_base=keep_base,
-        keep=keep_base & (s < fr.s_max - zone),
-        zone=zone,
-    )
-
-
-def _near(pts: np.ndarray, other: np.ndarray) -> np.ndarray:
-    """Indices of the points (N, 2) within 2 px (strictly) of one of every other point
-    of ``other`` (M, 2), M >= 1."""
-    x, y = pts[:, 0], pts[:, 1]
-    ox, oy = other[:, 0], other[:, 1]
-    lo_x, lo_y, hi_x, hi_y = ox.min() - 2.0, oy.min() - 2.0, ox.max() + 2.0, oy.max() + 2.0
-    inside = x >= lo_x
-    inside &= x <= hi_x
-    inside &= y >= lo_y
-    inside &= y <= hi_y
-    box = np.flatnonzero(inside)
-    if not len(box):
-        return box
-    dx = np.subtract.outer(x[box], ox[::2])
-    dy = np.subtract.outer(y[box], oy[::2])
-    dx *= dx
-    dy *= dy
-    dx += dy  # squared distances
-    return box[dx.min(axis=1) < 4.0]
-
-
-def _joint_pixel(sp: _ShaftPoints, fr: _ShaftFrame) -> np.ndarray | None:
-    """(2,) the joint's pixel (for a later trocar-constrained solve), or None."""
-    if fr.med_other is not None:
-        return fr.med_other
-    if fr.distal_seen and not fr.dist_at_border:
-        return _mean_rows(sp.pix, fr.s_pix >= fr.s_max - 1.0)
-    return None
-
-
-def _solve_axis(
-    lines: tuple[np.ndarray, np.ndarray], K: np.ndarray, radius: float, fr: _ShaftFrame
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The axis ``(p0, a distal, xc)`` (mm) from two limb lines, or None when the solution
-    is behind the camera or its apparent width disagrees with the mask's."""
-    sol = axis_from_image_lines(lines[0].tolist(), lines[1].tolist(), K.tolist(), radius)
-    if sol is None:
-        return None
-    p0, a = np.array(sol[0]), np.array(sol[1])
-    tc = _closest1(fr.centre, K, p0, a)
-    xc = p0 + tc * a
-    x0, y0, z0 = xc.tolist()
-    if z0 <= 0:
-        return None
-    ax, ay, az = a.tolist()
-    z1 = z0 + az  # the image direction of a at xc, by a 1 mm step
-    du = K[0, 0] * ((x0 + ax) / z1 - x0 / z0)
-    dv = K[1, 1] * ((y0 + ay) / z1 - y0 / z0)
-    if du * fr.e[0] + dv * fr.e[1] < 0:
-        a = -a
-    if not fr.distal_seen and a[2] < 0:  # no distal cue: by convention, into the scene
-        a = -a
-    # sanity: apparent width at the centroid vs the mask's
-    c = fr.centre
-    wc = float(lines[0][:2] @ c + lines[0][2] + lines[1][:2] @ c + lines[1][2])
-    if not 0.5 * fr.width <= wc <= 1.6 * fr.width + 2.0:
-        return None
-    return p0, a, xc
-
-
-def _is_round_end(cap_q: np.ndarray, cap_s: np.ndarray, spread: float) -> bool:
-    """A free distal end is the shaft's round end (its outline bulges distally and sits at
-    one axial coordinate), not an occluder's cut across the shaft.
-
-    Args:
-        cap_q, cap_s: (n,) the end's outline points across / along the axis (px).
-        spread: robust spread of their axial coordinates on the cylinder (mm).
-    """
-    if len(cap_q) < 5 or spread > _MAX_CAP_SPREAD_MM:
-        return False
-    x2 = (cap_q - 0.5 * (cap_q.max() + cap_q.min())) ** 2
-    x2c = x2 - x2.mean()
-    return float(x2c @ (cap_s - cap_s.mean())) < 0  # along-axis coordinate shrinks outward
-
-
-def _joint(
-    p0: np.ndarray,
-    a: np.ndarray,
-    lines: tuple[np.ndarray, np.ndarray],
-    stats: tuple[_LineStats, _LineStats],
-    sp: _ShaftPoints,
-    fr: _ShaftFrame,
-    lp: _LimbPoints,
-    radius: float,
-    K: np.ndarray,
-) -> tuple[np.ndarray | None, str]:
-    """J (3,) (mm) on the axis ``(p0, a)`` from the shaft's distal outline, or None when
-    the distal end is not seen, out of view, or not the shaft's own end; with the reason
-    (:mod:`mistool.pose.status`) when None."""
-    other = sp.bnd.other
-    if not fr.distal_seen or (fr.dist_at_border and len(other) < 3):
-        return None, "joint out of view"
-    near = np.flatnonzero(lp.s >= fr.s_max - lp.zone)
-    pn = take_rows(lp.pts, near)
-    d1 = np.abs(pn @ lines[0][:2] + lines[0][2])
-    d2 = np.abs(pn @ lines[1][:2] + lines[1][2])
-    tol = max(1.0, 2.5 * max(st.sigma for st in stats))
-    cap = near[(d1 > tol) & (d2 > tol)]
-    end_pts = np.concatenate([other, take_rows(lp.pts, cap)])
-    is_other = np.zeros(len(end_pts), dtype=bool)
-    is_other[: len(other)] = True
-    if len(end_pts) < 3:
-        return None, "rejected"
-    tj, spread = _joint_t(end_pts, is_other, p0, a, radius, K)
-    if len(other) < 3 and not _is_round_end(lp.q[cap], lp.s[cap], spread):
-        return None, "occluded"
-    joint = p0 + tj * a
-    return (joint, "") if joint[2] > 0 else (None, "rejected")
-
-
-def _both(
-    lines: list[np.ndarray | None], stats: list[_LineStats | None]
-) -> tuple[tuple[np.ndarray, np.ndarray], tuple[_LineStats, _LineStats]] | None:
-    """The two limb lines and their stats, or None when a side has no line."""
-    l1, l2 = lines
-    s1, s2 = stats
-    if l1 is None or l2 is None or s1 is None or s2 is None:
-        return None
-    return (l1, l2), (s1, s2)
-
-
-def _solve_shaft(
-    lines: tuple[np.ndarray, np.ndarray],
-    stats: tuple[_LineStats, _LineStats],
-    sp: _ShaftPoints,
-    fr: _ShaftFrame,
-    lp: _LimbPoints,
-    radius: float,
-    K: np.ndarray,
-) -> _ShaftSolution | None:
-    """Axis and joint from the limb lines; on a short visible stretch, once more with the
-    lines refitted proximal of the first joint (see below)."""
-    res = _solve_axis(lines, K, radius, fr)
-    if res is None:
-        return None
-    p0, a, xc = res
-    joint, why = _joint(p0, a, lines, stats, sp, fr, lp, radius, K)
-    first = _ShaftSolution(lines, stats, p0, a, xc, joint, why)
-    if joint is None or fr.s_max - fr.s_min >= 2.5 * fr.width:
-        return first
-    # short visible stretch: the end-zone cut was small, so the joint's cap may have leaked
-    # into the lines; refit with the points the first solution puts proximal of J (the limb
-    # lines exist only there) and solve again
-    t_pts = closest_on_axis(pixel_rays(lp.pts, K), p0, a)
-    keep2 = lp.keep_base & (t_pts < float((joint - p0) @ a) - 0.5)
-    refit = _both(*_fit_limbs(lp.pts, lp.s, lp.q, keep2, fr.centre, None))
-    if refit is None:
-        return first
-    res2 = _solve_axis(refit[0], K, radius, fr)
-    if res2 is None:
-        return first
-    joint2, _ = _joint(res2[0], res2[1], refit[0], refit[1], sp, fr, lp, radius, K)
-    if joint2 is None:
-        return first
-    return _ShaftSolution(refit[0], refit[1], res2[0], res2[1], res2[2], joint2, "")
-
-
-_LINE_KEYS = (("aux_l1a", "aux_l1b", "aux_l1c"), ("aux_l2a", "aux_l2b", "aux_l2c"))
-
-
-def _store_lines(row: dict[str, float], lines: Sequence[np.ndarray | None]) -> None:
-    """The limb lines in the ``aux_l*`` cells."""
-    for keys, line in zip(_LINE_KEYS, lines, strict=True):
-        if line is not None:
-            row[keys[0]], row[keys[1]], row[keys[2]] = line.tolist()
-
-
-def _shaft_row(
-    out: dict[str, dict[str, float]],
-    sol: _ShaftSolution,
-    sp: _ShaftPoints,
-    fr: _ShaftFrame,
-    K: np.ndarray,
-    radius: float,
-    image_shape: tuple[int, int],
-    camera: Camera,
-) -> bool:
-    """Fill the shaft's row (J, axis, proximal end, quality, uncertainties); False when
-    the joint's uncertainty is too large for any pose (the reason recorded on every row)."""
-    row = out["shaft"]
-    p0, a, joint = sol.p0, sol.a, sol.joint
-    prox = _mean_rows(sp.pix, fr.s_pix <= fr.s_min + 1.0)
-    row["aux_su_px"], row["aux_sv_px"] = float(prox[0]), float(prox[1])
-    # uncertainty of the joint (or the centroid's axis point) and of the direction
-    ref = joint if joint is not None else sol.xc
-    sig_p, sig_a = _uncertainty(sol.lines, sol.stats, K, radius, ref, a)
-    row["aux_sigma_mm"], row["aux_sigma_deg"] = sig_p, sig_a
-    if not sig_p <= MAX_SIGMA_MM:
-        ray = ref / math.sqrt(float(ref @ ref))
-        end_on = abs(float(ray @ a)) > math.cos(math.radians(_END_ON_DEG))
-        _why(out, "pointing at camera" if end_on else "low quality")
-        return False
-    if not sig_a <= MAX_SIGMA_DEG:
-        # the position is known but not the direction: J only (refine_sequence restores
-        # the direction from the trocar when it can); the clasper still uses the
-        # measured direction as its (weak) bend prior
-        _fill_pose(row, joint, None, None)
-        _why(out, "uncertain axis", ("shaft",))
-        return True
-    # proximal end: where the shaft leaves the view (or its proximal end)
-    t_start = _closest1(prox, K, p0, a)
-    start = p0 + t_start * a
-    if joint is not None:
-        t_end = float((joint - p0) @ a)
-    else:  # the distal end of the outline
-        t_end = _closest1(_mean_rows(sp.pix, fr.s_pix >= fr.s_max - 1.0), K, p0, a)
-    start_ok = start[2] > 0 and t_end > t_start
-    _fill_pose(row, joint, a, start if start_ok else None)
-    if start_ok:
-        poly = hull_of_cylinder(start, p0 + t_end * a, radius, radius, K)
-        row["quality"] = iou_polygon_mask(poly, sp.mask, sp.offset, image_shape, camera)
-    return True
-
-
-def _clasper_rows(
-    out: dict[str, dict[str, float]],
-    parts: Mapping[str, PartObservation],
-    joint: np.ndarray,
-    a: np.ndarray,
-    K: np.ndarray,
-    radius: float,
-    image_shape: tuple[int, int],
-    clasper_length_mm: float | None,
-    camera: Camera,
-) -> None:
-    """Fill the clasper's row (tip, clasper axis, quality) and the wrist's (its axis)."""
-    clasper = parts.get("clasper")
-    c_axis = None
-    if clasper is not None and clasper.mask.any():
-        tip, c_axis, tip_px = _tip(
-            clasper, joint, a, K, image_shape, clasper_length_mm, 2.0 * radius, camera
-        )
-        crow = out["clasper"]
-        if tip_px is not None:
-            crow["aux_u_px"], crow["aux_v_px"] = float(tip_px[0]), float(tip_px[1])
-        if tip is not None:
-            _fill_pose(crow, tip, c_axis, joint)
-            poly = hull_of_cylinder(joint, tip, 0.5 * radius, 0.25 * radius, K)
-            crow["quality"] = iou_polygon_mask(
-                poly, clasper.mask, clasper.offset, image_shape, camera
-            )
-        else:
-            _why(out, "tip not found", ("clasper", "wrist"))
-    else:
-        _why(out, "no clasper", ("wrist",))
-    if "wrist" in parts:
-        _fill_pose(out["wrist"], None, c_axis, joint)
 
 
 def measure_instance(
@@ -994,10 +400,10 @@ def measure_instance(
     """Metric pose of one instrument in one frame.
 
     Pure and thread-safe (no shared state; RANSAC uses a fixed table of draws). The steps
-    (see the module docstring): gather the shaft's points (:func:`_shaft_points`), its image
-    frame (:func:`_shaft_frame`), the limb-line candidates (:func:`_limb_points`) and
-    lines (:func:`_fit_limbs`), the axis and joint (:func:`_solve_shaft`), then the rows
-    (:func:`_shaft_row`, :func:`_clasper_rows`).
+    (see the module docstring): gather the shaft's points (:func:`_shaft_points`), then
+    the kernel :func:`mistool.kernels.pose.shaft_pose` (the shaft's image frame, limb
+    lines, axis, joint, uncertainties, row), the shaft's quality, then the clasper's and
+    the wrist's rows (:func:`_clasper_rows`).
 
     Args:
         instance: an ``InstanceObservation`` (``.parts``: part name -> observation with
@@ -1030,37 +436,68 @@ def measure_instance(
         else:
             _why(out, "no shaft diameter")
         return out
-    K = np.asarray(camera.K, dtype=np.float64)
+    from mistool.kernels.pose import OUT, WHY, shaft_pose
+
+    K = _intrinsics(camera)
+    distorted = camera.distorted
     radius = 0.5 * float(shaft_diameter_mm)
-    row = out["shaft"]
-    sp = _shaft_points(parts, image_shape, camera)
+    sp = _shaft_points(parts, image_shape, camera, distorted)
     if sp is None:
         _why(out, "rejected")
         return out
-    fr = _shaft_frame(sp)
-    row["aux_distal"] = 1.0 if fr.distal_seen else 0.0
-    lp = _limb_points(sp, fr)
-    fitted, fitted_stats = _fit_limbs(lp.pts, lp.s, lp.q, lp.keep, fr.centre, None)
-    _store_lines(row, fitted)
-    jpx = _joint_pixel(sp, fr)
-    if jpx is not None:
-        row["aux_u_px"], row["aux_v_px"] = float(jpx[0]), float(jpx[1])
-    both = _both(fitted, fitted_stats)
-    if both is None:  # one limb line: refine_sequence may solve it with the trocar
-        none = fitted[0] is None and fitted[1] is None
-        _why(out, "no silhouette line" if none else "one silhouette line")
-        return out
-    sol = _solve_shaft(both[0], both[1], sp, fr, lp, radius, K)
-    if sol is None:
-        _why(out, "rejected")
-        return out
-    _store_lines(row, sol.lines)
-    if not _shaft_row(out, sol, sp, fr, K, radius, image_shape, camera):
-        return out
-    if sol.joint is None or sp.merged:
-        _why(out, sol.joint_why if sol.joint is None else "merged")
-        return out
-    _clasper_rows(out, parts, sol.joint, sol.a, K, radius, image_shape, clasper_length_mm, camera)
+    res = np.empty(OUT["size"])
+    rims = Rims()
+    geo = np.array([*sp.offset, *sp.mask.shape, *image_shape, _QUALITY_MAX_PIXELS])
+    bnd = sp.bnd
+    shaft_pose(
+        sp.pix,
+        sp.border,
+        sp.centre,
+        sp.moments,
+        bnd.bg,
+        bnd.other,
+        K,
+        radius,
+        _params(),
+        res,
+        geo,
+        rims.pts,
+        rims.shifted,
+        rims.canvas,
+    )
+    row = out["shaft"]
+    row.update(zip(_SHAFT_CELLS, res[: len(_SHAFT_CELLS)].tolist(), strict=True))
+    qa, qb = OUT["quality_a"], OUT["quality_b"]
+    if distorted and not math.isnan(res[qa]):
+        ends = res[qa : qa + 3], res[qb : qb + 3]
+        row["quality"] = cylinder_iou(
+            *ends, radius, radius, K, sp.mask, sp.offset, image_shape, camera
+        )
+    elif not math.isnan(res[qa]):
+        row["quality"] = rims_iou(rims, sp.mask, sp.offset)
+    why_shaft, why_all = int(res[OUT["why_shaft"]]), int(res[OUT["why_all"]])
+    if why_shaft:
+        _why(out, WHY[why_shaft], ("shaft",))
+    if why_all:
+        _why(out, WHY[why_all])
+    elif res[OUT["clasper"]]:
+        if sp.merged:
+            _why(out, "merged")
+        else:
+            j, a = OUT["joint"], OUT["a"]
+            joint, axis = res[j : j + 3], res[a : a + 3]
+            _clasper_rows(
+                out,
+                parts,
+                joint,
+                axis,
+                K,
+                radius,
+                image_shape,
+                clasper_length_mm,
+                camera,
+                distorted,
+            )
     return out
 
 
@@ -1077,112 +514,70 @@ _JAW_RAD = 2.5
 _TIP_CAP = 1.0
 
 
-def _jaw_tips(
-    mask_u8: np.ndarray,
-    offset: tuple[int, int],
-    jpx: np.ndarray,
-    width_px: float,
-    with_nears: bool = True,
-) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[float]]:
-    """Far ends of the clasper's jaws in the image.
+def _clasper_rows(
+    out: dict[str, dict[str, float]],
+    parts: Mapping[str, PartObservation],
+    joint: np.ndarray,
+    a: np.ndarray,
+    K: np.ndarray,
+    radius: float,
+    image_shape: tuple[int, int],
+    clasper_length_mm: float | None,
+    camera: Camera,
+    distorted: bool,
+) -> None:
+    """Fill the clasper's row (tip, clasper axis, quality) and the wrist's (its axis);
+    ``distorted``: ``camera.distorted``."""
+    from mistool.kernels.pose import TIP
 
-    The jaw ends are the local maxima of the distance from J's pixel along the clasper's
-    outline (a window of about one jaw width), at least half as far as the farthest;
-    the two farthest that are more than ``_JAW_SEP`` jaw widths apart are the two open
-    jaws, a single one is closed jaws. Each end is moved onto its jaw's axis: the farthest
-    extent, along the principal direction of the clasper pixels within ``_JAW_RAD`` jaw
-    widths (at most half the ends' separation), of those pixels, through their centroid.
-
-    Args:
-        mask_u8: (h, w) uint8 clasper crop; offset: its (x0, y0).
-        jpx: (2,) J's pixel.
-        width_px: expected jaw width in the image (px).
-        with_nears: False: the outline points near each end are not gathered (their
-            list is empty).
-
-    Returns:
-        (jaw-end pixels (2,), the outline points near each end (M, 2), each end's jaw
-        direction (2,) (unit, away from J), each jaw's half-width in the image (px)).
-    """
-    contours, _ = cv2.findContours(mask_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not contours:
-        return [], [], [], []
-    ci = max(contours, key=len).reshape(-1, 2)  # outline pixels (crop px, integers)
-    c = ci.astype(np.float64)
-    add_rows(c, offset)
-    dj = sub_rows(c, jpx)
-    d = np.sqrt(np.einsum("ij,ij->i", dj, dj))
-    n = len(c)
-    win = int(max(2, min(n // 4, round(width_px))))
-    padded = np.concatenate([d[-win:], d, d[:win]])
-    local = _window_max(padded, 2 * win + 1)
-    cand = np.flatnonzero((d >= local) & (d >= 0.5 * d.max()))
-    cand = cand[np.argsort(-d[cand])]
-    sep = _JAW_SEP * width_px
-    picks: list[int] = []
-    at: list[tuple[float, float]] = []
-    for i, (xi, yi) in zip(cand.tolist(), take_rows(c, cand).tolist(), strict=True):
-        if all(math.hypot(xi - xj, yi - yj) > sep for xj, yj in at):
-            picks.append(i)
-            at.append((xi, yi))
-        if len(picks) == 2:
-            break
-    rad = _JAW_RAD * width_px
-    if len(picks) == 2:
-        (xa, ya), (xb, yb) = at
-        rad = min(rad, 0.5 * math.hypot(xa - xb, ya - yb))
-    ends: list[np.ndarray] = []
-    nears: list[np.ndarray] = []
-    dirs: list[np.ndarray] = []
-    halfw: list[float] = []
-    for k in picks:
-        nb, sx, sy = _pixels_within(mask_u8, offset, (int(ci[k, 0]), int(ci[k, 1])), rad)
-        cnt = len(nb)
-        if cnt < 3:
-            continue
-        # the pixels' mean: their coordinates are integers, so their sums are exact
-        m = np.array([sx / cnt, sy / cnt])
-        dd = sub_rows(nb, m)
-        cov = dd.T @ dd
-        phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
-        e = np.array([math.cos(phi), math.sin(phi)])
-        if e @ (c[k] - jpx) < 0:
-            e = -e
-        ends.append(m + (float((dd @ e).max()) + 0.5) * e)
-        dirs.append(e)
-        across = dd @ np.array([-e[1], e[0]])
-        halfw.append(min(0.5 * float(across.max() - across.min()) + 0.5, width_px))
-        if with_nears:
-            dc = ci - ci[k]
-            nears.append(take_rows(c, np.einsum("ij,ij->i", dc, dc) <= rad * rad))
-    return ends, nears, dirs, halfw
-
-
-def _pixels_within(
-    mask_u8: np.ndarray, offset: tuple[int, int], centre: tuple[int, int], rad: float
-) -> tuple[np.ndarray, int, int]:
-    """The pixels of a mask crop at ``offset`` within ``rad`` px of the pixel ``centre``
-    (crop px, integers): (M, 2) float full-image px in row-major order (as ``np.nonzero``
-    over the whole crop, only the window around ``centre`` examined), and the sums of
-    their x and of their y (exact integers)."""
-    h, w = mask_u8.shape
-    cx, cy = centre
-    x0, y0 = max(int(math.floor(cx - rad)), 0), max(int(math.floor(cy - rad)), 0)
-    x1, y1 = min(int(math.ceil(cx + rad)) + 1, w), min(int(math.ceil(cy + rad)) + 1, h)
-    if x0 >= x1 or y0 >= y1:
-        return np.zeros((0, 2)), 0, 0
-    ys, xs = np.nonzero(mask_u8[y0:y1, x0:x1])
-    dx, dy = xs - (cx - x0), ys - (cy - y0)
-    dx *= dx
-    dy *= dy
-    dx += dy  # squared distances, exact in integers
-    inside = dx <= rad * rad
-    xs, ys = xs[inside], ys[inside]
-    fx, fy = offset[0] + x0, offset[1] + y0
-    out = np.empty((len(xs), 2))
-    np.add(xs, float(fx), out=out[:, 0])
-    np.add(ys, float(fy), out=out[:, 1])
-    return out, int(xs.sum()) + len(xs) * fx, int(ys.sum()) + len(ys) * fy
+    clasper = parts.get("clasper")
+    tip = np.full(TIP["size"], math.nan)
+    if clasper is not None and clasper.mask.any():
+        rims = Rims()
+        got = _tip(
+            clasper,
+            joint,
+            a,
+            K,
+            image_shape,
+            clasper_length_mm,
+            radius,
+            camera,
+            distorted,
+            tip,
+            rims,
+        )
+        crow = out["clasper"]
+        if got:
+            crow["aux_u_px"], crow["aux_v_px"] = tip[0], tip[1]
+        if got == 2:
+            crow.update(zip(_CLASPER_CELLS, tip[2:8].tolist(), strict=True))
+            crow.update(zip(_QUAT_CELLS, tip[8:12].tolist(), strict=True))
+            crow.update(zip(_START_CELLS, joint.tolist(), strict=True))
+            if distorted:
+                ends = joint, tip[2:5]
+                crow["quality"] = cylinder_iou(
+                    *ends,
+                    0.5 * radius,
+                    0.25 * radius,
+                    K,
+                    clasper.mask,
+                    clasper.offset,
+                    image_shape,
+                    camera,
+                )
+            else:
+                crow["quality"] = rims_iou(rims, as_mask(clasper.mask), clasper.offset)
+        else:
+            _why(out, "tip not found", ("clasper", "wrist"))
+    else:
+        _why(out, "no clasper", ("wrist",))
+    if "wrist" in parts:
+        wrow = out["wrist"]
+        if not math.isnan(tip[5]):
+            wrow.update(zip(_CLASPER_CELLS[3:], tip[5:8].tolist(), strict=True))
+            wrow.update(zip(_QUAT_CELLS, tip[8:12].tolist(), strict=True))
+        wrow.update(zip(_START_CELLS, joint.tolist(), strict=True))
 
 
 def _tip(
@@ -1192,118 +587,96 @@ def _tip(
     K: np.ndarray,
     image_shape: tuple[int, int],
     length: float | None,
-    diameter: float,
+    radius: float,
     camera: Camera,
-) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """Tip (3,), clasper axis (3,) and the tip's pixel (2,) in the ideal image (or Nones).
+    distorted: bool,
+    out: np.ndarray,
+    rims: Rims,
+) -> int:
+    """The tip's pixel, the tip and the clasper axis (ideal image; camera frame, mm) into
+    ``out`` (``mistool.kernels.pose.TIP``); 0: none found, 1: the tip's pixel only, 2: all.
+    Undistorted, the clasper's quality cylinder's image into ``rims`` as well.
 
-    The jaw ends are found on the clasper's mask, in the camera's image, and undistorted
-    (:mod:`mistool.lens`) before they meet the 3D geometry.
+    The jaw ends are found on the clasper's mask, in the camera's image
+    (:func:`mistool.kernels.pose.jaw_ends`: the local maxima of the distance from J's
+    pixel along the clasper's outline, at least half as far as the farthest; the two
+    farthest more than ``_JAW_SEP`` jaw widths apart are two open jaws, a single one
+    closed jaws; each end moved onto its jaw's axis, the principal direction of the
+    clasper pixels within ``_JAW_RAD`` jaw widths), and undistorted (:mod:`mistool.lens`)
+    before they meet the 3D geometry.
 
-    The tip's pixel is the mid-point of the jaw ends (:func:`_jaw_tips`), each end
-    pulled back by its end cap's overshoot (the truth's jaw end is the cap's centre, the
-    image ends at the cap's rim: a jaw's image radius x |cos(jaw, viewing ray)|). Its depth along
-    the pixel's ray minimises a two-term cost: the joint-to-tip distance near the
-    clasper length (well conditioned when the clasper is foreshortened) and a small bend
-    from the shaft axis (well conditioned when the clasper is seen side-on). When the
-    tip is cut by the image border it is placed at the nominal length along the least
-    bent direction that projects along the clasper's image direction.
+    The tip's pixel is the mid-point of the jaw ends, each end pulled back by its end
+    cap's overshoot (the truth's jaw end is the cap's centre, the image ends at the cap's
+    rim: a jaw's image radius x |cos(jaw, viewing ray)|). Its depth along the pixel's ray
+    minimises a two-term cost (:func:`mistool.kernels.pose.tip_solve`): the joint-to-tip
+    distance near the clasper length (well conditioned when the clasper is foreshortened)
+    and a small bend from the shaft axis (well conditioned when the clasper is seen
+    side-on). When the tip is cut by the image border it is placed at the nominal length
+    along the least bent direction that projects along the clasper's image direction.
     """
-    mask_u8 = _as_u8(clasper.mask)
+    from mistool.kernels.pose import jaw_ends, tip_pose, tip_solve
+
+    mask = as_mask(clasper.mask)
+    ox, oy = clasper.offset
+    H, W = image_shape
+    width_px = max(K[0, 0] * 0.25 * (2.0 * radius) / max(float(joint[2]), 1.0), 2.0)
+    box = _crop_bounds(mask, clasper.offset)
+    at_border = min(box[:2]) <= 0 or box[2] >= W - 1 or box[3] >= H - 1
+    contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return 0
+    ci = max(contours, key=len).reshape(-1, 2)  # outline pixels (crop px)
+    length_mm = math.nan if length is None else float(length)
+    par, cap = _params(), float(_TIP_CAP)
+    if not distorted:
+        return int(
+            tip_pose(
+                ci,
+                mask,
+                ox,
+                oy,
+                joint,
+                a,
+                K,
+                width_px,
+                length_mm,
+                at_border,
+                H,
+                W,
+                cap,
+                par,
+                out,
+                radius,
+                _QUALITY_MAX_PIXELS,
+                rims.pts,
+                rims.shifted,
+                rims.canvas,
+            )
+        )
     jx, jy, jz = joint.tolist()
     jpx = np.array([K[0, 0] * jx / jz + K[0, 2], K[1, 1] * jy / jz + K[1, 2]])  # project()
-    jpx_image = distort_points(jpx[None], camera)[0] if camera.distorted else jpx
-    width_px = K[0, 0] * 0.25 * diameter / max(float(joint[2]), 1.0)
-    box = _crop_bounds(mask_u8, clasper.offset)
-    at_border = min(box[:2]) <= 0 or box[2] >= image_shape[1] - 1 or box[3] >= image_shape[0] - 1
-    ends, nears, dirs, halfw = _jaw_tips(
-        mask_u8, clasper.offset, jpx_image, max(width_px, 2.0), with_nears=at_border
-    )
-    if not ends:
-        return None, None, None
-    tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
-    hidden = any(bool(_on_border(nb, image_shape, box).any()) for nb in nears)
-    tip_px = _ideal_px(tip_px, camera)
-    tip, c_axis, tip_px = _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
-    if tip is None or hidden or not _TIP_CAP:
-        return tip, c_axis, tip_px
+    ju, jv = distort_points(jpx[None], camera)[0].tolist()
+    ends = np.empty((2, 5))
+    found = int(jaw_ends(ci, mask, ox, oy, ju, jv, width_px, at_border, H, W, par, ends))
+    n, hidden = found & 3, found >= 4
+    if not n:
+        return 0
+    ju, jv = jpx.tolist()
+    tu, tv = _ideal_px(_mid(ends, n), camera).tolist()
+    got = int(tip_solve(tu, tv, joint, a, K, length_mm, hidden, ju, jv, par, out))
+    if got < 2 or hidden or not cap:
+        return got
     # a jaw's image ends at its end cap's rim, which reaches beyond the cap's centre (the
     # truth's jaw end) by the jaw's image radius x |cos(jaw, viewing ray)|: pull each end
     # back by that (the clasper axis stands in for each jaw's direction) and solve again
-    cos_v = abs(float(c_axis @ tip)) / math.sqrt(float(tip @ tip))
-    ends = [e - _TIP_CAP * hw * cos_v * dr for e, dr, hw in zip(ends, dirs, halfw, strict=True)]
-    tip_px = ends[0] if len(ends) == 1 else 0.5 * (ends[0] + ends[1])
-    tip_px = _ideal_px(tip_px, camera)
-    return _tip_solve(tip_px, joint, a, K, length, hidden, jpx)
+    tx, ty, tz, cx, cy, cz = out[2:8].tolist()
+    cos_v = abs(cx * tx + cy * ty + cz * tz) / math.sqrt(tx * tx + ty * ty + tz * tz)
+    for k in range(n):
+        ends[k, :2] -= cap * ends[k, 4] * cos_v * ends[k, 2:4]
+    tu, tv = _ideal_px(_mid(ends, n), camera).tolist()
+    return int(tip_solve(tu, tv, joint, a, K, length_mm, hidden, ju, jv, par, out))
 
 
-def _tip_solve(
-    tip_px: np.ndarray,
-    joint: np.ndarray,
-    a: np.ndarray,
-    K: np.ndarray,
-    length: float | None,
-    hidden: bool,
-    jpx: np.ndarray,
-) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """The tip (3,) and clasper axis (3,) from the tip's pixel (see :func:`_tip`)."""
-    # plain floats for the 3-vectors (numpy's per-call overhead dominates at this size)
-    tu, tv = tip_px.tolist()
-    ju, jv = jpx.tolist()
-    dist = math.hypot(tu - ju, tv - jv)
-    if dist < 2.0:
-        return None, None, None
-    uu, uv = (tu - ju) / dist, (tv - jv) / dist
-    l_nom = _TIP_LENGTH_FACTOR * length if length is not None else None
-    # least-bent direction in the plane of the camera centre, J and the tip's ray
-    ray = _ray(tip_px, K)
-    jx, jy, jz = joint.tolist()
-    ax, ay, az = a.tolist()
-    wx, wy, wz = (
-        ray if not hidden else _ray(np.array([ju + 10.0 * uu, jv + 10.0 * uv]), K)
-    ).tolist()
-    nx, ny, nz = jy * wz - jz * wy, jz * wx - jx * wz, jx * wy - jy * wx
-    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-    if nn < 1e-9:
-        return None, None, tip_px
-    nx, ny, nz = nx / nn, ny / nn, nz / nn
-    an = ax * nx + ay * ny + az * nz
-    cx, cy, cz = ax - an * nx, ay - an * ny, az - an * nz
-    ncl = math.sqrt(cx * cx + cy * cy + cz * cz)
-    if ncl < 1e-6:
-        return None, None, tip_px
-    cx, cy, cz = cx / ncl, cy / ncl, cz / ncl
-    # image direction of c at the joint (jz > 0 here)
-    du = K[0, 0] * ((jx + cx) / (jz + cz) - jx / jz)
-    dv_ = K[1, 1] * ((jy + cy) / (jz + cz) - jy / jz)
-    if du * uu + dv_ * uv < 0:
-        cx, cy, cz = -cx, -cy, -cz
-    if hidden:
-        if l_nom is None:
-            return None, None, tip_px
-        c = np.array([cx, cy, cz])
-        return joint + l_nom * c, c, tip_px
-    rx, ry, rz = ray.tolist()
-    s_j = rx * jx + ry * jy + rz * jz
-    span = 3.0 * (l_nom if l_nom is not None else 16.0)
-    lo = max(s_j - span, 1.0)
-    s = lo + (s_j + span - lo) * _UNIT_GRID
-    # X(s) = s ray: |X - J|^2 = s^2 - 2 s (ray . J) + |J|^2, (X - J) . a = s (ray . a) - J . a
-    ln = np.sqrt(np.maximum((s - 2.0 * s_j) * s + (jx * jx + jy * jy + jz * jz), 0.0))
-    da = s * (rx * ax + ry * ay + rz * az) - (jx * ax + jy * ay + jz * az)
-    cosb = np.minimum(np.maximum(da / np.maximum(ln, 1e-9), -1.0), 1.0)
-    cost = (np.arccos(cosb) / _TIP_BEND_SIGMA_RAD) ** 2
-    if l_nom is not None:
-        cost += ((ln - l_nom) / (_TIP_LENGTH_SIGMA * l_nom)) ** 2
-    k = int(cost.argmin())
-    sk = float(s[k])
-    if 0 < k < len(s) - 1:  # parabolic refinement
-        c0, c1, c2 = cost[k - 1 : k + 2].tolist()
-        den = c0 - 2.0 * c1 + c2
-        off = 0.5 * (c0 - c2) / den if den > 0 else 0.0
-        sk += min(max(off, -1.0), 1.0) * float(s[1] - s[0])
-    dx, dy, dz = sk * rx - jx, sk * ry - jy, sk * rz - jz
-    nd = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if nd < 1e-6:
-        return None, None, tip_px
-    return sk * ray, np.array([dx / nd, dy / nd, dz / nd]), tip_px
+def _mid(ends: np.ndarray, n: int) -> np.ndarray:
+    """The tip's pixel: the jaw end, or the mid-point of the two (``ends`` (2, 5))."""
+    return ends[0, :2] if n == 1 else 0.5 * (ends[0, :2] + ends[1, :2])

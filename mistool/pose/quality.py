@@ -20,28 +20,97 @@ import numpy as np
 
 from mistool.config import Camera
 from mistool.lens import distort_points, ideal_bounds
-from mistool.pose.cylinder import project
 
-__all__ = ["hull_of_cylinder", "image_polygon", "iou_polygon_mask", "perpendicular_basis"]
+#: The image outline of a cylinder: its two rims, 24 points each.
+_RIM_POINTS = 48
 
-_THETA = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
-_COS_COL, _SIN_COL = np.cos(_THETA)[:, None], np.sin(_THETA)[:, None]
+__all__ = [
+    "Rims",
+    "cylinder_iou",
+    "hull_of_cylinder",
+    "image_polygon",
+    "iou_polygon_mask",
+    "rims_iou",
+]
 
 
-def perpendicular_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (3,) completing the unit vector ``a`` to an orthonormal basis."""
-    ax, ay, az = a.tolist()
-    # e1 = a x ref, ref = +x (or +y when a is near +-x); plain floats (3-vectors)
-    e1 = np.array([0.0, az, -ay] if abs(ax) < 0.9 else [-az, 0.0, ax])
-    e1 /= math.sqrt(float(e1 @ e1))
-    x, y, z = e1.tolist()
-    return e1, np.array([ay * z - az * y, az * x - ax * z, ax * y - ay * x])
+class Rims:
+    """A cylinder's image as the kernels write it (:func:`mistool.kernels.pose.cylinder_outline`,
+    also filled by ``shaft_pose`` and ``tip_pose``): the rims' pixels, the same on the
+    comparison canvas, the canvas and the result."""
+
+    __slots__ = ("canvas", "pts", "shifted")
+
+    def __init__(self) -> None:
+        self.pts = np.empty((_RIM_POINTS, 2), np.float32)
+        """(48, 2) float32 the two rims' pixels (24 points each)."""
+        self.shifted = np.empty((_RIM_POINTS, 2), np.int32)
+        """(48, 2) int32 the same on the canvas (x16 fixed point, canvas step)."""
+        self.canvas = np.zeros(6, np.int64)
+        """``x0, y0, step, rows, columns`` of the canvas, then the result: 0 no outline,
+        1 no canvas (both give NaN), 2 both."""
+
+
+def rims_iou(rims: Rims, mask: np.ndarray, offset: tuple[int, int]) -> float:
+    """IoU of a cylinder's image (:class:`Rims`, undistorted camera) with a part's mask
+    crop (bool, C-contiguous) at ``offset``: OpenCV's convex hull of the rims filled on the
+    canvas, counted by :func:`mistool.kernels.pose.iou_count`; NaN without a canvas."""
+    from mistool.kernels.pose import iou_count
+
+    x0, y0, st, rows, cols, found = rims.canvas.tolist()
+    if found < 2:
+        return math.nan
+    rend = np.zeros((rows, cols), np.uint8)
+    hull = cv2.convexHull(rims.pts, returnPoints=False).reshape(-1)
+    cv2.fillConvexPoly(rend, rims.shifted[hull], 1, lineType=cv2.LINE_8, shift=4)
+    return float(iou_count(rend, mask, offset[0], offset[1], x0, y0, st))
+
+
+def _rims(
+    p_a: np.ndarray,
+    p_b: np.ndarray,
+    r_a: float,
+    r_b: float,
+    K: np.ndarray,
+    min_z_mm: float,
+    mask_box: tuple[int, int, int, int],
+    image_shape: tuple[int, int],
+    max_pixels: int,
+) -> Rims:
+    """:func:`mistool.kernels.pose.cylinder_outline` (``mask_box``: the mask crop's
+    ``(x0, y0, h, w)``)."""
+    from mistool.kernels.pose import cylinder_outline
+
+    rims = Rims()
+    pts, shifted, canvas = rims.pts, rims.shifted, rims.canvas
+    ox, oy, mh, mw = mask_box
+    found = cylinder_outline(
+        np.ascontiguousarray(p_a, dtype=np.float64),
+        np.ascontiguousarray(p_b, dtype=np.float64),
+        float(r_a),
+        float(r_b),
+        np.ascontiguousarray(K, dtype=np.float64),
+        float(min_z_mm),
+        int(ox),
+        int(oy),
+        int(mh),
+        int(mw),
+        int(image_shape[0]),
+        int(image_shape[1]),
+        int(max_pixels),
+        pts,
+        shifted,
+        canvas,
+    )
+    canvas[5] = found
+    return rims
 
 
 def hull_of_cylinder(
     p_a: np.ndarray, p_b: np.ndarray, r_a: float, r_b: float, K: np.ndarray, min_z_mm: float = 1.0
 ) -> np.ndarray | None:
-    """Image outline of a capped (tapered) cylinder.
+    """Image outline of a capped (tapered) cylinder: the convex hull of its two rims'
+    projections (24 points each).
 
     Args:
         p_a, p_b: (3,) end centres (mm, camera frame).
@@ -52,21 +121,32 @@ def hull_of_cylinder(
     Returns:
         (M, 2) float32 convex polygon (px), or None.
     """
-    d = p_b - p_a
-    nd = math.sqrt(float(d @ d))
-    if not math.isfinite(nd) or nd < 1e-6:
-        return None
-    e1, e2 = perpendicular_basis(d / nd)
-    ring = _COS_COL * e1
-    ring += _SIN_COL * e2
-    pts = np.empty((2 * len(ring), 3))
-    np.multiply(r_a, ring, out=pts[: len(ring)])
-    np.multiply(r_b, ring, out=pts[len(ring) :])
-    pts[: len(ring)] += p_a
-    pts[len(ring) :] += p_b
-    if pts[:, 2].min() < min_z_mm:
-        return None
-    return cv2.convexHull(project(pts, K).astype(np.float32)).reshape(-1, 2)
+    rims = _rims(p_a, p_b, r_a, r_b, K, min_z_mm, (0, 0, 0, 0), (1, 1), 1)
+    return cv2.convexHull(rims.pts).reshape(-1, 2) if rims.canvas[5] else None
+
+
+def cylinder_iou(
+    p_a: np.ndarray,
+    p_b: np.ndarray,
+    r_a: float,
+    r_b: float,
+    K: np.ndarray,
+    mask: np.ndarray,
+    offset: tuple[int, int],
+    image_shape: tuple[int, int],
+    camera: Camera | None = None,
+    max_pixels: int = 40000,
+) -> float:
+    """``iou_polygon_mask(hull_of_cylinder(p_a, p_b, r_a, r_b, K), mask, offset,
+    image_shape, camera, max_pixels)``, the same value, in two kernels around OpenCV's
+    hull and fill for an undistorted camera (:func:`mistool.kernels.pose.iou_count`)."""
+    if camera is not None and camera.distorted:
+        poly = hull_of_cylinder(p_a, p_b, r_a, r_b, K)
+        return iou_polygon_mask(poly, mask, offset, image_shape, camera, max_pixels)
+    m = np.ascontiguousarray(mask, dtype=bool)
+    box = (int(offset[0]), int(offset[1]), m.shape[0], m.shape[1])
+    rims = _rims(p_a, p_b, r_a, r_b, K, 1.0, box, image_shape, max_pixels)
+    return rims_iou(rims, m, (box[0], box[1]))
 
 
 def iou_polygon_mask(

@@ -6,12 +6,16 @@ unbiased estimate of where the true edge crosses the pair, with a uniform +-0.5 
 that averages out along a line. Pairs that leave the image produce no point, so the image
 border never counts as an edge. Only the part's outer outline is examined, so holes
 inside the part (specular highlights) never produce points.
+
+The points are gathered and the lines fitted by compiled kernels
+(:func:`mistool.kernels.pose.shaft_boundary`, :func:`mistool.kernels.pose.fit_line`),
+imported at the first call.
 """
 
 from __future__ import annotations
 
 import functools
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -20,18 +24,17 @@ import numpy as np
 __all__ = [
     "BG",
     "FIT_MAX_POINTS",
+    "FIT_THRESH_PX",
     "OTHER",
     "SHAFT",
     "Boundary",
     "Canvas",
-    "add_rows",
-    "boundary_points",
+    "as_mask",
     "fit_line_robust",
     "make_canvas",
-    "sub_rows",
+    "outline_points",
+    "paste",
     "regular_subsample",
-    "sum_rows",
-    "take_rows",
 ]
 
 BG, SHAFT, OTHER = 0, 1, 2
@@ -60,9 +63,11 @@ class Boundary:
     """(M, 2) points between the part and the instrument's other parts."""
 
 
-def _paste(
+def paste(
     dst: np.ndarray, x0: int, y0: int, mask: np.ndarray, ox: int, oy: int, value: int
 ) -> None:
+    """``dst[mask] = value`` where a mask crop at ``(ox, oy)`` overlaps the label crop
+    ``dst`` at ``(x0, y0)`` (full-image px), in place."""
     h, w = dst.shape
     mh, mw = mask.shape
     xa, ya = max(ox, x0), max(oy, y0)
@@ -101,116 +106,85 @@ def make_canvas(
     x1, y1 = min(ox + mw + margin, W), min(oy + mh + margin, H)
     lab = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
     for m, (px, py) in others:
-        _paste(lab, x0, y0, m.astype(bool, copy=False), px, py, OTHER)
-    _paste(lab, x0, y0, part_mask.astype(bool, copy=False), ox, oy, SHAFT)
+        paste(lab, x0, y0, m.astype(bool, copy=False), px, py, OTHER)
+    paste(lab, x0, y0, part_mask.astype(bool, copy=False), ox, oy, SHAFT)
     return Canvas(lab, x0, y0)
 
 
-def boundary_points(canvas: Canvas, outline: np.ndarray) -> Boundary:
-    """Sub-pixel boundary points of the canvas' part (see module docstring).
+def as_mask(mask: np.ndarray) -> np.ndarray:
+    """A part mask as a C-contiguous bool array (the kernels' input; no copy when it is
+    one already)."""
+    if mask.dtype == np.bool_ and mask.flags.c_contiguous:
+        return mask
+    return np.ascontiguousarray(mask != 0)
+
+
+_NO_MASK = np.zeros((0, 0), dtype=bool)
+
+
+def outline_points(
+    part_mask: np.ndarray,
+    offset: tuple[int, int],
+    contours: Sequence[np.ndarray],
+    others: list[tuple[np.ndarray, tuple[int, int]]],
+    image_shape: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray, Boundary, np.ndarray]:
+    """A part's outline pixels, border flags, boundary points and region moments.
 
     Args:
-        canvas: the part's :class:`Canvas`.
-        outline: (N, 2) the part's outer outline pixels (full-image px, integers), e.g.
-            from ``cv2.findContours``; only their 4-neighbour pairs are examined.
+        part_mask: (h, w) bool crop of the part.
+        offset: (x0, y0) of the crop in the full image (px).
+        contours: the part's outer contours (``cv2.findContours`` of the crop,
+            ``RETR_EXTERNAL``, ``CHAIN_APPROX_NONE``), at least one.
+        others: (mask, offset) crops of the same instrument's other parts (their pixels
+            are the OTHER label, the part's own pixels take precedence).
+        image_shape: (H, W) of the full image.
+
+    Returns:
+        ``(pix, border, boundary, moments)``: (N, 2) float64 outline pixels (full-image
+        px, the contours one after the other), (N,) bool on the image border, the
+        :class:`Boundary` points (for each of the four neighbours, right, left, down,
+        up, in turn along the outline), and (6,) the region moments ``m00, m10, m01,
+        m20, m11, m02`` of the contours (crop px, as ``cv2.moments`` of each contour,
+        summed).
     """
-    lab = canvas.labels
-    h, w = lab.shape
-    # pad by one pixel of the part's own label: pairs leaving the canvas give no point
-    pad = cv2.copyMakeBorder(lab, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=SHAFT)
-    ij = np.asarray(outline, dtype=np.int64)
-    x = ij[:, 0] - (canvas.x0 - 1)
-    y = ij[:, 1] - (canvas.y0 - 1)
-    at = y * (w + 2)
-    at += x
-    # (4, N) neighbours (right, left, down, up), direction-major as the pairs are examined
-    nb = pad.ravel().take(at + np.array([[1], [-1], [w + 2], [-(w + 2)]])).reshape(-1)
-    # the pairs' mid-points (full-image px), each a complex number so that a selection of
-    # them is gathered as one column
-    f = np.empty((4, len(x), 2))
-    np.add(x, _HALF_DX + (canvas.x0 - 1), out=f[:, :, 0])
-    np.add(y, _HALF_DY + (canvas.y0 - 1), out=f[:, :, 1])
-    fc = f.view(np.complex128).reshape(-1)
-    return Boundary(
-        fc[np.flatnonzero(nb == BG)].view(np.float64).reshape(-1, 2),
-        fc[np.flatnonzero(nb == OTHER)].view(np.float64).reshape(-1, 2),
-    )
+    from mistool.kernels.pose import shaft_boundary
 
-
-_HALF_DX = np.array([[0.5], [-0.5], [0.0], [0.0]])  # (4, 1) half steps to the neighbour
-_HALF_DY = np.array([[0.0], [0.0], [0.5], [-0.5]])
-
-
-def take_rows(points: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """``points[index]`` for (N, 2) float64 points and an integer or boolean (N,) index,
-    several times faster: a C-contiguous (N, 2) float64 array is gathered as one complex
-    column (the same bytes moved)."""
-    if points.dtype != np.float64 or not points.flags.c_contiguous or points.shape[1:] != (2,):
-        return points[index]
-    return points.view(np.complex128).reshape(-1)[index].view(np.float64).reshape(-1, 2)
-
-
-def _as_complex(points: np.ndarray) -> np.ndarray | None:
-    """(N,) complex view of C-contiguous (N, 2) float64 points (x + iy), else None."""
-    if points.dtype != np.float64 or not points.flags.c_contiguous or points.shape[1:] != (2,):
-        return None
-    return points.view(np.complex128).reshape(-1)
-
-
-def sum_rows(points: np.ndarray) -> np.ndarray:
-    """``points.sum(axis=0)`` of (N, 2) points, N >= 1, bit for bit (numpy adds the rows
-    of an (N, 2) array one after the other: the running sum's last row), faster: the
-    running sum of the points as complex numbers adds x and y as reals do."""
-    z = _as_complex(points)
-    if z is None:
-        return np.add.accumulate(points, axis=0)[-1]
-    total = np.add.accumulate(z)[-1]
-    return np.array([total.real, total.imag])
-
-
-def sub_rows(points: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``points - p`` for (N, 2) points and one point ``p`` (2,), bit for bit; for many
-    points as one complex column (numpy broadcasts (N, 2) - (2,) row by row, ~3x slower
-    at N = 1,000)."""
-    z = _as_complex(points) if len(points) >= 256 else None
-    if z is None:
-        return points - p
-    return (z - complex(float(p[0]), float(p[1]))).view(np.float64).reshape(-1, 2)
-
-
-def add_rows(points: np.ndarray, offset: tuple[float, float]) -> None:
-    """``points += offset`` in place for (N, 2) points, bit for bit (as :func:`sub_rows`)."""
-    z = _as_complex(points) if len(points) >= 256 else None
-    if z is None:
-        points += offset
+    if len(contours) == 1:
+        outline = contours[0].reshape(-1, 2)
+        starts = np.array([0, len(outline)])
     else:
-        z += complex(offset[0], offset[1])
-
-
-def _tls_moments(m: np.ndarray) -> np.ndarray:
-    """Weighted total-least-squares line from the (3, 3) moment matrix ``(X w) X^T`` of
-    homogeneous points ``X = (x, y, 1)``: (3,) ``(a, b, c)`` with ``hypot(a, b) = 1``."""
-    (m00, m01, m02), (_, m11, m12), (_, _, sw) = m.tolist()
-    mx, my = m02 / sw, m12 / sw
-    sxx = m00 - sw * mx * mx
-    sxy = m01 - sw * mx * my
-    syy = m11 - sw * my * my
-    phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # direction of the line
-    nx, ny = -math.sin(phi), math.cos(phi)
-    return np.array([nx, ny, -(nx * mx + ny * my)])
-
-
-def _median(v: np.ndarray) -> float:
-    k = len(v) // 2
-    return float(np.partition(v, k)[k])
-
-
-#: Fixed uniform draws for RANSAC: deterministic, thread-safe and free at call time.
-_DRAWS = np.random.default_rng(12345).random((2, 64))
+        outline = np.concatenate([c.reshape(-1, 2) for c in contours])
+        starts = np.cumsum([0] + [len(c) for c in contours])
+    masks = [(as_mask(m), int(ox), int(oy)) for m, (ox, oy) in others]
+    if len(masks) > 2:  # the kernel takes two: all others in one label crop
+        canvas = make_canvas(part_mask, offset, others, image_shape)
+        masks = [(canvas.labels == OTHER, canvas.x0, canvas.y0)]
+    masks += [(_NO_MASK, 0, 0)] * (2 - len(masks))
+    (m1, x1, y1), (m2, x2, y2) = masks
+    H, W = image_shape
+    pix, border, bg, other, moments = shaft_boundary(
+        np.ascontiguousarray(outline, dtype=np.int32),
+        starts.astype(np.int64),
+        as_mask(part_mask),
+        int(offset[0]),
+        int(offset[1]),
+        m1,
+        x1,
+        y1,
+        m2,
+        x2,
+        y2,
+        int(H),
+        int(W),
+    )
+    return pix, border, Boundary(bg, other), moments
 
 
 #: :func:`fit_line_robust` fits at most this many points (a regular subsample).
 FIT_MAX_POINTS = 192
+#: The limb-line fit's inlier threshold (px).
+FIT_THRESH_PX = 1.5
 
 
 @functools.lru_cache(maxsize=1024)
@@ -221,99 +195,50 @@ def regular_subsample(n: int, m: int) -> np.ndarray:
     return keep
 
 
-@functools.lru_cache(maxsize=1024)
-def _draw_indices(n: int, iters: int) -> tuple[np.ndarray, np.ndarray]:
-    """Ranks (along the line) of the RANSAC pairs from the fixed draws (cached)."""
-    half = n // 2
-    pick_i = (_DRAWS[0, :iters] * half).astype(np.int64)
-    pick_j = n - half + (_DRAWS[1, :iters] * half).astype(np.int64)
-    pick_i.flags.writeable = False
-    pick_j.flags.writeable = False
-    return pick_i, pick_j
-
-
 def fit_line_robust(
     pts: np.ndarray,
     along: np.ndarray,
-    rng: np.random.Generator | None = None,
-    thresh_px: float = 1.5,
+    thresh_px: float = FIT_THRESH_PX,
     iters: int = 12,
     max_points: int = FIT_MAX_POINTS,
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """Robust sub-pixel line: RANSAC on long baselines, then Tukey-weighted TLS.
+    """Robust sub-pixel line: RANSAC on long baselines, then Tukey-weighted TLS
+    (:func:`mistool.kernels.pose.fit_line`).
+
+    The RANSAC pairs come from a fixed table of draws (deterministic and thread-safe):
+    one point in each half of the points ordered along the line. The best line by MSAC
+    (residuals capped at ``thresh_px``) is refitted by total least squares on its
+    inliers, then twice with Tukey's biweight at 2.5 robust scales (the scale from the
+    median residual of the points within it, between 0.3 px and ``thresh_px``).
 
     Args:
         pts: (N, 2) candidate points (px).
         along: (N,) coordinate of each point along the expected line direction (px), used
             to draw well-separated pairs.
-        rng: random generator for the hypotheses; None uses a fixed table of draws
-            (deterministic and thread-safe).
         thresh_px: inlier threshold (px).
-        iters: RANSAC hypotheses.
+        iters: RANSAC hypotheses (at most 64).
         max_points: larger inputs are regularly subsampled to this many points.
 
     Returns:
         ``(line, inliers, sigma_px)``: (3,) line with unit normal, indices of the
-        inlier points (among the points used when subsampled), residual RMS of the
-        inliers (px); or None with fewer than 8 points.
+        inlier points (among all the points), residual RMS of the inliers (px); or None
+        with fewer than 8 points (or 6 RANSAC inliers).
     """
-    n = len(pts)
-    if n < 8:
-        return None
+    from mistool.kernels.pose import fit_line
+
+    if not 0 < iters <= 64:
+        raise ValueError(f"fit_line_robust: iters={iters!r}, expected 1 to 64")
+    pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+    along = np.asarray(along, dtype=np.float64)
     keep = None
-    if n > max_points:  # a regular subsample: the fit's precision is already ~0.03 px
-        keep = regular_subsample(n, max_points)
-        pts, along = take_rows(pts, keep), along[keep]
-        n = max_points
-    # homogeneous coordinates relative to the points' mean (well conditioned moments):
-    # a line (a, b, c) has residuals (a, b, c) @ X
-    ox, oy = (sum_rows(pts) * (1.0 / n)).tolist()
-    X = np.empty((3, n))
-    np.subtract(pts.T, np.array([[ox], [oy]]), out=X[:2])
-    X[2] = 1.0
-    order = np.argsort(along)
-    half = n // 2
-    if rng is None:
-        pick_i, pick_j = _draw_indices(n, iters)
-    else:
-        u1, u2 = rng.random(iters), rng.random(iters)
-        pick_i, pick_j = (u1 * half).astype(np.int64), n - half + (u2 * half).astype(np.int64)
-    # each hypothesis: the line through a pair of points, normal (y_i - y_j, x_j - x_i)
-    # normalised; in plain floats (a dozen pairs: numpy's per-call overhead dominates)
-    (xi, yi), (xj, yj) = X[:2, order[pick_i]].tolist(), X[:2, order[pick_j]].tolist()
-    rows = []
-    for ax, ay, bx, by in zip(xi, yi, xj, yj, strict=True):
-        h0, h1 = ay - by, bx - ax
-        ln = math.sqrt(h0 * h0 + h1 * h1)
-        if ln > 1e-9 or math.isnan(ln):  # NaN kept, as before
-            h0, h1 = h0 / ln, h1 / ln
-            rows.append((h0, h1, -(h0 * ax + h1 * ay)))
-    if not rows:
+    if len(pts) > max_points:  # a regular subsample: the fit's precision is already ~0.03 px
+        keep = regular_subsample(len(pts), max_points)
+        pts, along = pts[keep], along[keep]
+    line = np.empty(4)
+    inliers = np.empty(len(pts), np.int64)
+    x, y = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+    n_in = fit_line(x, y, np.ascontiguousarray(along), float(thresh_px), int(iters), line, inliers)
+    if n_in < 0:
         return None
-    H = np.array(rows)
-    res = np.abs(H @ X)  # (iters, n)
-    best = int(np.argmin(np.minimum(res, thresh_px).sum(axis=1)))  # MSAC
-    inl = res[best] < thresh_px
-    if np.count_nonzero(inl) < 6:
-        return None
-    xi = X[:, inl]
-    line = _tls_moments(xi @ xi.T)
-    scale = thresh_px
-    r = line @ X  # signed residuals of the current line
-    for _ in range(2):
-        u = r * (1.0 / (2.5 * scale))
-        w = np.maximum(1.0 - u * u, 0.0)
-        w *= w  # Tukey's biweight, zero beyond 2.5 scale
-        if w.sum() < 6:
-            break
-        line = _tls_moments((X * w) @ X.T)
-        r = line @ X
-        ra = np.abs(r)
-        core = ra[ra < 2.5 * scale]
-        if len(core):
-            scale = min(max(1.4826 * _median(core), 0.3), thresh_px)
-    inl = np.flatnonzero(np.abs(r) < max(2.5 * scale, 0.75))
-    ri = r[inl]
-    sigma = math.sqrt(float(ri @ ri) / len(inl)) if len(inl) else float("inf")
-    line[2] -= line[0] * ox + line[1] * oy  # back to image coordinates
-    return line, (inl if keep is None else keep[inl]), sigma
+    inl = inliers[:n_in]
+    return line[:3].copy(), (inl if keep is None else keep[inl]), float(line[3])
