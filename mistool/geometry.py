@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -389,17 +390,24 @@ def grow_to_pixel_edges(
 def _grown(pts: np.ndarray, hull: np.ndarray) -> tuple[RotatedBox, np.ndarray]:
     """:func:`grow_to_pixel_edges` of contiguous points (int32 or float32) whose
     ``minAreaRect`` is that of ``hull`` (those of them that may lie on their hull)."""
-    from mistool.kernels.boxes import grow_box
+    grow_box: Any = _KERNELS.get("grow_box")
+    if grow_box is None:  # (imported at the first fit: numba is not for the viewer's start)
+        from mistool.kernels.boxes import grow_box
 
+        _KERNELS["grow_box"] = grow_box
     (_, _), (_, _), angle = cv2.minAreaRect(hull)
-    t = math.radians(float(angle))
+    t = math.radians(angle)
     # e1 = (c, s): OpenCV's first side ("width"); the kernel projects the points on e1 and
     # e2 = (-s, c) as numpy's ``points @ e`` does, moves each side out by half its
-    # lattice gap (:func:`_lattice_gaps`) and gives the rectangle and its corners
-    rect, corners = np.empty(4), np.empty((4, 2))
-    grow_box(pts, math.cos(t), math.sin(t), rect, corners)
-    cx, cy, w, h = rect.tolist()
-    return _canonical(((cx, cy), (w, h), float(angle))), corners
+    # lattice gap (:func:`_lattice_gaps`), gives the corners and the canonical box
+    corners = np.empty((4, 2))
+    cx, cy, length, width, direction = grow_box(pts, math.cos(t), math.sin(t), angle, corners)
+    return RotatedBox(cx=cx, cy=cy, length=length, width=width, angle_deg=direction), corners
+
+
+#: Kernels imported at their first use (``mistool.kernels`` imports numba, and numba
+#: SciPy: not for a program that only imports mistool, such as the viewer at its start).
+_KERNELS: dict[str, Any] = {}
 
 
 def mask_box(

@@ -6,10 +6,13 @@ timers wrapped around each stage's entry point (CPU time, ``time.process_time``;
 stage's own time, nested stages excluded):
 
 - decode: reading a frame's label image (``parallel._load``);
+- scan: the label image read once for the per-frame work (``scan_labels``: its
+  foreground bounds, then its runs of equal values; before commit d7072b5 these passes
+  were OpenCV's masks inside ``observe_frame``, i.e. in "instances", and the bounds
+  outside every stage);
 - boxes: Algorithm 1 per part (``instances._fit_runs`` and ``geometry.fit_part`` called
   by ``observe_frame``);
-- instances: the rest of ``observe_frame`` (components, grouping) and the label image's
-  runs it reads (``scan_labels``: foreground bounds, runs);
+- instances: the rest of ``observe_frame`` (components, grouping);
 - identity: ``IdentityTracker.resolve`` (including the blob splits and the boxes of the
   split pieces): the sequential step;
 - pose: the per-frame metric pose (``parallel.measure``; also the split pieces');
@@ -53,7 +56,7 @@ from mistool.sequence import list_frames, open_sequence
 from mistool.synth import synthesize
 from mistool.tracking import IdentityTracker, instances
 
-STAGES = ("decode", "boxes", "instances", "identity", "pose", "refinement", "csv")
+STAGES = ("decode", "scan", "boxes", "instances", "identity", "pose", "refinement", "csv")
 
 
 class StageClock:
@@ -110,7 +113,7 @@ def profiled_run(seq: Path, out_csv: Path, prof: cProfile.Profile | None) -> Sta
         parallel._load = clock.wrap("decode", parallel._load)
         instances.fit_part = clock.wrap("boxes", instances.fit_part, inside="identity")
         instances._fit_runs = clock.wrap("boxes", instances._fit_runs)
-        parallel.scan_labels = clock.wrap("instances", parallel.scan_labels)
+        parallel.scan_labels = clock.wrap("scan", parallel.scan_labels)
         parallel.tracking.observe_frame = clock.wrap("instances", instances.observe_frame)
         IdentityTracker.resolve = clock.wrap("identity", resolve)  # type: ignore[method-assign]
         parallel.measure = clock.wrap("pose", parallel.measure)

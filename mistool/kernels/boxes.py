@@ -79,15 +79,25 @@ def lattice_gap(nx: float, ny: float, h: float, t_lo: float, t_hi: float) -> flo
     return b * (1.0 - best) + GAP_EPS
 
 
+#: Angles this close to 180 deg (after reduction) are reported as 0 deg
+#: (``geometry._ANGLE_SNAP_DEG``).
+ANGLE_SNAP_DEG = 1e-6
+
+_GROWN = "UniTuple(float64, 5)"
+
+
 @kernel(
-    "void(int32[:, ::1], float64, float64, float64[::1], float64[:, ::1])",
-    "void(float32[:, ::1], float64, float64, float64[::1], float64[:, ::1])",
+    _GROWN + "(int32[:, ::1], float64, float64, float64, float64[:, ::1])",
+    _GROWN + "(float32[:, ::1], float64, float64, float64, float64[:, ::1])",
 )
-def grow_box(points: np.ndarray, c: float, s: float, rect: np.ndarray, corners: np.ndarray) -> None:
+def grow_box(
+    points: np.ndarray, c: float, s: float, angle: float, corners: np.ndarray
+) -> tuple[float, float, float, float, float]:
     """The minimum-area box of ``points`` ((N, 2) pixel centres, N >= 1) whose first side
-    points along ``(c, s)`` (``minAreaRect``'s angle), each side moved out by half its
-    :func:`lattice_gap`: ``rect`` gets (cx, cy, w, h) (``w`` along ``(c, s)``), ``corners``
-    (4, 2) ``cv2.boxPoints``' corners of it (``geometry.box_points``' formula)."""
+    points along ``(c, s)`` (``minAreaRect``'s ``angle``, degrees), each side moved out by
+    half its :func:`lattice_gap`: ``corners`` gets (4, 2) ``cv2.boxPoints``' corners of
+    it (``geometry.box_points``' formula); returns its canonical (cx, cy, length, width,
+    angle_deg) (``geometry._canonical``'s)."""
     n = points.shape[0]
     a_lo = a_hi = b_lo = b_hi = 0.0
     for i in range(n):
@@ -123,10 +133,6 @@ def grow_box(points: np.ndarray, c: float, s: float, rect: np.ndarray, corners: 
     cy = ca * s + cb * c
     w = a_hi - a_lo
     h = b_hi - b_lo
-    rect[0] = cx
-    rect[1] = cy
-    rect[2] = w
-    rect[3] = h
     hb = c * 0.5
     ha = s * 0.5
     corners[0, 0] = cx - ha * h - hb * w
@@ -137,6 +143,15 @@ def grow_box(points: np.ndarray, c: float, s: float, rect: np.ndarray, corners: 
     corners[2, 1] = 2 * cy - corners[0, 1]
     corners[3, 0] = 2 * cx - corners[1, 0]
     corners[3, 1] = 2 * cy - corners[1, 1]
+    # canonical: the long side's direction in [0, 180); a zero-length box at 0 deg
+    if w >= h:
+        length, width, direction = w, h, angle
+    else:
+        length, width, direction = h, w, angle + 90.0
+    direction %= 180.0
+    if direction >= 180.0 - ANGLE_SNAP_DEG or length == 0.0:
+        direction = 0.0
+    return cx, cy, length, width, direction
 
 
 # --- a part's pixels: runs, specks, crop, contours --------------------------------------
@@ -316,65 +331,78 @@ def _next_table() -> np.ndarray:
 _NEXT = _next_table()
 
 
+@kernel("int64(boolean[:, ::1], int64, int64)")
+def _neighbours(img: np.ndarray, x: int, y: int) -> int:
+    """The 8-neighbourhood code of pixel (x, y) of ``img`` (bit k: the neighbour along
+    chain code k is set; outside ``img``: background)."""
+    h, w = img.shape
+    code = 0
+    for k in range(8):
+        xk, yk = x + _DX[k], y + _DY[k]
+        if 0 <= xk < w and 0 <= yk < h and img[yk, xk]:
+            code |= 1 << k
+    return code
+
+
 @kernel("int64(boolean[:, ::1], int64, int64, int32[:, ::1], int64)")
 def trace_outer(img: np.ndarray, x0: int, y0: int, points: np.ndarray, n: int) -> int:
     """The outer border of the 8-connected component of ``img`` whose first pixel in
     raster order is ``(x0, y0)``, as ``cv2.findContours(..., CHAIN_APPROX_SIMPLE)``
     traces it: the points where the chain direction changes appended to ``points`` from
-    row ``n`` (as ``(x - 1, y - 1)``); returns the new number of rows, or -1 when
-    ``points`` is full. ``img`` has a background frame (its first and last rows and
-    columns are False), so every pixel of the component has its 8 neighbours in it.
+    row ``n``; returns the new number of rows, or -1 when ``points`` is full. Outside
+    ``img`` is background.
 
     Each step looks up the next chain code in a table of (neighbourhood, code we came
-    from): the same answer as OpenCV's search around the pixel, without its branches."""
-    w = img.shape[1]
+    from): the same answer as OpenCV's search around the pixel, without its branches.
+    The neighbourhood of a pixel off the image's edge is read without bounds checks."""
+    h, w = img.shape
     flat = img.reshape(-1)
     cap = points.shape[0]
     if n >= cap:
         return -1
-    # unsigned flat indices (wrapping adds of the offsets): no negative-index fix-up
-    uw = np.uint64(w)
-    step = np.empty(8, np.uint64)
-    for k in range(8):
-        step[k] = np.uint64(_DX[k] + _DY[k] * w)
     # the first neighbour clockwise from the west (background: the component's first pixel)
-    i0 = np.uint64(y0 * w + x0)
+    code = _neighbours(img, x0, y0)
     s = 4
     while True:
         s = (s - 1) & 7
-        if flat[i0 + step[s]] or s == 4:
+        if (code >> s) & 1 or s == 4:
             break
     if s == 4:  # a single pixel
-        points[n, 0] = x0 - 1
-        points[n, 1] = y0 - 1
+        points[n, 0] = x0
+        points[n, 1] = y0
         return n + 1
-    i1 = i0 + step[s]
-    i3 = i0
+    x1, y1 = x0 + _DX[s], y0 + _DY[s]
+    x3, y3 = x0, y0
     prev = s ^ 4
+    uw = np.uint64(w)
     one = np.uint64(1)
     while True:
-        code = (
-            np.uint64(flat[i3 + one])
-            | np.uint64(flat[i3 + one - uw]) << one
-            | np.uint64(flat[i3 - uw]) << np.uint64(2)
-            | np.uint64(flat[i3 - one - uw]) << np.uint64(3)
-            | np.uint64(flat[i3 - one]) << np.uint64(4)
-            | np.uint64(flat[i3 - one + uw]) << np.uint64(5)
-            | np.uint64(flat[i3 + uw]) << np.uint64(6)
-            | np.uint64(flat[i3 + one + uw]) << np.uint64(7)
-        )
-        s = np.int64(_NEXT[code * np.uint64(8) + np.uint64(s)])
-        i4 = i3 + step[s]
+        if 0 < x3 < w - 1 and 0 < y3 < h - 1:  # (unsigned flat indices: no fix-up)
+            i3 = np.uint64(y3) * uw + np.uint64(x3)
+            c = (
+                np.uint64(flat[i3 + one])
+                | np.uint64(flat[i3 + one - uw]) << one
+                | np.uint64(flat[i3 - uw]) << np.uint64(2)
+                | np.uint64(flat[i3 - one - uw]) << np.uint64(3)
+                | np.uint64(flat[i3 - one]) << np.uint64(4)
+                | np.uint64(flat[i3 - one + uw]) << np.uint64(5)
+                | np.uint64(flat[i3 + uw]) << np.uint64(6)
+                | np.uint64(flat[i3 + one + uw]) << np.uint64(7)
+            )
+        else:
+            c = np.uint64(_neighbours(img, x3, y3))
+        s = np.int64(_NEXT[c * np.uint64(8) + np.uint64(s)])
         if s != prev:
             if n == cap:
                 return -1
-            points[n, 0] = np.int64(i3 % uw) - 1
-            points[n, 1] = np.int64(i3 // uw) - 1
+            points[n, 0] = x3
+            points[n, 1] = y3
             n += 1
         prev = s
-        if i4 == i0 and i3 == i1:
+        x4, y4 = x3 + _DX[s], y3 + _DY[s]
+        if x4 == x0 and y4 == y0 and x3 == x1 and y3 == y1:
             return n
-        i3 = i4
+        x3, y3 = x4, y4
         s = (s + 4) & 7
 
 
@@ -383,7 +411,7 @@ def trace_outer(img: np.ndarray, x0: int, y0: int, points: np.ndarray, n: int) -
     "int64, int32[:, ::1])"
 )
 def _trace_kept(
-    framed: np.ndarray,
+    crop: np.ndarray,
     rx0: np.ndarray,
     ry: np.ndarray,
     parent: np.ndarray,
@@ -393,13 +421,13 @@ def _trace_kept(
     y0: int,
     points: np.ndarray,
 ) -> int:
-    """The outer borders of the kept components (:func:`trace_outer` in ``framed``, the
+    """The outer borders of the kept components (:func:`trace_outer` in ``crop``, the
     runs' pixels at ``(x - x0, y - y0)``), in reverse raster order as OpenCV gives them,
     into ``points``: their number, or -1 when it is full."""
     m = 0
     for i in range(n - 1, -1, -1):
         if parent[i] == i and keep[i]:
-            m = trace_outer(framed, rx0[i] - x0, ry[i] - y0, points, m)
+            m = trace_outer(crop, rx0[i] - x0, ry[i] - y0, points, m)
             if m < 0:
                 return -1
     return m
@@ -409,37 +437,28 @@ def _trace_kept(
 def hull_rows(lo: np.ndarray, hi: np.ndarray, on_lo: np.ndarray, on_hi: np.ndarray) -> None:
     """Which row extremes lie on the convex hull's boundary: ``lo[r]`` / ``hi[r]`` are
     the leftmost / rightmost x of row ``r`` (``lo > hi``: an empty row); ``on_lo`` /
-    ``on_hi`` get True for those on it (two monotone chains over the extremes sorted by
-    (y, x); a point is dropped only at a strict turn, so collinear ones stay)."""
+    ``on_hi`` get True for those on the hull's left / right chain, collinear points
+    included (a point is dropped only at a strict turn). (The first and last rows'
+    other points on the boundary are not marked.)"""
     rows = lo.shape[0]
-    cx = np.empty(2 * rows, np.int64)
-    cy = np.empty(2 * rows, np.int64)
-    m = 0
-    for r in range(rows):
-        if lo[r] <= hi[r]:
-            cx[m], cy[m] = lo[r], r
-            m += 1
-            if hi[r] != lo[r]:
-                cx[m], cy[m] = hi[r], r
-                m += 1
-    chain = np.empty(m, np.int64)
-    for sign in (1, -1):
+    stack = np.empty(rows, np.int64)
+    for side in (1, -1):  # left chain: drop a point right of it; right chain: the mirror
+        ext = lo if side == 1 else hi
         k = 0
-        for j in range(m):
+        for r in range(rows):
+            if lo[r] > hi[r]:
+                continue
             while k >= 2:
-                o, a = chain[k - 2], chain[k - 1]
-                cross = (cx[a] - cx[o]) * (cy[j] - cy[o]) - (cy[a] - cy[o]) * (cx[j] - cx[o])
-                if sign * cross <= 0:
+                o, a = stack[k - 2], stack[k - 1]
+                cross = (ext[a] - ext[o]) * (r - o) - (a - o) * (ext[r] - ext[o])
+                if side * cross <= 0:
                     break
                 k -= 1
-            chain[k] = j
+            stack[k] = r
             k += 1
+        on = on_lo if side == 1 else on_hi
         for t in range(k):
-            j = chain[t]
-            if cx[j] == lo[cy[j]]:
-                on_lo[cy[j]] = True
-            if cx[j] == hi[cy[j]]:
-                on_hi[cy[j]] = True
+            on[stack[t]] = True
 
 
 _FIT = "Tuple((int64[::1], boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
@@ -488,9 +507,7 @@ def fit_runs(
         return info, np.zeros((0, 0), np.bool_), empty, empty
     kh, kw = y1 - y0, x1 - x0
     crop = np.zeros((kh, kw), np.bool_)
-    framed = np.zeros((kh + 2, kw + 2), np.bool_)  # with a background frame for the trace
     paint = crop.reshape(-1)
-    paint_framed = framed.reshape(-1)
     lo = np.full(kh, 1 << 30, np.int64)  # each row's extremes
     hi = np.full(kh, -1, np.int64)
     sx = sy = 0
@@ -501,9 +518,6 @@ def fit_runs(
             row = y * kw
             for x in range(np.uint64(row + a), np.uint64(row + b)):  # (unsigned: vectorised)
                 paint[x] = True
-            row = (y + 1) * (kw + 2) + 1
-            for x in range(np.uint64(row + a), np.uint64(row + b)):
-                paint_framed[x] = True
             sx += (a + b - 1) * (b - a) // 2
             sy += y * (b - a)
             lo[y] = min(lo[y], a)
@@ -513,7 +527,7 @@ def fit_runs(
     m = -1
     while m < 0:  # (a new array per attempt, never inside the loop below: see mask_runs)
         points = np.empty((cap, 2), np.int32)
-        m = _trace_kept(framed, rx0, ry, parent, keep, n, x0 - 1, y0 - 1, points)
+        m = _trace_kept(crop, rx0, ry, parent, keep, n, x0, y0, points)
         cap *= 4
     on_lo = np.zeros(kh, np.bool_)
     on_hi = np.zeros(kh, np.bool_)
