@@ -44,7 +44,7 @@ import numpy as np
 from mistool import tracking
 from mistool.config import Config
 from mistool.errors import MistoolError
-from mistool.model import InstanceObservation
+from mistool.model import InstanceObservation, PartObservation, RotatedBox
 from mistool.pose import measure_instance
 from mistool.sequence import (
     VIDEO_TOLERANCE,
@@ -110,6 +110,70 @@ class FrameResult:
     """The metric pose was left to the caller (``metrics`` is empty): it measures the
     instances the identity step keeps (:func:`measure_frames`), so the pose of a blob
     that the identity step splits is never measured (see :func:`observe_labels`)."""
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        # sent from a worker to the caller: the instances packed (pack_instances)
+        state = (self.metrics, self.unknown, self.shape, self.corrupt, self.runs, self.deferred)
+        return _frame_result, (pack_instances(self.instances), *state)
+
+
+def _frame_result(packed: tuple[Any, ...], *state: Any) -> FrameResult:
+    return FrameResult(unpack_instances(packed), *state)
+
+
+def pack_instances(instances: list[InstanceObservation]) -> tuple[Any, ...]:
+    """One frame's instances as a few flat values for pickling (what a worker sends the
+    caller): the part masks as bits in one buffer (8x fewer bytes), the corners in one
+    array, every number in flat lists. :func:`unpack_instances` gives the same objects
+    back (every value, dtype and shape; a mask is then a bool view of its unpacked
+    bytes)."""
+    parts = [p for inst in instances for p in inst.parts.values()]
+    if not parts:
+        return (
+            [
+                (i.label, (), i.centroid_px, i.area_px, i.bbox_xywh, i.image_shape)
+                for i in instances
+            ],
+        )
+    heads = [
+        (i.label, tuple(i.parts), i.centroid_px, i.area_px, i.bbox_xywh, i.image_shape)
+        for i in instances
+    ]
+    numbers = []
+    for p in parts:
+        b = p.box
+        numbers.append((p.part, b.cx, b.cy, b.length, b.width, b.angle_deg, p.area_px, p.offset))
+    bits = np.packbits(np.concatenate([p.mask.reshape(-1) for p in parts]))
+    shapes = [p.mask.shape for p in parts]
+    corners = np.stack([p.corners for p in parts])
+    return heads, numbers, shapes, bits, corners
+
+
+def unpack_instances(packed: tuple[Any, ...]) -> list[InstanceObservation]:
+    """The instances :func:`pack_instances` packed."""
+    if len(packed) == 1:
+        return [
+            InstanceObservation(label, {}, centroid, area, bbox, shape)
+            for label, _, centroid, area, bbox, shape in packed[0]
+        ]
+    heads, numbers, shapes, bits, corners = packed
+    masks = np.unpackbits(bits, count=sum(h * w for h, w in shapes)).view(np.bool_)
+    parts = []
+    start = 0
+    for k, ((part, cx, cy, length, width, angle, area, offset), (h, w)) in enumerate(
+        zip(numbers, shapes, strict=True)
+    ):
+        mask = masks[start : start + h * w].reshape(h, w)
+        start += h * w
+        box = RotatedBox(cx, cy, length, width, angle)
+        parts.append(PartObservation(part, box, corners[k], area, mask, offset))
+    out = []
+    k = 0
+    for label, names, centroid, area, bbox, shape in heads:
+        own = dict(zip(names, parts[k : k + len(names)], strict=True))
+        k += len(names)
+        out.append(InstanceObservation(label, own, centroid, area, bbox, shape))
+    return out
 
 
 def metric_pose(metric: bool, config: Config) -> bool:

@@ -398,3 +398,46 @@ def test_the_pixel_gap_reads_the_painted_component_image_only_when_needed():
         instances._LazyLabels.__getitem__ = original  # type: ignore[method-assign]
     assert got == want
     assert painted and painted[0] and not any(painted[1:])
+
+
+# --- the frame results' transport (mistool.parallel.pack_instances) -------------------------
+
+
+def _result_key(r: object) -> tuple:
+    return (
+        [_key(i) for i in r.instances],  # type: ignore[attr-defined]
+        repr(r.metrics),  # type: ignore[attr-defined]
+        r.unknown.dtype.str,  # type: ignore[attr-defined]
+        r.unknown.tolist(),  # type: ignore[attr-defined]
+        r.shape,  # type: ignore[attr-defined]
+        r.corrupt,  # type: ignore[attr-defined]
+        r.deferred,  # type: ignore[attr-defined]
+        repr(r.runs),  # type: ignore[attr-defined]
+    )
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans(), st.booleans())
+def test_a_frame_result_unpickles_to_the_same_values(seed, own, deferred):
+    """What a worker sends (masks as bits, corners stacked, numbers flat) unpickles to
+    the same instances: every value, dtype, shape and mask; masks C-contiguous bool."""
+    import pickle
+
+    from mistool.parallel import FrameResult, observe_labels
+
+    rng = np.random.default_rng(seed)
+    config = OWN if own else MERGED
+    values = [10, 11, 20, 30, 40, 50, 60, 99] if own else [10, 10, 20, 30, 99]
+    img = _label_image(rng, np.uint8, values)
+    result = observe_labels(img, config, False)
+    result.deferred = deferred
+    result.corrupt = bool(rng.integers(0, 2))
+    got = pickle.loads(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+    assert isinstance(got, FrameResult)
+    assert _result_key(got) == _result_key(result)
+    for inst in got.instances:
+        for p in inst.parts.values():
+            assert p.mask.dtype == np.bool_ and p.mask.flags.c_contiguous
+            assert p.corners.dtype == np.float64 and p.corners.shape == (4, 2)
+    empty = FrameResult([], [], np.zeros(0, np.int64), (5, 7))
+    assert _result_key(pickle.loads(pickle.dumps(empty))) == _result_key(empty)
