@@ -41,10 +41,27 @@ from _checkout import import_checkout
 HERE = Path(__file__).resolve().parent.parent
 
 
+#: Per loaded version (by id of its ``mistool.tracking``), its ``mistool.*`` modules: put
+#: back in ``sys.modules`` before it runs, so that the imports its functions make when
+#: called (``from mistool.kernels.boxes import ...`` inside a function) find its own.
+_MODULES: dict[int, dict[str, ModuleType]] = {}
+
+
 def _load(root: Path) -> ModuleType:
-    """``mistool.tracking`` of the checkout at ``root`` (its own copy of the package)."""
-    (module,) = import_checkout(root, "tracking")
+    """``mistool.tracking`` of the checkout at ``root`` (its own copy of the package, with
+    every kernel module imported)."""
+    module, _ = import_checkout(root, "tracking", "kernels._all")
+    _MODULES[id(module)] = {
+        name: m
+        for name, m in sys.modules.items()
+        if name == "mistool" or name.startswith("mistool.")
+    }
     return module
+
+
+def _use(tracking: ModuleType) -> None:
+    """``tracking``'s version's modules in ``sys.modules``."""
+    sys.modules.update(_MODULES[id(tracking)])
 
 
 def _observe(seq: Path) -> tuple[Any, list[tuple[list[Any], Any]], float]:
@@ -84,6 +101,7 @@ def _digest_instance(h: Any, inst: Any) -> None:
 
 def _run(tracking: ModuleType, cfg: Any, frames: list[Any]) -> tuple[float, list[str]]:
     """(CPU seconds of resolve over every frame, per-frame digests)."""
+    _use(tracking)
     tracker = tracking.IdentityTracker(cfg)
     outs = []
     t0 = time.process_time()
@@ -188,6 +206,7 @@ def main() -> int:
     versions["this"] = _load(HERE)  # last: the observations below use this checkout
     differ = False
     for seq in args.seqs:
+        _use(versions["this"])  # (the observations: this checkout's)
         cfg, frames, decode = _observe(seq)
         n = len(frames)
         times: dict[str, list[float]] = {k: [] for k in versions}

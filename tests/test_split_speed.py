@@ -911,3 +911,92 @@ def test_a_one_pixel_head_part_takes_blas_one_point_order():
     part = PartObservation("clasper", box, np.zeros((4, 2)), 1, mask, (int(x), int(y)))
     owner = _head_owner(part, ax, [{}, {}], [])
     assert owner[0, 0] == alone[flips[0]] != many[flips[0]]
+
+
+def _border_runs_before(inst: Any) -> list:
+    """``split.border_runs`` as it was (commit b04a2f1): the border loop in numpy."""
+    from mistool.tracking.split import ENTRY_MAX_GAP_PX, ENTRY_MIN_PX, _border_index_to_xy
+
+    shaft = inst.parts.get("shaft")
+    if shaft is None or inst.image_shape is None:
+        return []
+    hh, ww = inst.image_shape
+    x0, y0 = shaft.offset
+    m = shaft.mask
+    h, w = m.shape
+    if x0 > 0 and y0 > 0 and x0 + w < ww and y0 + h < hh:
+        return []
+    n = 2 * (ww - 1) + 2 * (hh - 1)
+    on = np.zeros(n, bool)
+    xs, ys = np.arange(x0, x0 + w), np.arange(y0, y0 + h)
+    if y0 == 0:
+        on[xs[m[0]]] = True
+    if x0 + w == ww:
+        on[(ww - 1 + ys[m[:, -1]]) % n] = True
+    if y0 + h == hh:
+        on[(ww - 1) + (hh - 1) + (ww - 1 - xs[m[-1]])] = True
+    if x0 == 0:
+        on[(2 * (ww - 1) + (hh - 1) + (hh - 1 - ys[m[:, 0]])) % n] = True
+    if on.sum() < ENTRY_MIN_PX or on.all():
+        return []
+    start = int(np.argmin(on))
+    roll = np.roll(on, -start).astype(np.int8)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], roll, [0]])))
+    runs: list[list[int]] = []
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        if runs and int(a) - runs[-1][1] <= ENTRY_MAX_GAP_PX:
+            runs[-1][1] = int(b)
+        else:
+            runs.append([int(a), int(b)])
+    out = []
+    for a, b in runs:
+        length = b - a
+        if length >= ENTRY_MIN_PX:
+            first = a + start
+            ends = np.array(
+                [
+                    _border_index_to_xy(k, ww, hh)
+                    for k in (first, first + length // 2, first + length - 1)
+                ]
+            )
+            out.append((ends, length))
+    return out
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(["corner", "side", "whole", "inside", "sparse"]))
+def test_border_runs_are_the_former_ones(seed, where):
+    """split.border_runs (compiled loop) gives the former runs: shafts entering at a
+    side, round a corner, spanning the whole image (every border pixel), inside the view,
+    or touching the border in many short stretches (gaps joined, short runs dropped)."""
+    from mistool.tracking.split import border_runs
+
+    rng = np.random.default_rng(seed)
+    hh, ww = int(rng.integers(20, 120)), int(rng.integers(20, 120))
+    h, w = int(rng.integers(1, hh + 1)), int(rng.integers(1, ww + 1))
+    if where == "whole":
+        h, w = hh, ww
+    mask = np.zeros((h, w), bool)
+    for _ in range(int(rng.integers(1, 4))):
+        a, b = rng.integers(-5, max(h, w) + 5, 2), rng.integers(-5, max(h, w) + 5, 2)
+        cv2.line(
+            mask.view(np.uint8),
+            (int(a[0]), int(a[1])),
+            (int(b[0]), int(b[1])),
+            1,
+            int(rng.integers(1, 15)),
+        )
+    if where == "sparse":
+        mask |= rng.random((h, w)) < 0.3
+    if where == "whole" and rng.random() < 0.5:
+        mask[:] = True
+    x0 = {"corner": ww - w, "inside": 1, "whole": 0}.get(where, int(rng.integers(0, ww - w + 1)))
+    y0 = {"corner": 0, "inside": 1, "whole": 0}.get(where, int(rng.choice([0, hh - h])))
+    if where == "inside":
+        mask = mask[: max(1, min(h, hh - 2)), : max(1, min(w, ww - 2))]
+    inst = _blob(mask, (x0, y0))
+    inst = InstanceObservation(None, inst.parts, (0.0, 0.0), 1, (0, 0, 1, 1), (hh, ww))
+    got, want = border_runs(inst), _border_runs_before(inst)
+    assert len(got) == len(want)
+    for (e1, n1), (e2, n2) in zip(got, want, strict=True):
+        assert n1 == n2 and np.array_equal(e1, e2)

@@ -790,40 +790,121 @@ def head_owner(
     r``, in their order, or, where ``is_centre[r]``, ``|p - c|^2 / rr`` with ``(cx, cy,
     rr) = centres[r]`` (``np.einsum``: ``dx * dx + dy * dy``); the nearest head is the
     first of equal least distances, the first NaN (``split.argmin_rows``). ``owner``
-    (h, w): its index at each mask pixel, 255 elsewhere."""
+    (h, w): its index at each mask pixel, 255 elsewhere. The pixels are gathered first,
+    then each segment's distances computed over all of them (vector code)."""
     h, w = mask.shape
     nrow = is_centre.shape[0]
-    nseg = row.shape[0]
-    seg = _frames(ends, dirs, back, radius)
-    first = np.zeros(nseg, np.bool_)  # the first segment of its head
-    taken = np.zeros(nrow, np.bool_)
-    for k in range(nseg):
-        first[k] = not taken[row[k]]
-        taken[row[k]] = True
     count = 0
     for y in range(h):
         for x in range(w):
             count += mask[y, x] != 0
-    single = count == 1  # (one point: dgemv's order)
-    d2 = np.empty((nrow, 1), np.float64)
+    px = np.empty(count, np.float64)
+    py = np.empty(count, np.float64)
+    at = np.empty(count, np.int64)
+    flat = owner.reshape(-1)
+    m = 0
     for y in range(h):
         for x in range(w):
-            if mask[y, x] == 0:
-                owner[y, x] = 255
-                continue
-            px = float(x + x0)
-            py = float(y + y0)
-            for r in range(nrow):
-                if is_centre[r]:
-                    dx = px - centres[r, 0]
-                    dy = py - centres[r, 1]
-                    d2[r, 0] = (dx * dx + dy * dy) / centres[r, 2]
-            for k in range(nseg):
-                d = _d2(px, py, seg, k, single)
-                r = row[k]
-                if first[k]:
-                    d2[r, 0] = d
-                else:
-                    v = d2[r, 0]
-                    d2[r, 0] = v if (v <= d or v != v) else d  # np.minimum(v, d)
-            owner[y, x] = _argmin_column(d2, 0, 0.0, False)
+            if mask[y, x] != 0:
+                px[m] = x + x0
+                py[m] = y + y0
+                at[m] = y * w + x
+                m += 1
+            owner[y, x] = 255
+    single = count == 1  # (one point: dgemv's order)
+    seg = _frames(ends, dirs, back, radius)
+    d2 = np.empty((nrow, count), np.float64)
+    taken = np.zeros(nrow, np.bool_)
+    for k in range(row.shape[0]):
+        r = row[k]
+        if not taken[r]:
+            for i in range(count):
+                d2[r, i] = _d2(px[i], py[i], seg, k, single)
+            taken[r] = True
+            continue
+        for i in range(count):
+            d = _d2(px[i], py[i], seg, k, single)
+            v = d2[r, i]
+            d2[r, i] = v if (v <= d or v != v) else d  # np.minimum(v, d)
+    for r in range(nrow):
+        if is_centre[r]:
+            cx, cy, rr = centres[r, 0], centres[r, 1], centres[r, 2]
+            for i in range(count):
+                dx = px[i] - cx
+                dy = py[i] - cy
+                d2[r, i] = (dx * dx + dy * dy) / rr
+    for i in range(count):
+        flat[at[i]] = _argmin_column(d2, i, 0.0, False)
+
+
+@kernel("boolean[::1](uint8[:, ::1], int64, int64, int64, int64)")
+def _border_touch(mask: np.ndarray, x0: int, y0: int, hh: int, ww: int) -> np.ndarray:
+    """(n,) over the image border walked as a loop (top, right, bottom, left; index 0
+    the top left pixel): where a crop's pixels (``mask`` at (x0, y0), in an (hh, ww)
+    image) touch it (``split._on_border``)."""
+    h, w = mask.shape
+    n = 2 * (ww - 1) + 2 * (hh - 1)
+    on = np.zeros(n, np.bool_)
+    if y0 == 0:
+        for x in range(w):
+            if mask[0, x] != 0:
+                on[x0 + x] = True
+    if x0 + w == ww:
+        for y in range(h):
+            if mask[y, w - 1] != 0:
+                on[(ww - 1 + y0 + y) % n] = True
+    if y0 + h == hh:
+        for x in range(w):
+            if mask[h - 1, x] != 0:
+                on[(ww - 1) + (hh - 1) + (ww - 1 - (x0 + x))] = True
+    if x0 == 0:
+        for y in range(h):
+            if mask[y, 0] != 0:
+                on[(2 * (ww - 1) + (hh - 1) + (hh - 1 - (y0 + y))) % n] = True
+    return on
+
+
+@kernel("int64(uint8[:, ::1], int64, int64, int64, int64, int64, int64, int64[:, ::1])")
+def border_runs(
+    mask: np.ndarray, x0: int, y0: int, hh: int, ww: int, min_px: int, max_gap: int, out: np.ndarray
+) -> int:
+    """``split.border_runs``' runs of a shaft crop (``mask`` at (x0, y0)) in an (hh, ww)
+    image: the image border walked as a loop (top, right, bottom, left; index 0 the top
+    left pixel), where the shaft's pixels touch it; runs closer than ``max_gap`` px
+    joined, those of at least ``min_px`` kept, walking from the first border pixel off
+    the shaft. ``out`` (at least n / 2 + 1, 2): each run's first index (from that
+    pixel: not reduced modulo n) and length; how many. None (0) when fewer than
+    ``min_px`` border pixels are the shaft's or all are."""
+    on = _border_touch(mask, x0, y0, hh, ww)
+    n = on.shape[0]
+    total = 0
+    start = -1
+    for i in range(n):
+        if on[i]:
+            total += 1
+        elif start < 0:
+            start = i
+    if total < min_px or start < 0:
+        return 0
+    m = 0
+    i = 0
+    while i < n:  # runs of the loop rolled to start there (on[start] is off)
+        if not on[(start + i) % n]:
+            i += 1
+            continue
+        a = i
+        while i < n and on[(start + i) % n]:
+            i += 1
+        if m > 0 and a - (out[m - 1, 0] + out[m - 1, 1]) <= max_gap:
+            out[m - 1, 1] = i - out[m - 1, 0]
+        else:
+            out[m, 0] = a
+            out[m, 1] = i - a
+            m += 1
+    k = 0
+    for j in range(m):
+        if out[j, 1] >= min_px:
+            out[k, 0] = out[j, 0] + start
+            out[k, 1] = out[j, 1]
+            k += 1
+    return k

@@ -141,25 +141,6 @@ def _border_index_to_xy(i: int, ww: int, hh: int) -> tuple[float, float]:
     return 0.0, float(hh - 1 - i)
 
 
-def _on_border(shaft: PartObservation, hh: int, ww: int) -> np.ndarray:
-    """(n,) bool over the border loop: where the shaft's pixels touch the image border."""
-    m = shaft.mask
-    x0, y0 = shaft.offset
-    h, w = m.shape
-    n = 2 * (ww - 1) + 2 * (hh - 1)
-    on = np.zeros(n, bool)
-    xs, ys = np.arange(x0, x0 + w), np.arange(y0, y0 + h)
-    if y0 == 0:
-        on[xs[m[0]]] = True
-    if x0 + w == ww:
-        on[(ww - 1 + ys[m[:, -1]]) % n] = True
-    if y0 + h == hh:
-        on[(ww - 1) + (hh - 1) + (ww - 1 - xs[m[-1]])] = True
-    if x0 == 0:
-        on[(2 * (ww - 1) + (hh - 1) + (hh - 1 - ys[m[:, 0]])) % n] = True
-    return on
-
-
 def border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
     """Where the instance's shaft pixels lie on the image border: one run of border
     pixels per shaft entering the view (runs around a corner are one), as ``(ends,
@@ -173,33 +154,20 @@ def border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
     h, w = shaft.mask.shape
     if x0 > 0 and y0 > 0 and x0 + w < ww and y0 + h < hh:
         return []
-    on = _on_border(shaft, hh, ww)
-    if on.sum() < ENTRY_MIN_PX or on.all():
-        return []
-    start = int(np.argmin(on))  # a border pixel off the shaft: runs do not wrap from here
-    roll = np.roll(on, -start).astype(np.int8)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], roll, [0]])))
-    # a gap of a few pixels in one shaft's contact (a specular hole, boundary jitter) is
-    # not a second shaft: runs that close are one entry
-    runs: list[list[int]] = []
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
-        if runs and int(a) - runs[-1][1] <= ENTRY_MAX_GAP_PX:
-            runs[-1][1] = int(b)
-        else:
-            runs.append([int(a), int(b)])
-    out = []
-    for a, b in runs:
-        length = b - a
-        if length >= ENTRY_MIN_PX:
-            first = a + start
-            ends = np.array(
-                [
-                    _border_index_to_xy(k, ww, hh)
-                    for k in (first, first + length // 2, first + length - 1)
-                ]
-            )
-            out.append((ends, length))
-    return out
+    out = np.empty((hh + ww, 2), np.int64)  # (at most n / 2 runs)
+    m = kernels.border_runs(
+        _mask_u8(shaft.mask), int(x0), int(y0), hh, ww, ENTRY_MIN_PX, ENTRY_MAX_GAP_PX, out
+    )
+    runs = []
+    for first, length in out[:m].tolist():
+        ends = np.array(
+            [
+                _border_index_to_xy(k, ww, hh)
+                for k in (first, first + length // 2, first + length - 1)
+            ]
+        )
+        runs.append((ends, length))
+    return runs
 
 
 #: The direction of a shaft entering the view is fitted on at most about this many of
