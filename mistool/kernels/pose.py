@@ -30,10 +30,29 @@ stay documented in :mod:`mistool.pose.measure`, which passes them as one array
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
 from mistool.kernels import kernel
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _inlined(signature: str) -> Callable[[F], F]:
+    """:func:`~mistool.kernels.kernel` for a small function called per point: also
+    compiled into each caller (numba's ``inline="always"``; a call from one cached kernel
+    to another stays a call, with a reference count per array argument)."""
+
+    def wrap(fn: F) -> F:
+        from numba import njit
+
+        compiled = njit([signature], cache=True, nogil=True, error_model="numpy", inline="always")
+        return cast(F, compiled(fn))
+
+    return wrap
+
 
 __all__ = [
     "FIT_LEN",
@@ -185,10 +204,13 @@ def _select(v: np.ndarray, k: int) -> float:
 def _argsort(v: np.ndarray) -> np.ndarray:
     """Indices that sort ``v`` (ascending, stable): a natural merge sort, so that the few
     monotone runs of one limb's boundary points (one per neighbour direction, in outline
-    order) are merged in a pass or two instead of sorted from scratch."""
+    order) are merged in a pass or two instead of sorted from scratch. The keys move with
+    their indices (one load per comparison)."""
     n = len(v)
     idx = np.empty(n, np.int64)
+    key = np.empty(n)
     tmp = np.empty(n, np.int64)
+    tkey = np.empty(n)
     bounds = np.empty(n + 1, np.int64)
     n_runs = 0
     i = 0
@@ -199,11 +221,13 @@ def _argsort(v: np.ndarray) -> np.ndarray:
                 j += 1
             for k in range(j - i):
                 idx[i + k] = j - 1 - k
+                key[i + k] = v[j - 1 - k]
         else:
             while j < n and v[j] >= v[j - 1]:
                 j += 1
             for k in range(i, j):
                 idx[k] = k
+                key[k] = v[k]
         bounds[n_runs] = i
         n_runs += 1
         i = j
@@ -215,19 +239,19 @@ def _argsort(v: np.ndarray) -> np.ndarray:
             hi = bounds[r + 2] if r + 2 <= n_runs else mid
             a, b, k = lo, mid, lo
             while a < mid and b < hi:
-                if v[idx[b]] < v[idx[a]]:
-                    tmp[k] = idx[b]
+                if key[b] < key[a]:
+                    tmp[k], tkey[k] = idx[b], key[b]
                     b += 1
                 else:
-                    tmp[k] = idx[a]
+                    tmp[k], tkey[k] = idx[a], key[a]
                     a += 1
                 k += 1
             while a < mid:
-                tmp[k] = idx[a]
+                tmp[k], tkey[k] = idx[a], key[a]
                 a += 1
                 k += 1
             while b < hi:
-                tmp[k] = idx[b]
+                tmp[k], tkey[k] = idx[b], key[b]
                 b += 1
                 k += 1
             bounds[m] = lo
@@ -235,6 +259,7 @@ def _argsort(v: np.ndarray) -> np.ndarray:
         bounds[m] = n
         n_runs = m
         idx, tmp = tmp, idx
+        key, tkey = tkey, key
     return idx
 
 
@@ -252,7 +277,7 @@ def _median(v: np.ndarray) -> float:
     return 0.5 * (lower + upper)
 
 
-@kernel("UniTuple(float64, 3)(float64, float64, float64[:, ::1])")
+@_inlined("UniTuple(float64, 3)(float64, float64, float64[:, ::1])")
 def _ray(u: float, v: float, K: np.ndarray) -> tuple[float, float, float]:  # noqa: N803
     """Unit viewing ray of a pixel (``cylinder.pixel_rays``)."""
     x = (u - K[0, 2]) / K[0, 0]
@@ -261,7 +286,7 @@ def _ray(u: float, v: float, K: np.ndarray) -> tuple[float, float, float]:  # no
     return x / n, y / n, 1.0 / n
 
 
-@kernel("float64(float64, float64, float64[:, ::1], float64[::1], float64[::1])")
+@_inlined("float64(float64, float64, float64[:, ::1], float64[::1], float64[::1])")
 def _closest1(u: float, v: float, K: np.ndarray, p0: np.ndarray, a: np.ndarray) -> float:  # noqa: N803
     """Axial coordinate of the axis point closest to a pixel's ray (``closest_on_axis``)."""
     dx, dy, dz = _ray(u, v, K)
@@ -271,7 +296,7 @@ def _closest1(u: float, v: float, K: np.ndarray, p0: np.ndarray, a: np.ndarray) 
     return (da * dp - ap) / max(1.0 - da * da, 1e-12)
 
 
-@kernel("UniTuple(float64, 3)(float64, float64, float64, float64[:, ::1])")
+@_inlined("UniTuple(float64, 3)(float64, float64, float64, float64[:, ::1])")
 def _plane_normal(a0: float, a1: float, a2: float, K: np.ndarray) -> tuple[float, float, float]:  # noqa: N803
     """Unit ``K^T line`` (``cylinder.plane_normal``)."""
     m0 = a0 * K[0, 0] + a1 * K[1, 0] + a2 * K[2, 0]
@@ -505,7 +530,7 @@ def shaft_boundary(
     mom = np.zeros(6)
     for c in range(len(starts) - 1):
         _contour_moments(outline, starts[c], starts[c + 1], mom)
-    return pix, border, bg[:k_bg].copy(), other[:k_other].copy(), mom
+    return pix, border, bg[:k_bg], other[:k_other], mom
 
 
 @kernel("void(uint8[:, ::1], float64[::1])")
@@ -909,7 +934,7 @@ def _frame(
     fr[_F_WIDTH] = a_hi - a_lo
 
 
-@kernel("boolean(float64, float64, float64[:, ::1])")
+@_inlined("boolean(float64, float64, float64[:, ::1])")
 def _near_other(x: float, y: float, other: np.ndarray) -> bool:
     """Within 2 px (strictly) of every other point of ``other`` (``measure._near``)."""
     for j in range(0, len(other), 2):

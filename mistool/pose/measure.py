@@ -34,7 +34,6 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -50,6 +49,7 @@ from mistool.pose.silhouette import (
     SHAFT,
     Boundary,
     as_mask,
+    kernels,
     outline_points,
     paste,
 )
@@ -191,10 +191,17 @@ def _params() -> np.ndarray:
 _QUALITY_MAX_PIXELS = 40000
 
 
-@functools.lru_cache(maxsize=16)
-def _intrinsics(camera: Camera) -> np.ndarray:
-    """``camera.K`` (3, 3) float64, built once per camera (not to be written)."""
-    return np.ascontiguousarray(camera.K, dtype=np.float64)
+_LAST_CAMERA: list[tuple[Camera, np.ndarray, bool]] = []
+
+
+def _camera(camera: Camera) -> tuple[np.ndarray, bool]:
+    """``camera.K`` (3, 3) float64 (not to be written) and ``camera.distorted``, kept for
+    the last camera seen (a run passes one camera to every call)."""
+    last = _LAST_CAMERA[0] if _LAST_CAMERA else None
+    if last is None or last[0] is not camera:
+        last = (camera, np.ascontiguousarray(camera.K, dtype=np.float64), camera.distorted)
+        _LAST_CAMERA[:] = [last]  # one reference swapped: safe across threads
+    return last[1], last[2]
 
 
 def _crop_bounds(mask: np.ndarray, offset: tuple[int, int]) -> tuple[int, int, int, int]:
@@ -229,34 +236,42 @@ def _ideal_px(px: np.ndarray, camera: Camera) -> np.ndarray:
     return undistort_points(px[None], camera)[0] if camera.distorted else px
 
 
-@dataclass(frozen=True)
 class _ShaftPoints:
     """Every image point of the shaft that the pose uses (full-image px).
 
     Gathered in one place (:func:`_shaft_points`); the clasper's points enter separately,
     in :func:`_tip`. Points are in the camera's *ideal* pinhole image: with a distorted
     lens they are undistorted here (:func:`ideal_outline`); ``border`` and ``mask`` stay
-    in the camera's image.
+    in the camera's image. (A plain class: a frozen dataclass costs microseconds to build.)
+
+    Attributes:
+        pix: (N, 2) outline pixels of the measured shaft region (ideal image).
+        centre: (2,) the region's centroid (ideal image).
+        moments: (6,) its region moments ``m00, m10, m01, m20, m11, m02`` (crop
+            coordinates, as ``cv2.moments``).
+        offset: (x0, y0) of the crop the moments refer to.
+        bnd: sub-pixel boundary points: ``bg`` next to background, ``other`` next to the
+            instrument's other parts.
+        border: (N,) bool: the outline pixel is on the image border.
+        mask: the measured shaft region (bool crop at ``offset``), for the quality IoU.
+        merged: two shafts were found in the instance (only the larger is measured).
     """
 
-    pix: np.ndarray
-    """(N, 2) outline pixels of the measured shaft region (ideal image, see below)."""
-    centre: np.ndarray
-    """(2,) the region's centroid (ideal image)."""
-    moments: np.ndarray
-    """(6,) its region moments ``m00, m10, m01, m20, m11, m02`` (crop coordinates, as
-    ``cv2.moments``)."""
-    offset: tuple[int, int]
-    """(x0, y0) of the crop the moments refer to."""
-    bnd: Boundary
-    """Sub-pixel boundary points: ``bg`` next to background, ``other`` next to the
-    instrument's other parts."""
-    border: np.ndarray
-    """(N,) bool: the outline pixel is on the image border."""
-    mask: np.ndarray
-    """The measured shaft region (bool crop at ``offset``), for the quality IoU."""
-    merged: bool
-    """Two shafts were found in the instance (only the larger is measured)."""
+    __slots__ = ("border", "bnd", "centre", "mask", "merged", "moments", "offset", "pix")
+
+    def __init__(
+        self,
+        pix: np.ndarray,
+        centre: np.ndarray,
+        moments: np.ndarray,
+        offset: tuple[int, int],
+        bnd: Boundary,
+        border: np.ndarray,
+        mask: np.ndarray,
+        merged: bool,
+    ) -> None:
+        self.pix, self.centre, self.moments, self.offset = pix, centre, moments, offset
+        self.bnd, self.border, self.mask, self.merged = bnd, border, mask, merged
 
 
 #: A shaft separated from its own wrist or clasper by a thin gap (a segmentation that
@@ -317,18 +332,17 @@ def _one_cut_shaft(contours: Sequence[np.ndarray], areas: np.ndarray, big: int) 
     across: each piece's centroid on the pieces' common axis (within
     :data:`_CUT_OFFSET_FRAC` of its own width across it) and each elongated piece along
     it (:data:`_CUT_ANGLE_DEG`); two tools side by side are half a width off it."""
-    from mistool.kernels.pose import one_cut_shaft
-
     pieces = [
         c.reshape(-1, 2) for c, a in zip(contours, areas, strict=True) if a >= 0.25 * areas[big]
     ]
     pts = np.concatenate(pieces)
-    x0, y0 = pts.min(axis=0).tolist()
-    x1, y1 = pts.max(axis=0).tolist()
-    union = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
+    x0, y0, w, h = cv2.boundingRect(pts)  # the points' min and max (numpy's are slow here)
+    union = np.zeros((h, w), np.uint8)
     cv2.drawContours(union, [c - np.array([x0, y0], np.int32) for c in pieces], -1, 1, thickness=-1)
-    starts = np.cumsum([0] + [len(c) for c in pieces]).astype(np.int64)
-    return bool(one_cut_shaft(pts, starts, union, x0, y0, _CUT_ANGLE_DEG, _CUT_OFFSET_FRAC))
+    starts = np.cumsum([0] + [len(c) for c in pieces], dtype=np.int64)
+    return bool(
+        kernels().one_cut_shaft(pts, starts, union, x0, y0, _CUT_ANGLE_DEG, _CUT_OFFSET_FRAC)
+    )
 
 
 def _shaft_points(
@@ -336,9 +350,10 @@ def _shaft_points(
     image_shape: tuple[int, int],
     camera: Camera,
     distorted: bool,
-) -> _ShaftPoints | None:
+) -> _ShaftPoints | str:
     """Gather the shaft's image points (the pose's pixel input, in the ideal image of
-    ``camera``), or None for no region.
+    ``camera``), or why there are none (``"not visible"``: no pixel; ``"rejected"``: no
+    region).
 
     Two shafts in one instance (two tools touching in a merged mask): only the larger
     shaft is kept (and ``merged`` set: the clasper, whose jaws may be either tool's, is
@@ -350,6 +365,8 @@ def _shaft_points(
     shaft_mask = as_mask(shaft.mask)
     smask = shaft_mask.view(np.uint8)
     contours, _ = cv2.findContours(smask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return "not visible"
     merged = False
     if len(contours) > 1:
         areas = np.array([cv2.contourArea(c) for c in contours])
@@ -369,7 +386,7 @@ def _shaft_points(
         m = cv2.moments(smask, binaryImage=True)
         mom = np.array([m["m00"], m["m10"], m["m01"], m["m20"], m["m11"], m["m02"]])
     if mom[0] <= 0:
-        return None
+        return "rejected"
     if len(bnd.other) < 3 and others:  # a thin gap between the shaft and its head?
         bnd = _across_gap(bnd, shaft_mask, shaft.offset, contours, others, image_shape)
     m00, m10, m01 = mom[:3].tolist()
@@ -378,16 +395,7 @@ def _shaft_points(
     if distorted:
         ideal_pix, bnd = ideal_outline(pix, bnd, camera)
         centre = _ideal_px(centre, camera)
-    return _ShaftPoints(
-        pix=ideal_pix,
-        centre=centre,
-        moments=mom,
-        offset=shaft.offset,
-        bnd=bnd,
-        border=border,
-        mask=shaft_mask,
-        merged=merged,
-    )
+    return _ShaftPoints(ideal_pix, centre, mom, shaft.offset, bnd, border, shaft_mask, merged)
 
 
 def measure_instance(
@@ -422,13 +430,7 @@ def measure_instance(
     parts = instance.parts
     out = {name: _nan_row() for name in parts}
     shaft = parts.get("shaft")
-    if (
-        camera is None
-        or shaft is None
-        or shaft_diameter_mm is None
-        or not shaft_diameter_mm > 0
-        or not shaft.mask.any()
-    ):
+    if camera is None or shaft is None or shaft_diameter_mm is None or not shaft_diameter_mm > 0:
         if camera is None:
             _why(out, "no camera")
         elif shaft is None or not shaft.mask.any():
@@ -436,20 +438,19 @@ def measure_instance(
         else:
             _why(out, "no shaft diameter")
         return out
-    from mistool.kernels.pose import OUT, WHY, shaft_pose
-
-    K = _intrinsics(camera)
-    distorted = camera.distorted
+    kp = kernels()
+    OUT = kp.OUT
+    K, distorted = _camera(camera)
     radius = 0.5 * float(shaft_diameter_mm)
     sp = _shaft_points(parts, image_shape, camera, distorted)
-    if sp is None:
-        _why(out, "rejected")
+    if isinstance(sp, str):
+        _why(out, sp)
         return out
     res = np.empty(OUT["size"])
     rims = Rims()
     geo = np.array([*sp.offset, *sp.mask.shape, *image_shape, _QUALITY_MAX_PIXELS])
     bnd = sp.bnd
-    shaft_pose(
+    kp.shaft_pose(
         sp.pix,
         sp.border,
         sp.centre,
@@ -477,9 +478,9 @@ def measure_instance(
         row["quality"] = rims_iou(rims, sp.mask, sp.offset)
     why_shaft, why_all = int(res[OUT["why_shaft"]]), int(res[OUT["why_all"]])
     if why_shaft:
-        _why(out, WHY[why_shaft], ("shaft",))
+        _why(out, kp.WHY[why_shaft], ("shaft",))
     if why_all:
-        _why(out, WHY[why_all])
+        _why(out, kp.WHY[why_all])
     elif res[OUT["clasper"]]:
         if sp.merged:
             _why(out, "merged")
@@ -528,14 +529,16 @@ def _clasper_rows(
 ) -> None:
     """Fill the clasper's row (tip, clasper axis, quality) and the wrist's (its axis);
     ``distorted``: ``camera.distorted``."""
-    from mistool.kernels.pose import TIP
-
     clasper = parts.get("clasper")
-    tip = np.full(TIP["size"], math.nan)
-    if clasper is not None and clasper.mask.any():
+    tip = np.full(kernels().TIP["size"], math.nan)
+    mask = as_mask(clasper.mask) if clasper is not None else None
+    contours = () if mask is None else _contours(mask)
+    if clasper is not None and mask is not None and contours:  # a clasper with pixels
         rims = Rims()
         got = _tip(
             clasper,
+            mask,
+            contours,
             joint,
             a,
             K,
@@ -567,7 +570,7 @@ def _clasper_rows(
                     camera,
                 )
             else:
-                crow["quality"] = rims_iou(rims, as_mask(clasper.mask), clasper.offset)
+                crow["quality"] = rims_iou(rims, mask, clasper.offset)
         else:
             _why(out, "tip not found", ("clasper", "wrist"))
     else:
@@ -580,8 +583,15 @@ def _clasper_rows(
         wrow.update(zip(_START_CELLS, joint.tolist(), strict=True))
 
 
+def _contours(mask: np.ndarray) -> Sequence[np.ndarray]:
+    """The outer contours of a bool crop (``cv2.findContours``, every outline pixel)."""
+    return cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0]
+
+
 def _tip(
     clasper: PartObservation,
+    mask: np.ndarray,
+    contours: Sequence[np.ndarray],
     joint: np.ndarray,
     a: np.ndarray,
     K: np.ndarray,
@@ -614,23 +624,18 @@ def _tip(
     side-on). When the tip is cut by the image border it is placed at the nominal length
     along the least bent direction that projects along the clasper's image direction.
     """
-    from mistool.kernels.pose import jaw_ends, tip_pose, tip_solve
-
-    mask = as_mask(clasper.mask)
+    kp = kernels()
     ox, oy = clasper.offset
     H, W = image_shape
     width_px = max(K[0, 0] * 0.25 * (2.0 * radius) / max(float(joint[2]), 1.0), 2.0)
     box = _crop_bounds(mask, clasper.offset)
     at_border = min(box[:2]) <= 0 or box[2] >= W - 1 or box[3] >= H - 1
-    contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not contours:
-        return 0
     ci = max(contours, key=len).reshape(-1, 2)  # outline pixels (crop px)
     length_mm = math.nan if length is None else float(length)
     par, cap = _params(), float(_TIP_CAP)
     if not distorted:
         return int(
-            tip_pose(
+            kp.tip_pose(
                 ci,
                 mask,
                 ox,
@@ -657,13 +662,13 @@ def _tip(
     jpx = np.array([K[0, 0] * jx / jz + K[0, 2], K[1, 1] * jy / jz + K[1, 2]])  # project()
     ju, jv = distort_points(jpx[None], camera)[0].tolist()
     ends = np.empty((2, 5))
-    found = int(jaw_ends(ci, mask, ox, oy, ju, jv, width_px, at_border, H, W, par, ends))
+    found = int(kp.jaw_ends(ci, mask, ox, oy, ju, jv, width_px, at_border, H, W, par, ends))
     n, hidden = found & 3, found >= 4
     if not n:
         return 0
     ju, jv = jpx.tolist()
     tu, tv = _ideal_px(_mid(ends, n), camera).tolist()
-    got = int(tip_solve(tu, tv, joint, a, K, length_mm, hidden, ju, jv, par, out))
+    got = int(kp.tip_solve(tu, tv, joint, a, K, length_mm, hidden, ju, jv, par, out))
     if got < 2 or hidden or not cap:
         return got
     # a jaw's image ends at its end cap's rim, which reaches beyond the cap's centre (the
@@ -674,7 +679,7 @@ def _tip(
     for k in range(n):
         ends[k, :2] -= cap * ends[k, 4] * cos_v * ends[k, 2:4]
     tu, tv = _ideal_px(_mid(ends, n), camera).tolist()
-    return int(tip_solve(tu, tv, joint, a, K, length_mm, hidden, ju, jv, par, out))
+    return int(kp.tip_solve(tu, tv, joint, a, K, length_mm, hidden, ju, jv, par, out))
 
 
 def _mid(ends: np.ndarray, n: int) -> np.ndarray:

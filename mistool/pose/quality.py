@@ -20,6 +20,7 @@ import numpy as np
 
 from mistool.config import Camera
 from mistool.lens import distort_points, ideal_bounds
+from mistool.pose.silhouette import kernels
 
 #: The image outline of a cylinder: its two rims, 24 points each.
 _RIM_POINTS = 48
@@ -55,15 +56,13 @@ def rims_iou(rims: Rims, mask: np.ndarray, offset: tuple[int, int]) -> float:
     """IoU of a cylinder's image (:class:`Rims`, undistorted camera) with a part's mask
     crop (bool, C-contiguous) at ``offset``: OpenCV's convex hull of the rims filled on the
     canvas, counted by :func:`mistool.kernels.pose.iou_count`; NaN without a canvas."""
-    from mistool.kernels.pose import iou_count
-
     x0, y0, st, rows, cols, found = rims.canvas.tolist()
     if found < 2:
         return math.nan
     rend = np.zeros((rows, cols), np.uint8)
     hull = cv2.convexHull(rims.pts, returnPoints=False).reshape(-1)
     cv2.fillConvexPoly(rend, rims.shifted[hull], 1, lineType=cv2.LINE_8, shift=4)
-    return float(iou_count(rend, mask, offset[0], offset[1], x0, y0, st))
+    return float(kernels().iou_count(rend, mask, offset[0], offset[1], x0, y0, st))
 
 
 def _rims(
@@ -79,12 +78,10 @@ def _rims(
 ) -> Rims:
     """:func:`mistool.kernels.pose.cylinder_outline` (``mask_box``: the mask crop's
     ``(x0, y0, h, w)``)."""
-    from mistool.kernels.pose import cylinder_outline
-
     rims = Rims()
     pts, shifted, canvas = rims.pts, rims.shifted, rims.canvas
     ox, oy, mh, mw = mask_box
-    found = cylinder_outline(
+    found = kernels().cylinder_outline(
         np.ascontiguousarray(p_a, dtype=np.float64),
         np.ascontiguousarray(p_b, dtype=np.float64),
         float(r_a),

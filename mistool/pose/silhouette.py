@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from types import ModuleType
 
 import cv2
 import numpy as np
@@ -31,6 +32,7 @@ __all__ = [
     "Canvas",
     "as_mask",
     "fit_line_robust",
+    "kernels",
     "make_canvas",
     "outline_points",
     "paste",
@@ -111,6 +113,19 @@ def make_canvas(
     return Canvas(lab, x0, y0)
 
 
+_KERNELS: list[ModuleType] = []
+
+
+def kernels() -> ModuleType:
+    """:mod:`mistool.kernels.pose`, imported at the first call (numba, with scipy, loads
+    then, not when mistool is imported: the viewer starts without it), then kept."""
+    if not _KERNELS:
+        import mistool.kernels.pose
+
+        _KERNELS.append(mistool.kernels.pose)
+    return _KERNELS[0]
+
+
 def as_mask(mask: np.ndarray) -> np.ndarray:
     """A part mask as a C-contiguous bool array (the kernels' input; no copy when it is
     one already)."""
@@ -148,14 +163,12 @@ def outline_points(
         m20, m11, m02`` of the contours (crop px, as ``cv2.moments`` of each contour,
         summed).
     """
-    from mistool.kernels.pose import shaft_boundary
-
     if len(contours) == 1:
         outline = contours[0].reshape(-1, 2)
-        starts = np.array([0, len(outline)])
+        starts = np.array([0, len(outline)], np.int64)
     else:
         outline = np.concatenate([c.reshape(-1, 2) for c in contours])
-        starts = np.cumsum([0] + [len(c) for c in contours])
+        starts = np.cumsum([0] + [len(c) for c in contours], dtype=np.int64)
     masks = [(as_mask(m), int(ox), int(oy)) for m, (ox, oy) in others]
     if len(masks) > 2:  # the kernel takes two: all others in one label crop
         canvas = make_canvas(part_mask, offset, others, image_shape)
@@ -163,9 +176,9 @@ def outline_points(
     masks += [(_NO_MASK, 0, 0)] * (2 - len(masks))
     (m1, x1, y1), (m2, x2, y2) = masks
     H, W = image_shape
-    pix, border, bg, other, moments = shaft_boundary(
-        np.ascontiguousarray(outline, dtype=np.int32),
-        starts.astype(np.int64),
+    pix, border, bg, other, moments = kernels().shaft_boundary(
+        outline if outline.dtype == np.int32 else outline.astype(np.int32),
+        starts,
         as_mask(part_mask),
         int(offset[0]),
         int(offset[1]),
@@ -224,8 +237,6 @@ def fit_line_robust(
         inlier points (among all the points), residual RMS of the inliers (px); or None
         with fewer than 8 points (or 6 RANSAC inliers).
     """
-    from mistool.kernels.pose import fit_line
-
     if not 0 < iters <= 64:
         raise ValueError(f"fit_line_robust: iters={iters!r}, expected 1 to 64")
     pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
@@ -237,7 +248,9 @@ def fit_line_robust(
     line = np.empty(4)
     inliers = np.empty(len(pts), np.int64)
     x, y = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
-    n_in = fit_line(x, y, np.ascontiguousarray(along), float(thresh_px), int(iters), line, inliers)
+    n_in = kernels().fit_line(
+        x, y, np.ascontiguousarray(along), float(thresh_px), int(iters), line, inliers
+    )
     if n_in < 0:
         return None
     inl = inliers[:n_in]
