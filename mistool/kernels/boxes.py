@@ -331,103 +331,103 @@ def _next_table() -> np.ndarray:
 _NEXT = _next_table()
 
 
-@kernel("int64(boolean[:, ::1], int64, int64)")
-def _neighbours(img: np.ndarray, x: int, y: int) -> int:
-    """The 8-neighbourhood code of pixel (x, y) of ``img`` (bit k: the neighbour along
-    chain code k is set; outside ``img``: background)."""
-    h, w = img.shape
-    code = 0
-    for k in range(8):
-        xk, yk = x + _DX[k], y + _DY[k]
-        if 0 <= xk < w and 0 <= yk < h and img[yk, xk]:
-            code |= 1 << k
-    return code
-
-
-@kernel("int64(boolean[:, ::1], int64, int64, int32[:, ::1], int64)")
-def trace_outer(img: np.ndarray, x0: int, y0: int, points: np.ndarray, n: int) -> int:
-    """The outer border of the 8-connected component of ``img`` whose first pixel in
-    raster order is ``(x0, y0)``, as ``cv2.findContours(..., CHAIN_APPROX_SIMPLE)``
-    traces it: the points where the chain direction changes appended to ``points`` from
-    row ``n``; returns the new number of rows, or -1 when ``points`` is full. Outside
-    ``img`` is background.
+@kernel("int64(boolean[::1], int64, int64, int64, int32[:, ::1], int64)")
+def trace_outer(store: np.ndarray, w: int, x0: int, y0: int, points: np.ndarray, n: int) -> int:
+    """The outer border of the 8-connected component whose first pixel in raster order
+    is ``(x0, y0)``, as ``cv2.findContours(..., CHAIN_APPROX_SIMPLE)`` traces it, in the
+    image ``store[1:-1].reshape(-1, w)[1:-1]`` (the rows above and below it and the
+    first and last items of ``store`` are background; outside its columns is background
+    too): the points where the chain direction changes appended to ``points`` from row
+    ``n``; returns the new number of rows, or -1 when ``points`` is full.
 
     Each step looks up the next chain code in a table of (neighbourhood, code we came
     from): the same answer as OpenCV's search around the pixel, without its branches.
-    The neighbourhood of a pixel off the image's edge is read without bounds checks."""
-    h, w = img.shape
-    flat = img.reshape(-1)
+    A neighbourhood is read without bounds checks: the rows above and below are in
+    ``store``, and the neighbours left of the first column and right of the last (the
+    pixels the flat index wraps to, in ``store`` too) are masked out."""
+    flat = store
     cap = points.shape[0]
     if n >= cap:
         return -1
-    # the first neighbour clockwise from the west (background: the component's first pixel)
-    code = _neighbours(img, x0, y0)
-    s = 4
-    while True:
-        s = (s - 1) & 7
-        if (code >> s) & 1 or s == 4:
-            break
-    if s == 4:  # a single pixel
-        points[n, 0] = x0
-        points[n, 1] = y0
-        return n + 1
-    x1, y1 = x0 + _DX[s], y0 + _DY[s]
-    x3, y3 = x0, y0
-    prev = s ^ 4
     uw = np.uint64(w)
     one = np.uint64(1)
+    step = np.empty(8, np.uint64)  # (unsigned flat indices, wrapping adds: no fix-up)
+    for k in range(8):
+        step[k] = np.uint64(_DX[k] + _DY[k] * w)
+    x3 = x0
+    i3 = np.uint64(y0 + 1) * uw + np.uint64(x0 + 1)
+    i0 = i3
+    i1 = i3  # the first neighbour clockwise from the west, set below
+    s = 4
+    prev = 0
+    first = True
     while True:
-        if 0 < x3 < w - 1 and 0 < y3 < h - 1:  # (unsigned flat indices: no fix-up)
-            i3 = np.uint64(y3) * uw + np.uint64(x3)
-            c = (
-                np.uint64(flat[i3 + one])
-                | np.uint64(flat[i3 + one - uw]) << one
-                | np.uint64(flat[i3 - uw]) << np.uint64(2)
-                | np.uint64(flat[i3 - one - uw]) << np.uint64(3)
-                | np.uint64(flat[i3 - one]) << np.uint64(4)
-                | np.uint64(flat[i3 - one + uw]) << np.uint64(5)
-                | np.uint64(flat[i3 + uw]) << np.uint64(6)
-                | np.uint64(flat[i3 + one + uw]) << np.uint64(7)
-            )
-        else:
-            c = np.uint64(_neighbours(img, x3, y3))
-        s = np.int64(_NEXT[c * np.uint64(8) + np.uint64(s)])
+        left = np.uint64(x3 > 0)
+        right = np.uint64(x3 < w - 1)
+        code = (
+            (np.uint64(flat[i3 + one]) & right)
+            | (np.uint64(flat[i3 + one - uw]) & right) << one
+            | np.uint64(flat[i3 - uw]) << np.uint64(2)
+            | (np.uint64(flat[i3 - one - uw]) & left) << np.uint64(3)
+            | (np.uint64(flat[i3 - one]) & left) << np.uint64(4)
+            | (np.uint64(flat[i3 - one + uw]) & left) << np.uint64(5)
+            | np.uint64(flat[i3 + uw]) << np.uint64(6)
+            | (np.uint64(flat[i3 + one + uw]) & right) << np.uint64(7)
+        )
+        if first:  # the start pixel (west of it: background)
+            first = False
+            s = 4
+            while True:
+                s = (s - 1) & 7
+                if (code >> np.uint64(s)) & one or s == 4:
+                    break
+            if s == 4:  # a single pixel
+                points[n, 0] = x0
+                points[n, 1] = y0
+                return n + 1
+            i1 = i0 + step[s]
+            prev = s ^ 4
+        s = np.int64(_NEXT[code * np.uint64(8) + np.uint64(s)])
         if s != prev:
             if n == cap:
                 return -1
             points[n, 0] = x3
-            points[n, 1] = y3
+            points[n, 1] = np.int64((i3 - one) // uw) - 1
             n += 1
         prev = s
-        x4, y4 = x3 + _DX[s], y3 + _DY[s]
-        if x4 == x0 and y4 == y0 and x3 == x1 and y3 == y1:
+        i4 = i3 + step[s]
+        if i4 == i0 and i3 == i1:
             return n
-        x3, y3 = x4, y4
+        i3 = i4
+        x3 += _DX[s]
         s = (s + 4) & 7
 
 
 @kernel(
-    "int64(boolean[:, ::1], int32[::1], int32[::1], int32[::1], boolean[::1], int64, int64, "
-    "int64, int32[:, ::1])"
+    "int64(boolean[::1], int64, int32[::1], int32[::1], int32[::1], int64[::1], int64, "
+    "int64, int64, int64, int32[:, ::1])"
 )
 def _trace_kept(
-    crop: np.ndarray,
+    store: np.ndarray,
+    w: int,
     rx0: np.ndarray,
     ry: np.ndarray,
     parent: np.ndarray,
-    keep: np.ndarray,
+    area: np.ndarray,
+    min_area: int,
     n: int,
     x0: int,
     y0: int,
     points: np.ndarray,
 ) -> int:
-    """The outer borders of the kept components (:func:`trace_outer` in ``crop``, the
-    runs' pixels at ``(x - x0, y - y0)``), in reverse raster order as OpenCV gives them,
-    into ``points``: their number, or -1 when it is full."""
+    """The outer borders of the kept components (roots with an ``area`` of at least
+    ``min_area``; :func:`trace_outer` in ``store``, ``w`` pixels a row, the runs'
+    pixels at ``(x - x0, y - y0)``), in reverse raster order as OpenCV gives them, into
+    ``points``: their number, or -1 when it is full."""
     m = 0
     for i in range(n - 1, -1, -1):
-        if parent[i] == i and keep[i]:
-            m = trace_outer(crop, rx0[i] - x0, ry[i] - y0, points, m)
+        if parent[i] == i and area[i] >= min_area:
+            m = trace_outer(store, w, rx0[i] - x0, ry[i] - y0, points, m)
             if m < 0:
                 return -1
     return m
@@ -485,37 +485,40 @@ def fit_runs(
       pixels'), and every point of the first and last rows.
     """
     info = np.zeros(5, np.int64)
-    empty = np.zeros((0, 2), np.int32)
     parent = np.empty(max(n, 1), np.int32)
     join_runs(ry, rx0, rx1, parent, n, 1)
     area = np.zeros(max(n, 1), np.int64)  # per root
     for i in range(n):
         area[parent[i]] += rx1[i] - rx0[i]
-    keep = np.empty(max(n, 1), np.bool_)
     total = 0
     x0 = y0 = 1 << 30
     x1 = y1 = -1
     for i in range(n):
-        keep[i] = area[parent[i]] >= min_area
-        if keep[i]:
+        if area[parent[i]] >= min_area:
             total += rx1[i] - rx0[i]
             x0 = min(x0, rx0[i])
             x1 = max(x1, rx1[i])
             y0 = min(y0, ry[i])
             y1 = max(y1, ry[i] + 1)
     if total == 0:
+        empty = np.zeros((0, 2), np.int32)
         return info, np.zeros((0, 0), np.bool_), empty, empty
     kh, kw = y1 - y0, x1 - x0
-    crop = np.zeros((kh, kw), np.bool_)
-    paint = crop.reshape(-1)
-    lo = np.full(kh, 1 << 30, np.int64)  # each row's extremes
-    hi = np.full(kh, -1, np.int64)
+    # the crop with a background row above and below and a pixel before and after, for
+    # the trace; the crop itself a contiguous view of it
+    store = np.zeros((kh + 2) * kw + 2, np.bool_)
+    crop = store[kw + 1 : (kh + 1) * kw + 1].reshape(kh, kw)
+    paint = store
+    lo = np.empty(kh, np.int64)  # each row's extremes
+    hi = np.empty(kh, np.int64)
+    for y in range(kh):
+        lo[y], hi[y] = 1 << 30, -1
     sx = sy = 0
     for i in range(n):
-        if keep[i]:
+        if area[parent[i]] >= min_area:
             y = ry[i] - y0
             a, b = rx0[i] - x0, rx1[i] - x0
-            row = y * kw
+            row = (y + 1) * kw + 1
             for x in range(np.uint64(row + a), np.uint64(row + b)):  # (unsigned: vectorised)
                 paint[x] = True
             sx += (a + b - 1) * (b - a) // 2
@@ -527,28 +530,26 @@ def fit_runs(
     m = -1
     while m < 0:  # (a new array per attempt, never inside the loop below: see mask_runs)
         points = np.empty((cap, 2), np.int32)
-        m = _trace_kept(crop, rx0, ry, parent, keep, n, x0, y0, points)
+        m = _trace_kept(store, kw, rx0, ry, parent, area, min_area, n, x0, y0, points)
         cap *= 4
     on_lo = np.zeros(kh, np.bool_)
     on_hi = np.zeros(kh, np.bool_)
     hull_rows(lo, hi, on_lo, on_hi)
-    on = np.empty(m, np.bool_)
     count = 0
     for k in range(m):
         x, y = points[k, 0], points[k, 1]
-        on[k] = y == 0 or y == kh - 1 or (x == lo[y] and on_lo[y]) or (x == hi[y] and on_hi[y])
-        count += on[k]
-    out = np.empty((m, 2), np.int32)
+        count += y == 0 or y == kh - 1 or (x == lo[y] and on_lo[y]) or (x == hi[y] and on_hi[y])
     hull = np.empty((count, 2), np.int32)
     j = 0
     for k in range(m):
-        out[k, 0] = points[k, 0] + x0 + ox
-        out[k, 1] = points[k, 1] + y0 + oy
-        if on[k]:
-            hull[j, 0] = out[k, 0]
-            hull[j, 1] = out[k, 1]
+        x, y = points[k, 0], points[k, 1]
+        points[k, 0] = x + x0 + ox
+        points[k, 1] = y + y0 + oy
+        if y == 0 or y == kh - 1 or (x == lo[y] and on_lo[y]) or (x == hi[y] and on_hi[y]):
+            hull[j, 0] = points[k, 0]
+            hull[j, 1] = points[k, 1]
             j += 1
-    return info, crop, out, hull
+    return info, crop, points[:m], hull
 
 
 @kernel(_FIT + "(uint8[:, ::1], int64, int64, int64)")

@@ -288,8 +288,15 @@ def observe_frame(
 def _value_range(rng: tuple[int, int], dtype: np.dtype) -> tuple[int, int]:
     """A part's inclusive value range as ``range_mask`` clips it to the image's dtype
     (empty: lo > hi)."""
-    info = np.iinfo(dtype)
-    return max(int(rng[0]), int(info.min)), min(int(rng[1]), int(info.max))
+    limits = _LIMITS.get(dtype)
+    if limits is None:
+        info = np.iinfo(dtype)
+        limits = _LIMITS[dtype] = (int(info.min), int(info.max))
+    return max(int(rng[0]), limits[0]), min(int(rng[1]), limits[1])
+
+
+#: (min, max) of the label images' dtypes (``np.iinfo`` costs ~10 us).
+_LIMITS: dict[np.dtype, tuple[int, int]] = {}
 
 
 #: ``fit_selected``'s members for runs all labelled 0: every run.
