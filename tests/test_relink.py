@@ -114,6 +114,22 @@ def test_a_head_entering_in_two_pieces_is_one_tool():
     assert set(far["instrument"]) == {"2"} and far.num_rows == 9
 
 
+def test_a_head_entering_under_two_names_for_a_few_frames_is_one_tool():
+    """Fresh seed 58 (65.4%): a tool entering head first was named "2" for three frames,
+    a piece of it "3" in the middle one, and the tool went on as "3": the short-lived
+    host of the piece is long enough (3 frames), the piece's name is absorbed and the
+    tool's first three frames linked to the rest."""
+    rows = []
+    for f in range(44, 47):
+        rows.append(_row(f, "2", "clasper", 700.0 - 10 * (f - 44), 100.0, 30.0, 12.0))
+    rows.append(_row(45, "3", "clasper", 650.0, 104.0, 20.0, 10.0))
+    for f in range(47, 80):
+        rows.append(_row(f, "3", "clasper", 670.0 - 10 * (f - 47), 100.0, 30.0, 12.0))
+    out = relink(_table(rows), 25.0)
+    assert set(out["instrument"]) == {"1"}
+    assert out.num_rows == len(rows) - 1
+
+
 def test_a_piece_farther_than_an_occluder_or_beside_a_shaft_is_no_fragment():
     """A short-lived name beyond the fragment reach, or beside a tool showing its shaft
     (a cut-off head there joins its shaft in the grouping; a tool entering beside it is

@@ -8,13 +8,16 @@ are plain to see, and undone here (:func:`relink`, called by :func:`mistool.api.
   names in its first frame; the piece's name lives a frame or two (and may later be
   handed to another tool coming back near it). A name's first run of at most
   :data:`FRAGMENT_MAX_FRAMES` frames that lies, in each of its frames, within
-  :data:`FRAGMENT_REACH_PX` of a longer-lived name seen in all of them, is that tool's: its
-  rows take that name (a row of a part the tool already shows in that frame is dropped:
-  one row per frame, instrument and part).
+  :data:`FRAGMENT_REACH_PX` of a longer-lived name seen in all of them (at least
+  :data:`FRAGMENT_HOST_MIN_FRAMES`), is that tool's when the tool shows no shaft there
+  (its head entering the view), or shows a shaft and a head but none of the piece's parts,
+  the piece lying on beyond its head along its shaft (:data:`BEYOND_HEAD_DEG`: jaws cut off
+  past the wrist): the piece's rows take that name (a row of a part the tool already
+  shows in that frame is dropped: one row per frame, instrument and part).
 - **Broken lives.** A tool that leaves the view and comes back farther from where it left
   than the online search reaches gets a new name; a name given back to the wrong tool
   after a gap follows that tool. Each name is cut into tracklets, its runs of consecutive
-  frames; then one gated assignment (:func:`~mistool.assignment.gated_assignment`) links
+  frames; then one gated assignment (:func:`sparse_gated_assignment`) links
   tracklet ends to later tracklet starts by where the tool's shaft enters the view (it
   pivots about its trocar) and the time between them (:func:`link_cost`). Links the
   identity step made (one name across a gap) cost less and are kept unless the assignment
@@ -54,8 +57,10 @@ FRAGMENT_MAX_FRAMES = 3
 #: ... when in each of those frames one of its part boxes lies within this many pixels of
 #: one of that tool's (an occluder's width: the cut-off head lies beyond it) ...
 FRAGMENT_REACH_PX = 80.0
-#: ... and that tool is seen in all of them and for at least this many frames.
-FRAGMENT_HOST_MIN_FRAMES = 10
+#: ... and that tool is seen in all of them, for longer and for at least this many
+#: frames (its head may itself come in pieces for a few frames, then go on under the name
+#: of one of them: that one is linked on).
+FRAGMENT_HOST_MIN_FRAMES = 3
 #: Tracklets are linked across at most this many seconds unseen ...
 LINK_MAX_GAP_S = 4.0
 #: ... at a cost of at most this much (:func:`link_cost`).
@@ -181,7 +186,8 @@ def _absorb_fragments(rows: _Rows, tracklets: list[_Tracklet]) -> None:
         if first_run[t.name] is not t or len(t.frames) > FRAGMENT_MAX_FRAMES:
             continue
         # hosts: seen in all its frames (a tracklet's frames are consecutive), long-lived
-        hosts = (firsts <= t.first) & (lasts >= t.last) & (sizes >= FRAGMENT_HOST_MIN_FRAMES)
+        hosts = (firsts <= t.first) & (lasts >= t.last) & (sizes > len(t.frames))
+        hosts &= sizes >= FRAGMENT_HOST_MIN_FRAMES
         best: tuple[float, _Tracklet] | None = None
         for k in np.flatnonzero(hosts):
             o = tracklets[k]
