@@ -296,7 +296,7 @@ def fit_part(
 
 
 def fit_of(
-    found: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    found: tuple[Any, np.ndarray, np.ndarray, np.ndarray],
     offset: tuple[int, int],
     pixel_edges: bool = True,
 ) -> PartFit | None:
@@ -307,7 +307,7 @@ def fit_of(
     area = int(info[0])
     if area == 0:
         return None
-    box, corners = _grown(pts, hull) if pixel_edges else min_area_box(hull)
+    box, corners = grown_box(pts, hull) if pixel_edges else min_area_box(hull)
     origin = (int(offset[0] + info[1]), int(offset[1] + info[2]))
     return PartFit(box=box, corners=corners, area_px=area, kept=kept, offset=origin)
 
@@ -384,12 +384,13 @@ def grow_to_pixel_edges(
         ``(box, corners)`` like :func:`min_area_box`.
     """
     pts = np.ascontiguousarray(_as_cv_points(points))
-    return _grown(pts, pts)
+    return grown_box(pts, pts)
 
 
-def _grown(pts: np.ndarray, hull: np.ndarray) -> tuple[RotatedBox, np.ndarray]:
-    """:func:`grow_to_pixel_edges` of contiguous points (int32 or float32) whose
-    ``minAreaRect`` is that of ``hull`` (those of them that may lie on their hull)."""
+def grown_box(pts: np.ndarray, hull: np.ndarray) -> tuple[RotatedBox, np.ndarray]:
+    """:func:`grow_to_pixel_edges` of contiguous (N, 2) points (int32 or float32) whose
+    ``minAreaRect`` is that of ``hull`` (those of them that may lie on their hull, as
+    :func:`mistool.kernels.boxes.fit_runs` gives them): ``(box, corners)``."""
     grow_box: Any = _KERNELS.get("grow_box")
     if grow_box is None:  # (imported at the first fit: numba is not for the viewer's start)
         from mistool.kernels.boxes import grow_box

@@ -354,7 +354,7 @@ def trace_outer(store: np.ndarray, w: int, x0: int, y0: int, points: np.ndarray,
     step = np.empty(8, np.uint64)  # (unsigned flat indices, wrapping adds: no fix-up)
     for k in range(8):
         step[k] = np.uint64(_DX[k] + _DY[k] * w)
-    x3 = x0
+    x3, y3 = x0, y0
     i3 = np.uint64(y0 + 1) * uw + np.uint64(x0 + 1)
     i0 = i3
     i1 = i3  # the first neighbour clockwise from the west, set below
@@ -388,18 +388,20 @@ def trace_outer(store: np.ndarray, w: int, x0: int, y0: int, points: np.ndarray,
             i1 = i0 + step[s]
             prev = s ^ 4
         s = np.int64(_NEXT[code * np.uint64(8) + np.uint64(s)])
-        if s != prev:
-            if n == cap:
-                return -1
-            points[n, 0] = x3
-            points[n, 1] = np.int64((i3 - one) // uw) - 1
-            n += 1
+        # the point where the direction changes (written always, kept when it does:
+        # no branch to mispredict); n < cap here
+        points[n, 0] = x3
+        points[n, 1] = y3
+        n += s != prev
+        if n == cap:
+            return -1
         prev = s
         i4 = i3 + step[s]
         if i4 == i0 and i3 == i1:
             return n
         i3 = i4
         x3 += _DX[s]
+        y3 += _DY[s]
         s = (s + 4) & 7
 
 
@@ -461,18 +463,18 @@ def hull_rows(lo: np.ndarray, hi: np.ndarray, on_lo: np.ndarray, on_hi: np.ndarr
             on[stack[t]] = True
 
 
-_FIT = "Tuple((int64[::1], boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
+_FIT = "Tuple((UniTuple(int64, 5), boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
 
 
 @kernel(_FIT + "(int32[::1], int32[::1], int32[::1], int64, int64, int64, int64)")
 def fit_runs(
     ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, min_area: int, ox: int, oy: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[tuple[int, int, int, int, int], np.ndarray, np.ndarray, np.ndarray]:
     """A part's pixels given as ``n`` runs in raster order (see :func:`mask_runs`): its
     8-connected components of fewer than ``min_area`` pixels dropped, then
 
     - ``info``: (area, x0, y0, sum of x - x0, sum of y - y0) of the kept pixels, ``(x0,
-      y0)`` the top-left of their bounds (area 0: nothing kept, the rest unset);
+      y0)`` the top-left of their bounds (all 0: nothing kept);
     - ``crop``: the kept pixels' (h, w) bool crop at ``(x0, y0)``;
     - ``points``: (N, 2) int32 external contour points of the kept components, in
       ``cv2.findContours``' order (see the module docstring), run coordinates plus
@@ -484,7 +486,6 @@ def fit_runs(
       (:func:`hull_rows`; every hull point is one, since the contours' hull is the
       pixels'), and every point of the first and last rows.
     """
-    info = np.zeros(5, np.int64)
     parent = np.empty(max(n, 1), np.int32)
     join_runs(ry, rx0, rx1, parent, n, 1)
     area = np.zeros(max(n, 1), np.int64)  # per root
@@ -502,7 +503,7 @@ def fit_runs(
             y1 = max(y1, ry[i] + 1)
     if total == 0:
         empty = np.zeros((0, 2), np.int32)
-        return info, np.zeros((0, 0), np.bool_), empty, empty
+        return (0, 0, 0, 0, 0), np.zeros((0, 0), np.bool_), empty, empty
     kh, kw = y1 - y0, x1 - x0
     # the crop with a background row above and below and a pixel before and after, for
     # the trace; the crop itself a contiguous view of it
@@ -525,7 +526,6 @@ def fit_runs(
             sy += y * (b - a)
             lo[y] = min(lo[y], a)
             hi[y] = max(hi[y], b - 1)
-    info[0], info[1], info[2], info[3], info[4] = total, x0, y0, sx, sy
     cap = 4 * n + 16
     m = -1
     while m < 0:  # (a new array per attempt, never inside the loop below: see mask_runs)
@@ -549,13 +549,13 @@ def fit_runs(
             hull[j, 0] = points[k, 0]
             hull[j, 1] = points[k, 1]
             j += 1
-    return info, crop, points[:m], hull
+    return (total, x0, y0, sx, sy), crop, points[:m], hull
 
 
 @kernel(_FIT + "(uint8[:, ::1], int64, int64, int64)")
 def fit_mask(
     mask: np.ndarray, min_area: int, ox: int, oy: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[tuple[int, int, int, int, int], np.ndarray, np.ndarray, np.ndarray]:
     """:func:`fit_runs` of a mask's non-zero pixels (mask coordinates)."""
     ry, rx0, rx1, n = mask_runs(mask)
     return fit_runs(ry, rx0, rx1, n, min_area, ox, oy)

@@ -396,7 +396,7 @@ def components(
     return count + 1, label, stats, counts, shaft_counts, border
 
 
-_FIT = "Tuple((int64[::1], boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
+_FIT = "Tuple((UniTuple(int64, 5), boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
 
 
 @kernel(
@@ -416,7 +416,7 @@ def fit_selected(
     min_area: int,
     ox: int,
     oy: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[tuple[int, int, int, int, int], np.ndarray, np.ndarray, np.ndarray]:
     """:func:`mistool.kernels.boxes.fit_runs` of the pixels of the value runs whose
     value lies in ``[lo, hi]`` and whose ``label`` is one of ``members`` (True at the
     labels wanted; ``members[0]`` with every ``label`` 0 takes all): one part of one

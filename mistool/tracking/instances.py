@@ -39,7 +39,7 @@ import numpy as np
 
 from mistool.config import Config
 from mistool.errors import MaskFormatError
-from mistool.geometry import as_cv_labels, fit_of, fit_part
+from mistool.geometry import as_cv_labels, fit_part, grown_box
 from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
 
 __all__ = [
@@ -306,34 +306,38 @@ _ALL = np.ones(1, np.bool_)
 def _fit_runs(
     runs: LabelRuns,
     part: str,
-    rng: tuple[int, int],
+    lo: int,
+    hi: int,
     label: np.ndarray,
     members: np.ndarray,
     min_area: int,
 ) -> tuple[PartObservation, int, int] | None:
-    """Algorithm 1 of the pixels of ``runs`` with a value in ``rng`` and a ``label`` among
-    ``members``: the part's observation and its pixels' sums of x - x0 and y - y0
+    """Algorithm 1 of the pixels of ``runs`` with a value in ``[lo, hi]`` and a ``label``
+    among ``members``: the part's observation and its pixels' sums of x - x0 and y - y0
     (``(x0, y0)``: its crop's offset), or None when no pixel is left."""
-    from mistool.kernels.instances import fit_selected
-
-    lo, hi = _value_range(rng, runs.dtype)
     fx, fy = runs.bounds[0], runs.bounds[1]
-    found = fit_selected(
+    (area, x0, y0, sum_x, sum_y), kept, pts, hull = _kernels().fit_selected(
         runs.ry, runs.rx0, runs.rx1, runs.rv, label, runs.n, lo, hi, members, min_area, fx, fy
     )
-    fit = fit_of(found, (fx, fy))
-    if fit is None:
+    if area == 0:
         return None
-    obs = PartObservation(
-        part=part,
-        box=fit.box,
-        corners=fit.corners,
-        area_px=fit.area_px,
-        mask=fit.kept,
-        offset=fit.offset,
-    )
-    info = found[0]
-    return obs, int(info[3]), int(info[4])
+    box, corners = grown_box(pts, hull)
+    return PartObservation(part, box, corners, area, kept, (fx + x0, fy + y0)), sum_x, sum_y
+
+
+def _kernels() -> Any:
+    """:mod:`mistool.kernels.instances`, imported at the first frame (numba, and with it
+    SciPy, is not for a program that only imports mistool, such as the viewer at its
+    start)."""
+    global _KERNELS
+    if _KERNELS is None:
+        from mistool.kernels import instances as kernels
+
+        _KERNELS = kernels
+    return _KERNELS
+
+
+_KERNELS: Any = None
 
 
 def _instance(
@@ -371,7 +375,8 @@ def _own_labels(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
         fits = []
         for part in PARTS:
             if part in spec.parts and spec.parts[part][1] > 0:
-                got = _fit_runs(runs, part, spec.parts[part], label, _ALL, config.min_area_px)
+                lo, hi = _value_range(spec.parts[part], runs.dtype)
+                got = _fit_runs(runs, part, lo, hi, label, _ALL, config.min_area_px)
                 if got is not None:
                     fits.append(got)
         if fits:
@@ -430,8 +435,8 @@ def _merged(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
 
     def fits_of(members: np.ndarray) -> list[tuple[PartObservation, int, int]]:
         fits = []
-        for p in part_names:
-            got = _fit_runs(runs, p, config.parts[p], label, members, min_area)
+        for p, (lo, hi) in zip(part_names, ranges.tolist(), strict=True):
+            got = _fit_runs(runs, p, lo, hi, label, members, min_area)
             if got is not None:
                 fits.append(got)
         return fits
