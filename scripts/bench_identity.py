@@ -6,13 +6,15 @@ Each sequence's frames are decoded and observed once (``observe_frame`` and the 
 runs, as a worker does: ``parallel.observe_labels`` without the pose); then a fresh
 ``IdentityTracker(config).resolve`` runs over them ``--runs`` times (CPU time,
 ``time.process_time``; best and median). With ``--ref DIR`` (another checkout's root, e.g.
-a commit exported with ``git archive``) both versions run alternately (A B A B ...) in
-this one process on the same observations, and their outputs are compared: every
-frame's names and returned instances (centroid, area, bounds, every part's box, corners,
-area, offset and mask bits). ``--pieces`` times the step's pieces (the assignment, the
-split's fit and pixel assignment, ...) in one more run. ``--cprofile N`` prints the N
-costliest functions under ``resolve`` (this checkout, one more run). The decode-only baseline
-(``cv2.imread(path, cv2.IMREAD_UNCHANGED)``) is timed in the same run. Usage::
+a commit exported with ``git archive``) both versions run alternately (A B A B ...), each
+in its own child process (two copies of one compiled kernel module cannot share a
+process: numba's symbols collide), on the same observations (made here, pickled to
+both), and their outputs are compared: every frame's names and returned instances
+(centroid, area, bounds, every part's box, corners, area, offset and mask bits).
+``--pieces`` times the step's pieces (the assignment, the split's fit and pixel
+assignment, ...) in one more run. ``--cprofile N`` prints the N costliest functions
+under ``resolve`` (this checkout, one more run, in this process). The decode-only
+baseline (``cv2.imread(path, cv2.IMREAD_UNCHANGED)``) is timed in the same run. Usage::
 
     git archive main | tar -x -C /tmp/ref
     python scripts/bench_identity.py /tmp/cross2500 [SEQ ...] [--ref /tmp/ref] [--runs 3]
@@ -26,8 +28,11 @@ import argparse
 import cProfile
 import hashlib
 import io
+import os
+import pickle
 import pstats
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -36,32 +41,63 @@ from typing import Any
 
 import cv2
 import numpy as np
-from _checkout import import_checkout
 
 HERE = Path(__file__).resolve().parent.parent
 
 
-#: Per loaded version (by id of its ``mistool.tracking``), its ``mistool.*`` modules: put
-#: back in ``sys.modules`` before it runs, so that the imports its functions make when
-#: called (``from mistool.kernels.boxes import ...`` inside a function) find its own.
-_MODULES: dict[int, dict[str, ModuleType]] = {}
+class _Child:
+    """A checkout's ``resolve`` in a child process (``--serve``): frames sent once, runs
+    on request."""
+
+    def __init__(self, root: Path, cv_threads: int | None) -> None:
+        env = dict(os.environ, PYTHONPATH=str(root))
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--serve", str(root)]
+        if cv_threads is not None:
+            cmd += ["--cv-threads", str(cv_threads)]
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+
+    def ask(self, *msg: Any) -> Any:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        pickle.dump(msg, self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        self.proc.stdin.flush()
+        got = pickle.load(self.proc.stdout)
+        if isinstance(got, BaseException):
+            raise got
+        return got
+
+    def close(self) -> None:
+        self.ask("quit")
+        self.proc.wait()
 
 
-def _load(root: Path) -> ModuleType:
-    """``mistool.tracking`` of the checkout at ``root`` (its own copy of the package, with
-    every kernel module imported)."""
-    module, _ = import_checkout(root, "tracking", "kernels._all")
-    _MODULES[id(module)] = {
-        name: m
-        for name, m in sys.modules.items()
-        if name == "mistool" or name.startswith("mistool.")
-    }
-    return module
+def _serve(root: Path) -> int:
+    """``--serve ROOT``: the child's loop over the parent's requests (pickled on stdin,
+    answers pickled on stdout): ``("frames", cfg, frames)``, ``("run",)`` -> ``(CPU
+    seconds, digests)``, ``("quit",)``."""
+    import mistool.kernels._all  # noqa: F401  (every kernel loaded before timing)
+    import mistool.tracking as tracking
 
-
-def _use(tracking: ModuleType) -> None:
-    """``tracking``'s version's modules in ``sys.modules``."""
-    sys.modules.update(_MODULES[id(tracking)])
+    assert Path(str(tracking.__file__)).is_relative_to(root), tracking.__file__
+    out = sys.stdout.buffer
+    sys.stdout = sys.stderr  # (nothing else on the answers' pipe)
+    cfg: Any = None
+    frames: list[Any] = []
+    while True:
+        msg = pickle.load(sys.stdin.buffer)
+        try:
+            if msg[0] == "quit":
+                pickle.dump(None, out)
+                out.flush()
+                return 0
+            if msg[0] == "frames":
+                _, cfg, frames = msg
+                got: Any = None
+            else:
+                got = _run(tracking, cfg, frames)
+        except Exception as e:  # (the parent raises it)
+            got = e
+        pickle.dump(got, out, protocol=pickle.HIGHEST_PROTOCOL)
+        out.flush()
 
 
 def _observe(seq: Path) -> tuple[Any, list[tuple[list[Any], Any]], float]:
@@ -101,7 +137,6 @@ def _digest_instance(h: Any, inst: Any) -> None:
 
 def _run(tracking: ModuleType, cfg: Any, frames: list[Any]) -> tuple[float, list[str]]:
     """(CPU seconds of resolve over every frame, per-frame digests)."""
-    _use(tracking)
     tracker = tracking.IdentityTracker(cfg)
     outs = []
     t0 = time.process_time()
@@ -185,7 +220,7 @@ def _pieces(tracking: ModuleType, cfg: Any, frames: list[Any]) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("seqs", type=Path, nargs="+", help="sequence folders (label images)")
+    ap.add_argument("seqs", type=Path, nargs="*", help="sequence folders (label images)")
     ap.add_argument("--ref", type=Path, help="another checkout's root (holds mistool/)")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--cprofile", type=int, default=0, metavar="N")
@@ -197,23 +232,35 @@ def main() -> int:
         default=None,
         help="OpenCV threads (default: OpenCV's own, as in the caller of mistool track)",
     )
+    ap.add_argument("--serve", type=Path, help=argparse.SUPPRESS)  # (a child process)
     args = ap.parse_args()
     if args.cv_threads is not None:
         cv2.setNumThreads(args.cv_threads)
-    versions = {}
+    if args.serve is not None:
+        return _serve(args.serve)
+    sys.path.insert(0, str(HERE))  # this checkout: the observations, --pieces, --cprofile
+    import mistool.kernels._all  # noqa: F401
+    import mistool.tracking as this
+
+    assert Path(str(this.__file__)).is_relative_to(HERE), this.__file__
+    children = {}
     if args.ref is not None:
-        versions["ref"] = _load(args.ref.resolve())
-    versions["this"] = _load(HERE)  # last: the observations below use this checkout
+        children = {
+            "ref": _Child(args.ref.resolve(), args.cv_threads),
+            "this": _Child(HERE, args.cv_threads),
+        }
     differ = False
     for seq in args.seqs:
-        _use(versions["this"])  # (the observations: this checkout's)
         cfg, frames, decode = _observe(seq)
         n = len(frames)
-        times: dict[str, list[float]] = {k: [] for k in versions}
+        times: dict[str, list[float]] = {k: [] for k in children or ["this"]}
         digests: dict[str, list[str]] = {}
+        for child in children.values():
+            child.ask("frames", cfg, frames)
         for _ in range(args.runs):  # alternate: A B A B ...
-            for k, tracking in versions.items():
-                spent, digests[k] = _run(tracking, cfg, frames)
+            for k in times:
+                got = children[k].ask("run") if children else _run(this, cfg, frames)
+                spent, digests[k] = got
                 times[k].append(spent)
         line = [f"{seq}: {n} frames; decode-only (cv2.imread) {1e3 * decode / n:.3f} ms/frame"]
         for k, ts in times.items():
@@ -232,13 +279,15 @@ def main() -> int:
             )
         print("\n".join(line), flush=True)
         if args.pieces:
-            _pieces(versions["this"], cfg, frames)
+            _pieces(this, cfg, frames)
         if args.cprofile:
             prof = cProfile.Profile()
-            prof.runcall(_run, versions["this"], cfg, frames)
+            prof.runcall(_run, this, cfg, frames)
             s = io.StringIO()
             pstats.Stats(prof, stream=s).sort_stats(args.sort).print_stats(args.cprofile)
             print(s.getvalue())
+    for child in children.values():
+        child.close()
     return 1 if differ else 0
 
 
