@@ -908,3 +908,108 @@ def border_runs(
             out[k, 1] = out[j, 1]
             k += 1
     return k
+
+
+# heads handed over (mistool.tracking.heads) --------------------------------------------
+
+
+@_inlined(
+    "float64(float64, float64, float64, float64, float64, float64, float64, float64, boolean)"
+)
+def _box_d(
+    x: float,
+    y: float,
+    cx: float,
+    cy: float,
+    u0: float,
+    u1: float,
+    hl: float,
+    hw: float,
+    single: bool,
+) -> float:
+    """Point (x, y)'s distance to a box (centre, unit direction ``u``, half length and
+    width) as ``heads.box_distance`` computes it: ``d = p - c``; ``|d @ u| - hl`` and
+    ``|d @ (-u1, u0)| - hw`` by ``dgemv`` (``single``: one point, its order), each
+    ``np.maximum(., 0)``, then ``hypot``."""
+    d0 = x - cx
+    d1 = y - cy
+    if single:
+        a = fma(d1, u1, d0 * u0)
+        b = fma(d1, u0, d0 * -u1)
+    else:
+        a = fma(d0, u0, d1 * u1)
+        b = fma(d0, -u1, d1 * u0)
+    along = abs(a) - hl
+    across = abs(b) - hw
+    along = along if (along >= 0.0 or along != along) else 0.0
+    across = across if (across >= 0.0 or across != across) else 0.0
+    return math.hypot(along, across)
+
+
+@kernel("void(float64[:, ::1], float64, float64, float64, float64, float64, float64, float64[::1])")
+def box_distances(
+    xy: np.ndarray,
+    cx: float,
+    cy: float,
+    u0: float,
+    u1: float,
+    hl: float,
+    hw: float,
+    out: np.ndarray,
+) -> None:
+    """``out`` (N,): ``heads.box_distance`` of points ``xy`` (N, 2) to a box."""
+    n = xy.shape[0]
+    single = n == 1
+    for i in range(n):
+        out[i] = _box_d(xy[i, 0], xy[i, 1], cx, cy, u0, u1, hl, hw, single)
+
+
+@kernel(
+    "boolean(uint8[:, ::1], int64, int64, float64, float64, float64, float64, float64, float64,"
+    " float64, int64)"
+)
+def shown_near(
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    cx: float,
+    cy: float,
+    u0: float,
+    u1: float,
+    hl: float,
+    hw: float,
+    reach: float,
+    min_area: int,
+) -> bool:
+    """Whether at least ``min_area`` pixels of a part's crop (``mask`` at (x0, y0)) lie
+    within ``reach`` px of a box (``heads.box_distance`` of every pixel, counted):
+    only the pixels within the box's bounds grown by ``reach`` + 1 px are looked at (the
+    others lie farther), and the count stops at ``min_area``."""
+    h, w = mask.shape
+    count = 0
+    for y in range(h):  # one pixel alone: dgemv's one-point order
+        for x in range(w):
+            if mask[y, x] != 0:
+                count += 1
+                if count == 2:
+                    break
+        if count == 2:
+            break
+    single = count == 1
+    ex = hl * abs(u0) + hw * abs(u1) + reach + 1.0
+    ey = hl * abs(u1) + hw * abs(u0) + reach + 1.0
+    ya, yb, xa, xb = 0, h, 0, w
+    if math.isfinite(cx - ex) and math.isfinite(cx + ex):
+        xa = min(max(int(math.floor(cx - ex)) - x0, 0), w)
+        xb = max(min(int(math.ceil(cx + ex)) - x0 + 1, w), 0)
+    if math.isfinite(cy - ey) and math.isfinite(cy + ey):
+        ya = min(max(int(math.floor(cy - ey)) - y0, 0), h)
+        yb = max(min(int(math.ceil(cy + ey)) - y0 + 1, h), 0)
+    near = 0
+    for y in range(ya, yb):
+        for x in range(xa, xb):
+            if mask[y, x] != 0 and _box_d(x + x0, y + y0, cx, cy, u0, u1, hl, hw, single) <= reach:
+                near += 1
+                if near >= min_area:
+                    return True
+    return near >= min_area

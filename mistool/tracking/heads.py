@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from mistool.kernels import split as kernels
 from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
 from mistool.tracking.instances import make_instance, part_observation, unit_vector
 
@@ -31,12 +32,23 @@ HEAD_PARTS = ("wrist", "clasper")
 
 
 def box_distance(xy: np.ndarray, box: RotatedBox) -> np.ndarray:
-    """(N,) distance (px) of points ``xy`` (N, 2) to a rotated box (0 inside)."""
-    u = unit_vector(box.angle_deg)
-    d = xy - np.array([box.cx, box.cy])
-    along = np.abs(d @ u) - 0.5 * box.length
-    across = np.abs(d @ np.array([-u[1], u[0]])) - 0.5 * box.width
-    return np.hypot(np.maximum(along, 0.0), np.maximum(across, 0.0))
+    """(N,) distance (px) of points ``xy`` (N, 2) to a rotated box (0 inside): along and
+    across its axes, beyond its half length and width (compiled:
+    :func:`mistool.kernels.split.box_distances`, the float operations of the numpy
+    ``|(xy - c) @ u| - length / 2`` ... ``np.hypot`` it replaces)."""
+    u0, u1 = _unit(box.angle_deg)
+    out = np.empty(len(xy), np.float64)
+    kernels.box_distances(
+        np.ascontiguousarray(xy, np.float64), box.cx, box.cy, u0, u1,
+        0.5 * box.length, 0.5 * box.width, out,
+    )  # fmt: skip
+    return out
+
+
+def _unit(angle_deg: float) -> tuple[float, float]:
+    """:func:`~mistool.tracking.instances.unit_vector` as two floats."""
+    t = math.radians(angle_deg)
+    return math.cos(t), math.sin(t)
 
 
 #: A tool whose head is expected at least this share under where another's same part
@@ -67,68 +79,6 @@ def _pixels(inst: InstanceObservation, part: str) -> np.ndarray:
     return nz.reshape(-1, 2).astype(np.float64) + obs.offset
 
 
-#: :func:`_all_within`'s margin (px) for rounding: far above float64's error on image
-#: coordinates, far below a pixel.
-_WITHIN_MARGIN_PX = 1e-6
-
-
-def _all_within(obs: PartObservation, box: RotatedBox, reach: float) -> bool:
-    """Whether every pixel of ``obs`` lies within ``reach`` px of ``box``, checked on
-    each mask row's first and last pixel only (the distance to a box is convex: along a
-    row it is largest at the ends); False also when too close to tell."""
-    m = obs.mask
-    h, w = m.shape
-    x0, y0 = obs.offset
-    limit = reach - _WITHIN_MARGIN_PX
-    if all(  # the crop's corner pixels (its pixels lie between): no numpy
-        _point_box_distance(x, y, box) <= limit for x in (x0, x0 + w - 1) for y in (y0, y0 + h - 1)
-    ):
-        return True
-    rows = np.flatnonzero(m.any(1))
-    if not len(rows):
-        return False
-    first = m[rows].argmax(1)
-    last = m.shape[1] - 1 - m[rows, ::-1].argmax(1)
-    x = np.concatenate([first, last]) + obs.offset[0]
-    y = np.concatenate([rows, rows]) + obs.offset[1]
-    d = box_distance(np.stack([x, y], 1).astype(np.float64), box)
-    return bool(d.max() <= limit)
-
-
-#: :func:`_count_well_inside` grows the box by this much (px) on each side: any point of
-#: the grown box, rasterised (within a pixel of it), is within HEAD_CLAIM_PX of the box.
-_INSIDE_GROW_PX = 4.0
-assert math.sqrt(2.0) * _INSIDE_GROW_PX + 1.5 < HEAD_CLAIM_PX - _WITHIN_MARGIN_PX
-
-
-def _count_well_inside(obs: PartObservation, box: RotatedBox) -> int:
-    """How many of the part's pixels lie in ``box`` grown by :data:`_INSIDE_GROW_PX`
-    (rasterised): each of them within :data:`HEAD_CLAIM_PX` of ``box``, so at most how
-    many are."""
-    h, w = obs.mask.shape
-    x0, y0 = obs.offset
-    grown = RotatedBox(
-        box.cx - x0,
-        box.cy - y0,
-        box.length + 2.0 * _INSIDE_GROW_PX,
-        box.width + 2.0 * _INSIDE_GROW_PX,
-        box.angle_deg,
-    )
-    inside = np.zeros((h, w), np.uint8)
-    cv2.fillConvexPoly(inside, np.round(grown.corners()).astype(np.int32), 1)
-    return int(cv2.countNonZero(cv2.bitwise_and(inside, obs.mask.view(np.uint8))))
-
-
-def _point_box_distance(x: float, y: float, box: RotatedBox) -> float:
-    """:func:`box_distance` of one point, in plain floats (to within rounding)."""
-    t = math.radians(box.angle_deg)
-    ux, uy = math.cos(t), math.sin(t)
-    dx, dy = x - box.cx, y - box.cy
-    along = abs(dx * ux + dy * uy) - 0.5 * box.length
-    across = abs(dy * ux - dx * uy) - 0.5 * box.width
-    return math.hypot(max(along, 0.0), max(across, 0.0))
-
-
 def _with_part(
     inst: InstanceObservation, part: str, xy: np.ndarray, min_area: int
 ) -> InstanceObservation | None:
@@ -151,18 +101,21 @@ def _with_part(
 
 
 def _shows(inst: InstanceObservation, part: str, box: RotatedBox, min_area: int) -> bool:
-    """Whether the instance shows ``part`` where ``box`` expects it."""
+    """Whether the instance shows ``part`` where ``box`` expects it: at least
+    ``min_area`` of its pixels within :data:`HEAD_CLAIM_PX` of the box (each pixel's
+    :func:`box_distance`; compiled, only the pixels near the box looked at, counting
+    stopped at ``min_area``: :func:`mistool.kernels.split.shown_near`)."""
     if part not in inst.parts:
         return False
     obs = inst.parts[part]
-    # cheap answers first (exact: they only decide when sure), the usual head where
-    # expected: enough pixels well inside the reach, or every pixel within it
-    if _count_well_inside(obs, box) >= min_area:
-        return True
-    if _all_within(obs, box, HEAD_CLAIM_PX):
-        return int(cv2.countNonZero(obs.mask.view(np.uint8))) >= min_area
-    near = box_distance(_pixels(inst, part), box) <= HEAD_CLAIM_PX
-    return int(near.sum()) >= min_area
+    u0, u1 = _unit(box.angle_deg)
+    mask = np.ascontiguousarray(obs.mask).view(np.uint8)
+    return bool(
+        kernels.shown_near(
+            mask, int(obs.offset[0]), int(obs.offset[1]), box.cx, box.cy, u0, u1,
+            0.5 * box.length, 0.5 * box.width, HEAD_CLAIM_PX, min_area,
+        )
+    )  # fmt: skip
 
 
 def hand_over_heads(
