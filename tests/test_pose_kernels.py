@@ -545,3 +545,76 @@ def test_an_argument_of_another_dtype_is_a_type_error(name: str) -> None:
     assert fn.signatures and not fn._can_compile
     with pytest.raises(TypeError):
         fn(*([np.zeros(3, np.float32)] * len(fn.signatures[0])))
+
+
+# -- the joint and the uncertainties -----------------------------------------------------
+
+
+def _cylinder(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float]:
+    """A random shaft in view: a point of its axis, its direction, its radius (mm)."""
+    p0 = np.array([rng.uniform(-30, 30), rng.uniform(-20, 20), rng.uniform(50, 150)])
+    return p0, unit(rng.normal(size=3)), float(rng.uniform(2.0, 5.0))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 3, 8]), st.sampled_from([0, 2, 4, 5, 12]))
+def test_joint_coordinate_as_before(seed: int, n_other: int, n_bg: int) -> None:
+    """J's axial coordinate and spread from outline points next to other parts (rays'
+    entry points, used alone below 5 background points) and next to background."""
+    rng = np.random.default_rng(seed)
+    if n_other + n_bg == 0:
+        return
+    p0, a, radius = _cylinder(rng)
+    K = np.asarray(PINHOLE.K)
+    end = p0 + rng.uniform(-20, 20) * a
+    X = end + rng.normal(0.0, radius, (n_other + n_bg, 3))  # points around the end
+    pts = np.ascontiguousarray((X[:, :2] / X[:, 2:]) * K[0, 0] + K[:2, 2])
+    is_other = np.arange(len(pts)) < n_other
+    got = kp._joint_t(pts, n_other, p0, a, radius, K)
+    ref = before._joint_t(pts, is_other, p0, a, radius, K)
+    assert np.allclose(got, ref, rtol=1e-9, atol=1e-9), (got, ref)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 12))
+def test_round_end_test_as_before(seed: int, n: int) -> None:
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-10, 10, n)
+    s = rng.uniform(-3, 3, n) - rng.choice([-1.0, 0.0, 1.0]) * 0.05 * q * q  # bulging, or not
+    spread = float(rng.uniform(0.0, 2.0))
+    assert kp._is_round_end(q, s, spread, 1.0) == before._is_round_end(q, s, spread)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_uncertainty_as_before(seed: int) -> None:
+    """The finite-difference errors of the axis point and direction from two limb lines
+    (lines of a random view of a cylinder, their fits' support at random)."""
+    rng = np.random.default_rng(seed)
+    K = np.asarray(PINHOLE.K)
+    t = rng.uniform(0, 2 * math.pi)
+    lines = []
+    for sign in (1.0, -1.0):  # two roughly parallel lines, interiors facing each other
+        phi = t + rng.normal(0, 0.05)
+        lines.append(sign * np.array([math.cos(phi), math.sin(phi), 0.0]))
+        lines[-1][2] = -(
+            lines[-1][:2] @ (np.array([360.0, 288.0]) - sign * rng.uniform(5, 40) * lines[-1][:2])
+        )
+    fits = np.empty((2, kp.FIT_LEN))
+    stats = []
+    for k in range(2):
+        centre = rng.uniform(100, 500, 2)
+        span, n, sigma = (
+            float(rng.uniform(5, 300)),
+            int(rng.integers(10, 200)),
+            float(rng.uniform(0.05, 1.5)),
+        )
+        fits[k] = [*lines[k], *centre, span, n, sigma]
+        stats.append(before._LineStats(centre, span, n, sigma))
+    p0, a, _ = _cylinder(rng)
+    ref_point = p0 + rng.uniform(-10, 10) * a
+    got = kp._uncertainty(fits, K, 4.0, ref_point, a, _params())
+    want = before._uncertainty(lines, stats, K, 4.0, ref_point, a)
+    assert np.allclose(got, want, rtol=1e-9, atol=1e-12) or (
+        math.isinf(got[0]) and math.isinf(want[0])
+    )
