@@ -505,21 +505,6 @@ def shaft_boundary(
             _neighbour_labels(
                 outline, flat, sh, sw, sx, sy, f, oh, ow, mx, my, height, width, labels
             )
-    # each point is written to both lists and kept (its list's count advanced) in its own
-    bg = np.empty((4 * n, 2))
-    other = np.empty((4 * n, 2))
-    k_bg = k_other = 0
-    for d in range(4):
-        hx = 0.5 if d == 0 else (-0.5 if d == 1 else 0.0)
-        hy = 0.5 if d == 2 else (-0.5 if d == 3 else 0.0)
-        for i in range(n):
-            lab = labels[d, i]
-            fx = float(outline[i, 0] + sx) + hx
-            fy = float(outline[i, 1] + sy) + hy
-            bg[k_bg, 0], bg[k_bg, 1] = fx, fy
-            other[k_other, 0], other[k_other, 1] = fx, fy
-            k_bg += lab == _BG
-            k_other += lab == _OTHER
     pix = np.empty((n, 2))
     border = np.empty(n, np.bool_)
     for i in range(n):
@@ -527,6 +512,22 @@ def shaft_boundary(
         y = float(outline[i, 1] + sy)
         pix[i, 0], pix[i, 1] = x, y
         border[i] = x <= 0 or y <= 0 or x >= width - 1 or y >= height - 1
+    # a background point is written, and kept (the count advanced) when it is one: no
+    # branch on the label; points next to other parts are few (a rare branch)
+    bg = np.empty((4 * n + 1, 2))
+    other = np.empty((4 * n, 2))
+    k_bg = k_other = 0
+    for d in range(4):
+        hx = 0.5 if d == 0 else (-0.5 if d == 1 else 0.0)
+        hy = 0.5 if d == 2 else (-0.5 if d == 3 else 0.0)
+        for i in range(n):
+            lab = labels[d, i]
+            fx, fy = pix[i, 0] + hx, pix[i, 1] + hy
+            bg[k_bg, 0], bg[k_bg, 1] = fx, fy
+            k_bg += lab == _BG
+            if lab == _OTHER:
+                other[k_other, 0], other[k_other, 1] = fx, fy
+                k_other += 1
     mom = np.zeros(6)
     for c in range(len(starts) - 1):
         _contour_moments(outline, starts[c], starts[c + 1], mom)
