@@ -85,7 +85,7 @@ def test_label_runs_are_the_images_runs_of_equal_values(seed, dtype):
     rng = np.random.default_rng(seed)
     img = _label_image(rng, dtype, [1, 2, 3, 70, 160, 255])
     bounds = foreground(img)
-    ry, rx0, rx1, rv, n = label_runs(img, bounds)
+    _, ry, rx0, rx1, rv, n = label_runs(img, bounds)
     x, y, w, h = bounds
     got = np.zeros((h, w), np.int64)
     for i in range(n):
@@ -99,6 +99,12 @@ def test_label_runs_are_the_images_runs_of_equal_values(seed, dtype):
     assert np.array_equal(got, img[y : y + h, x : x + w].astype(np.int64))
     keys = ry[:n].astype(np.int64) * 10**6 + rx0[:n]
     assert np.all(np.diff(keys) > 0)  # raster order
+    # the whole image scanned: the foreground's bounds and the same runs
+    whole, *got_runs = label_runs(img)
+    assert whole == bounds
+    for a, b in zip(got_runs[:4], (ry, rx0, rx1, rv), strict=True):
+        assert np.array_equal(a[:n], b[:n])
+    assert got_runs[4] == n
 
 
 def _components_before(crop: np.ndarray, ranges: np.ndarray) -> tuple:
@@ -129,7 +135,7 @@ def test_components_equal_opencvs_labels_bounds_and_counts(seed, dtype, threads)
     x, y, w, h = bounds
     if w == 0:
         return
-    ry, rx0, rx1, rv, n = label_runs(img, bounds)
+    _, ry, rx0, rx1, rv, n = label_runs(img, bounds)
     got_n, label, stats, counts, shaft_counts, border = components(
         ry, rx0, rx1, rv, n, ranges, 0, x, y, w, h, img.shape[1], img.shape[0]
     )
@@ -172,7 +178,7 @@ def test_fit_of_selected_runs_is_fit_part_of_their_pixels(seed, min_area):
     x, y, w, h = bounds
     if w == 0:
         return
-    ry, rx0, rx1, rv, n = label_runs(img, bounds)
+    _, ry, rx0, rx1, rv, n = label_runs(img, bounds)
     label = rng.integers(0, 4, max(n, 1)).astype(np.int32)
     members = rng.random(4) < 0.6
     lo, hi = (

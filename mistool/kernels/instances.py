@@ -140,6 +140,8 @@ def _runs_u8(
     n = 0
     for y in range(y0, y1):
         base = y * w
+        if _first_set(labels, base + x0, base + x1) < 0:  # a row of background
+            continue
         x = x0
         start = x0
         v = labels[y, x0]
@@ -194,9 +196,12 @@ def _runs_any(
     rv: np.ndarray,
 ) -> int:
     """:func:`label_runs` of a 16- or 32-bit image, a pixel at a time."""
+    w = labels.shape[1]
     cap = ry.shape[0]
     n = 0
     for y in range(y0, y1):
+        if _first_set(labels, y * w + x0, y * w + x1) < 0:  # a row of background
+            continue
         start = x0
         v = labels[y, x0]
         for x in range(x0 + 1, x1 + 1):
@@ -217,12 +222,13 @@ def _runs_any(
 
 
 def label_runs(
-    labels: np.ndarray, bounds: tuple[int, int, int, int]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    labels: np.ndarray, bounds: tuple[int, int, int, int] | None = None
+) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """The runs of equal non-zero values of ``labels`` (2-D C-contiguous uint8, uint16
-    or int32) within ``bounds`` = (x, y, w, h): ``(ry, rx0, rx1, rv, n)``, coordinates
-    relative to (x, y)."""
-    x, y, w, h = bounds
+    or int32) within ``bounds`` = (x, y, w, h) (None: the whole image, rows of
+    background passed over 64 bytes at a time): ``(bounds, ry, rx0, rx1, rv, n)``,
+    ``bounds`` then :func:`foreground`'s, coordinates relative to its (x, y)."""
+    x, y, w, h = (0, 0, labels.shape[1], labels.shape[0]) if bounds is None else bounds
     runs = _runs_u8 if labels.dtype == np.uint8 else _runs_any
     cap = 4 * h + 64
     while True:
@@ -232,8 +238,31 @@ def label_runs(
         rv = np.empty(cap, np.int32)
         n = runs(labels, x, y, x + w, y + h, ry, rx0, rx1, rv)
         if n >= 0:
-            return ry, rx0, rx1, rv, n
+            break
         cap *= 4
+    if bounds is None:
+        bounds = _run_bounds(ry, rx0, rx1, n)
+    return bounds, ry, rx0, rx1, rv, n
+
+
+@kernel(_BOUNDS + "(int32[::1], int32[::1], int32[::1], int64)")
+def _run_bounds(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int
+) -> tuple[int, int, int, int]:
+    """The (x, y, w, h) bounds of ``n`` runs in raster order (``(0, 0, 0, 0)``: none);
+    the runs' coordinates then made relative to (x, y)."""
+    if n == 0:
+        return 0, 0, 0, 0
+    x0, x1 = rx0[0], rx1[0]
+    for i in range(n):
+        x0 = min(x0, rx0[i])
+        x1 = max(x1, rx1[i])
+    y0, y1 = ry[0], ry[n - 1] + 1
+    for i in range(n):
+        ry[i] -= y0
+        rx0[i] -= x0
+        rx1[i] -= x0
+    return x0, y0, x1 - x0, y1 - y0
 
 
 @kernel("int64[::1](int32[::1], int32[::1], int32[::1], int64)")

@@ -196,20 +196,18 @@ class LabelRuns:
 
 
 def scan_labels(labels: np.ndarray, bounds: tuple[int, int, int, int] | None = None) -> LabelRuns:
-    """The runs of a label image (one pass over its foreground bounds).
+    """The runs of a label image: one pass over it (rows of background passed over 64
+    bytes at a time), or over its foreground ``bounds`` when given.
 
     Raises:
         MaskFormatError: if ``labels`` is not a 2-D integer image.
     """
-    from mistool.kernels.instances import label_runs
-
     img = np.ascontiguousarray(_check_labels(labels))
-    box = _foreground(img) if bounds is None else bounds
     shape = (int(img.shape[0]), int(img.shape[1]))
-    if box[2] == 0 or box[3] == 0:
+    if bounds is not None and (bounds[2] == 0 or bounds[3] == 0):
         none = np.zeros(0, np.int32)
-        return LabelRuns(box, none, none, none, none, 0, shape, img.dtype)
-    ry, rx0, rx1, rv, n = label_runs(img, box)
+        return LabelRuns(bounds, none, none, none, none, 0, shape, img.dtype)
+    box, ry, rx0, rx1, rv, n = _kernels().label_runs(img, bounds)
     return LabelRuns(box, ry, rx0, rx1, rv, int(n), shape, img.dtype)
 
 
