@@ -1016,3 +1016,115 @@ def test_a_one_pixel_head_is_shown_by_its_one_point_distance():
     args = (box.cx, box.cy, math.cos(t), math.sin(t), 0.5 * box.length, 0.5 * box.width)
     reach = min(alone, among)
     assert shown_near(mask, x0, y0, *args, reach, 1) == (alone <= reach)
+
+
+def _distal_axis_before(boxes: dict, shape: Any) -> Any:
+    """``split.distal_axis`` (numpy) as it was used by the fit (commit 7ea023c)."""
+    from mistool.tracking.instances import unit_vector
+    from mistool.tracking.split import Axis
+
+    sb = boxes["shaft"]
+    u = unit_vector(sb.angle_deg)
+    c = np.array([sb.cx, sb.cy])
+    others = [b for p, b in boxes.items() if p != "shaft"]
+    if others:
+        o = np.mean([[b.cx, b.cy] for b in others], axis=0)
+        if (o - c) @ u < 0:
+            u = -u
+        back = math.inf
+    else:
+        back = sb.length
+        if shape is not None:
+            h, w = shape
+
+            def inside(q: np.ndarray) -> float:
+                return float(min(q[0], w - 1 - q[0], q[1], h - 1 - q[1]))
+
+            if inside(c - 0.5 * sb.length * u) > inside(c + 0.5 * sb.length * u):
+                u = -u
+    return Axis(c + 0.5 * sb.length * u, u, back)
+
+
+def _initial_axes_before(expected: list, axes: Any, shape: Any) -> Any:
+    """``split._initial_axes`` and ``_head_length`` as they were (commit 7ea023c)."""
+    from mistool.tracking.split import (
+        HEAD_LENGTH_WIDTHS,
+        HEAD_SEEN_MARGIN,
+        SPLIT_END_MARGIN,
+        _Axes,
+    )
+
+    def head_length(e: dict, d: np.ndarray, r: float) -> float:
+        longest = 2.0 * HEAD_LENGTH_WIDTHS * r
+        heads = [b for p, b in e.items() if p != "shaft"]
+        if not heads:
+            return longest
+        along = np.concatenate([b.corners() @ d for b in heads])
+        reach = float(along.max() - along.min())
+        return min(longest, max(2.0 * r, HEAD_SEEN_MARGIN * reach))
+
+    if axes is None:
+        axes = [_distal_axis_before(e, shape) for e in expected]
+    dirs = np.array([a.direction for a in axes], dtype=np.float64)
+    ends0 = np.array([a.end for a in axes], dtype=np.float64)
+    margin = np.array([SPLIT_END_MARGIN * e["shaft"].length for e in expected])
+    radius = np.array([max(e["shaft"].width / 2.0, 1.0) for e in expected])
+    return _Axes(
+        ends=ends0 + margin[:, None] * dirs,
+        dirs=dirs,
+        back=np.array([a.back for a in axes], dtype=np.float64),
+        radius=radius,
+        limit_end=ends0,
+        start_dirs=dirs.copy(),
+        margin=margin,
+        head_len=np.array(
+            [head_length(e, d, r) for e, d, r in zip(expected, dirs, radius, strict=True)]
+        ),
+    )
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1), st.integers(1, 4), st.sampled_from(["distal", "no shape", "given"])
+)
+def test_the_compiled_initial_axes_are_the_former_ones(seed, k, how):
+    """split._initial_axes (compiled) gives the former axes bit for bit: shafts with and
+    without other parts (their mean deciding the distal side, their corners the head
+    length), stubs near the image border, thin shafts (radius 1), given axes."""
+    from mistool.tracking.split import Axis, _initial_axes
+
+    rng = np.random.default_rng(seed)
+
+    def box(length_max: float) -> RotatedBox:
+        length = float(rng.uniform(0.5, length_max))
+        x, y = rng.uniform(-20, 740, 2)
+        return RotatedBox(
+            float(x),
+            float(y),
+            length,
+            length * float(rng.uniform(0, 1)),
+            float(rng.uniform(0, 180)),
+        )
+
+    expected = []
+    for _ in range(k):
+        e = {"shaft": box(400.0)}
+        for p in ("wrist", "clasper"):
+            if rng.random() < 0.5:
+                e[p] = box(60.0)
+        if rng.random() < 0.3:  # the others before the shaft
+            e = {p: e[p] for p in reversed(list(e))}
+        if rng.random() < 0.15:  # a lone shaft in the middle: both ends as far inside
+            e = {"shaft": RotatedBox(359.5, 287.5, 100.0, 10.0, 0.0)}
+        expected.append(e)
+    shape = None if how == "no shape" else (576, 720)
+    axes = None
+    if how == "given":
+        t = rng.uniform(0, 2 * math.pi, k)
+        axes = [
+            Axis(rng.uniform(0, 700, 2), np.array([math.cos(a), math.sin(a)]), float(b))
+            for a, b in zip(t, np.where(rng.random(k) < 0.5, math.inf, 100.0), strict=True)
+        ]
+    got, want = _initial_axes(expected, axes, shape), _initial_axes_before(expected, axes, shape)
+    for name in ("ends", "dirs", "back", "radius", "limit_end", "start_dirs", "margin", "head_len"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name

@@ -502,6 +502,24 @@ def score_axes(
 # the split's pixels ----------------------------------------------------------------------
 
 
+@intrinsic
+def _load8(typingctx, arr, i):  # type: ignore[no-untyped-def]  # (numba's intrinsic protocol)
+    sig = types.uint64(arr, types.int64)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        word = context.get_value_type(types.uint64)
+        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), word.as_pointer())
+        return builder.load(ptr, align=1)
+
+    return sig, codegen
+
+
+#: ``load8(a, i)``: bytes ``i .. i + 7`` of a C-contiguous 1-D uint8 array as one
+#: little-endian uint64 (unaligned; the caller keeps ``i + 8`` within the array).
+load8 = cast(Callable[[np.ndarray, int], int], _load8)
+
+
 _ONES = np.uint64(0x0101010101010101)
 
 
@@ -523,35 +541,31 @@ def nonzero_points(mask: np.ndarray, x0: int, y0: int, step: int, out: np.ndarra
     w = mask.shape[1]
     flat = mask.reshape(-1)
     n = flat.shape[0]
-    words = flat[: n // 8 * 8].view(np.uint64)
     need = 0  # non-zero pixels to pass before the next sample
     m = 0
-    i = x = y = 0  # flat index i is pixel (x, y)
+    i = 0
     while i < n:
-        if i % 8 == 0 and i + 8 <= n:
-            v = words[i // 8]
-            c = _bytes_set(v) if v != 0 else 0
+        stop = min(i + 8, n)
+        if stop - i == 8:
+            v = load8(flat, i)
+            if v == 0:
+                i = stop
+                continue
+            c = _bytes_set(v)
             if c <= need:
                 need -= c
-                i += 8
-                x += 8
-                while x >= w:
-                    x -= w
-                    y += 1
+                i = stop
                 continue
-        if flat[i] != 0:
-            if need == 0:
-                out[m, 0] = x + x0
-                out[m, 1] = y + y0
-                m += 1
-                need = step - 1
-            else:
-                need -= 1
-        i += 1
-        x += 1
-        if x == w:
-            x = 0
-            y += 1
+        for k in range(i, stop):
+            if flat[k] != 0:
+                if need == 0:
+                    out[m, 0] = k % w + x0
+                    out[m, 1] = k // w + y0
+                    m += 1
+                    need = step - 1
+                else:
+                    need -= 1
+        i = stop
 
 
 @_inlined("void(int64[:, ::1], int64, int64, int64, int64, int64)")
@@ -690,24 +704,6 @@ def shaft_owner(
 
 
 _RUNS = "Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))"
-
-
-@intrinsic
-def _load8(typingctx, arr, i):  # type: ignore[no-untyped-def]  # (numba's intrinsic protocol)
-    sig = types.uint64(arr, types.int64)
-
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        word = context.get_value_type(types.uint64)
-        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), word.as_pointer())
-        return builder.load(ptr, align=1)
-
-    return sig, codegen
-
-
-#: ``load8(a, i)``: bytes ``i .. i + 7`` of a C-contiguous 1-D uint8 array as one
-#: little-endian uint64 (unaligned; the caller keeps ``i + 8`` within the array).
-load8 = cast(Callable[[np.ndarray, int], int], _load8)
 
 
 @kernel("boolean(uint8[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1])")
@@ -1013,3 +1009,115 @@ def shown_near(
                 if near >= min_area:
                     return True
     return near >= min_area
+
+
+# the split's initial axes (mistool.tracking.split._initial_axes) ------------------------
+
+
+@_inlined("void(float64[::1], float64, float64, float64[::1])")
+def _corners_along(box: np.ndarray, d0: float, d1: float, out: np.ndarray) -> None:
+    """``out`` (4,): ``box.corners() @ d`` of a box ``(cx, cy, length, width, angle)``:
+    ``RotatedBox.corners``' plain floats, then ``dgemv``'s fused multiply-adds."""
+    cx, cy, length, width = box[0], box[1], box[2], box[3]
+    t = math.radians(box[4])
+    ux, uy = math.cos(t), math.sin(t)
+    hl, hw = length / 2.0, width / 2.0
+    ax, ay = hl * ux, hl * uy
+    bx, by = hw * -uy, hw * ux
+    out[0] = fma(cx - ax - bx, d0, (cy - ay - by) * d1)
+    out[1] = fma(cx + ax - bx, d0, (cy + ay - by) * d1)
+    out[2] = fma(cx + ax + bx, d0, (cy + ay + by) * d1)
+    out[3] = fma(cx - ax + bx, d0, (cy - ay + by) * d1)
+
+
+@_inlined("float64(float64, float64, int64, int64)")
+def _inside(x: float, y: float, hh: int, ww: int) -> float:
+    """``split.distal_axis``' distance of (x, y) to the nearest image border: Python's
+    ``min(x, w - 1 - x, y, h - 1 - y)`` (the first of equal ones)."""
+    m = x
+    for v in (ww - 1 - x, y, hh - 1 - y):
+        if v < m:
+            m = v
+    return m
+
+
+@kernel(
+    "void(float64[:, :, ::1], int64[::1], boolean, int64, int64, float64, float64, float64,"
+    " float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], float64[::1], float64[::1])"
+)
+def initial_axes(
+    boxes: np.ndarray,
+    nother: np.ndarray,
+    given: bool,
+    hh: int,
+    ww: int,
+    margin_frac: float,
+    head_widths: float,
+    seen_margin: float,
+    ends0: np.ndarray,
+    dirs: np.ndarray,
+    back: np.ndarray,
+    radius: np.ndarray,
+    margin: np.ndarray,
+    head_len: np.ndarray,
+) -> None:
+    """``split._initial_axes`` of K instruments' expected boxes (``boxes`` (K, 3, 5):
+    ``cx, cy, length, width, angle``, the shaft's first, then its ``nother[k]`` other
+    parts' in their order): unless ``given`` (``ends0``, ``dirs``, ``back`` set), each
+    shaft's distal axis (``split.distal_axis``: towards the other parts' mean, or
+    without them away from the nearest border of an (hh, ww) image, ``hh`` < 0: none);
+    ``radius`` (half the shaft's width, at least 1), ``margin`` (``margin_frac`` of its
+    length) and ``head_len`` (``split._head_length``: its other parts' extent along the
+    axis x ``seen_margin``, between one shaft width and ``head_widths`` widths), with
+    the float operations of the numpy code they replace."""
+    proj = np.empty(4, np.float64)
+    for k in range(boxes.shape[0]):
+        cx, cy, length, width = boxes[k, 0, 0], boxes[k, 0, 1], boxes[k, 0, 2], boxes[k, 0, 3]
+        n = nother[k]
+        if not given:
+            t = math.radians(boxes[k, 0, 4])
+            u0, u1 = math.cos(t), math.sin(t)
+            half = 0.5 * length
+            if n:
+                ox = 0.0
+                oy = 0.0
+                for j in range(1, n + 1):  # np.mean(axis=0): from 0 in order, / n
+                    ox += boxes[k, j, 0]
+                    oy += boxes[k, j, 1]
+                ox /= n
+                oy /= n
+                if dot2(ox - cx, oy - cy, u0, u1) < 0:
+                    u0, u1 = -u0, -u1
+                back[k] = math.inf
+            else:
+                back[k] = length
+                if hh >= 0:
+                    near = _inside(cx - half * u0, cy - half * u1, hh, ww)
+                    far = _inside(cx + half * u0, cy + half * u1, hh, ww)
+                    if near > far:
+                        u0, u1 = -u0, -u1
+            dirs[k, 0], dirs[k, 1] = u0, u1
+            ends0[k, 0] = cx + half * u0
+            ends0[k, 1] = cy + half * u1
+        margin[k] = margin_frac * length
+        w2 = width / 2.0
+        r = 1.0 if 1.0 > w2 else w2  # max(width / 2, 1.0)
+        radius[k] = r
+        longest = 2.0 * head_widths * r
+        if n == 0:
+            head_len[k] = longest
+            continue
+        hi = -math.inf
+        lo = math.inf
+        nan = False
+        for j in range(1, n + 1):
+            _corners_along(boxes[k, j], dirs[k, 0], dirs[k, 1], proj)
+            for v in proj:
+                nan = nan or v != v
+                hi = max(hi, v)
+                lo = min(lo, v)
+        reach = math.nan if nan else hi - lo
+        grown = seen_margin * reach
+        low = 2.0 * r
+        top = grown if grown > low else low  # max(2r, grown)
+        head_len[k] = top if top < longest else longest  # min(longest, top)

@@ -369,46 +369,48 @@ def _initial_axes(
     axes: list[Axis] | None,
     shape: tuple[int, int] | None = None,
 ) -> _Axes:
-    if axes is None:
-        axes = [distal_axis(e, shape) for e in expected]
-    dirs = np.array([a.direction for a in axes], dtype=np.float64)
-    ends0 = np.array([a.end for a in axes], dtype=np.float64)
-    margin = np.array([SPLIT_END_MARGIN * e["shaft"].length for e in expected])
-    radius = np.array([max(e["shaft"].width / 2.0, 1.0) for e in expected])
+    """The instruments' axes before the refit: each shaft's :func:`distal_axis` (unless
+    ``axes`` are given), its end moved past its expected one by its margin
+    (:data:`SPLIT_END_MARGIN`), its half-width (at least 1 px) and head length
+    (its other parts' extent along its axis x :data:`HEAD_SEEN_MARGIN`, between one
+    shaft width and :data:`HEAD_LENGTH_WIDTHS` widths; the latter without them); one
+    compiled pass
+    (:func:`mistool.kernels.split.initial_axes`)."""
+    k = len(expected)
+    boxes = np.zeros((k, 3, 5))
+    nother = np.zeros(k, np.int64)
+    for i, e in enumerate(expected):
+        rows = [e["shaft"]] + [b for p, b in e.items() if p != "shaft"]
+        boxes[i, : len(rows)] = [(b.cx, b.cy, b.length, b.width, b.angle_deg) for b in rows]
+        nother[i] = len(rows) - 1
+    ends0 = np.empty((k, 2))
+    dirs = np.empty((k, 2))
+    back = np.empty(k)
+    if axes is not None:
+        dirs[:] = [a.direction for a in axes]
+        ends0[:] = [a.end for a in axes]
+        back[:] = [a.back for a in axes]
+    radius, margin, head_len = np.empty(k), np.empty(k), np.empty(k)
+    hh, ww = shape if shape is not None else (-1, -1)
+    kernels.initial_axes(
+        boxes, nother, axes is not None, hh, ww, SPLIT_END_MARGIN, HEAD_LENGTH_WIDTHS,
+        HEAD_SEEN_MARGIN, ends0, dirs, back, radius, margin, head_len,
+    )  # fmt: skip
     return _Axes(
         ends=ends0 + margin[:, None] * dirs,
         dirs=dirs,
-        back=np.array([a.back for a in axes], dtype=np.float64),
+        back=back,
         radius=radius,
         limit_end=ends0,
         start_dirs=dirs.copy(),
         margin=margin,
-        head_len=np.array(
-            [
-                _head_length(e, end, d, r)
-                for e, end, d, r in zip(expected, ends0, dirs, radius, strict=True)
-            ]
-        ),
+        head_len=head_len,
     )
 
 
 #: A head seen apart reaches at most this factor of its seen length beyond the shaft's
 #: end in a split (its jaws may open, its wrist bend).
 HEAD_SEEN_MARGIN = 1.25
-
-
-def _head_length(e: dict[str, RotatedBox], end: np.ndarray, d: np.ndarray, r: float) -> float:
-    """How far (px) the instrument's head reaches beyond its shaft's distal end along
-    ``d``: the length of its expected head boxes along ``d`` (x
-    :data:`HEAD_SEEN_MARGIN`), between one shaft width and :data:`HEAD_LENGTH_WIDTHS`
-    widths; the latter without head boxes."""
-    longest = 2.0 * HEAD_LENGTH_WIDTHS * r
-    heads = [b for p, b in e.items() if p != "shaft"]
-    if not heads:
-        return longest
-    along = np.concatenate([b.corners() @ d for b in heads])
-    reach = float(along.max() - along.min())  # the head's own length (the shaft may be
-    return min(longest, max(2.0 * r, HEAD_SEEN_MARGIN * reach))  # stretched by motion)
 
 
 def _principal_direction(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
