@@ -1,5 +1,5 @@
 """The refinement's per-row steps against their former definitions: bit for bit, but
-the compiled trocar fusion to 1e-12 (its dot products summed left to right)."""
+the compiled trocar fusion to 1e-8 (its dot products summed left to right)."""
 
 from __future__ import annotations
 
@@ -141,12 +141,16 @@ def _same_bits(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
 
 
 def _same_values(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
-    """The same NaN cells and the same numbers to 1e-12 relative (the compiled fusion
-    sums its dot products left to right, numpy's BLAS with fused multiply-adds)."""
+    """The same NaN cells and the same numbers to 1e-8 relative (the compiled fusion sums
+    its dot products left to right, numpy's BLAS with fused multiply-adds). The random
+    rows include near-degenerate geometry (a joint ray almost along the axis, divided by
+    a small sine), where the two orders differ by up to 5.6e-9 relative (3,000 seeds,
+    ad hoc); on tracked sequences the refined tables differ by at most 3.6e-13 mm
+    (scripts/golden_tables.py)."""
     assert a.keys() == b.keys()
     for c in a:
         assert np.array_equal(np.isnan(a[c]), np.isnan(b[c])), c
-        np.testing.assert_allclose(a[c], b[c], rtol=1e-12, atol=1e-12, err_msg=c)
+        np.testing.assert_allclose(a[c], b[c], rtol=1e-8, atol=1e-8, err_msg=c)
 
 
 @settings(max_examples=60, deadline=None)
