@@ -217,13 +217,16 @@ def _proc_cpu(pid: int) -> float:
 def process_cpu(name: str, source: Path, frames: int, workers: int, runs: int) -> None:
     """Every process's CPU per frame of ``mistool.track(source)`` on a warm
     ``LocalPool(workers)`` (reused, as ``mistool track DATASET/`` does): the workers'
-    (from ``/proc``) and the caller's; median of ``runs`` runs after one warm-up run."""
+    (from ``/proc``) and the caller's; median of ``runs`` runs after one warm-up run, once
+    every worker has started (before, the caller works alone: ``LocalPool.warming``)."""
     import warnings
 
     from mistool import api, parallel
 
     warnings.simplefilter("ignore")  # e.g. label values smeared by a video codec
     with parallel.LocalPool(workers) as pool:
+        while pool.warming():  # until then the caller does the work itself
+            time.sleep(0.05)
         api.track(source, pool=pool)
         pids = list(pool._executor._processes)  # type: ignore[union-attr]
         walls, callers, workers_cpu = [], [], []
