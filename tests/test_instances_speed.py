@@ -6,6 +6,7 @@ selection of runs, and every instance observe_frame returns."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 
 import cv2
@@ -380,17 +381,10 @@ def test_observe_frame_equals_the_former_mask_pipeline(seed, dtype, min_area, ow
     assert [_key(i) for i in observe_frame(img, config, runs=runs)] == want
 
 
-def test_the_pixel_gap_reads_the_painted_component_image_only_when_needed():
-    """Two heads far apart: no pixel gap asked, the component image is never painted;
-    near: painted once."""
-    img = np.zeros((200, 300), np.uint8)
-    cv2.line(img, (10, 100), (120, 100), 10, 9)
-    cv2.circle(img, (126, 100), 4, 30, -1)  # a head one pixel gap away is bridged
-    cv2.circle(img, (280, 20), 5, 30, -1)  # far away: its own instance
-    cv2.circle(img, (150, 110), 4, 20, -1)  # within reach: the gap is measured
-    config = dataclasses.replace(MERGED, min_area_px=5)
-    want = [_key(i) for i in _observe_before(img, config)]
-    painted = []
+def _observe_counting_paints(img: np.ndarray, config: Config) -> tuple[list, list[bool]]:
+    """observe_frame's instances (keys) and, per slice of the component image, whether it
+    was painted then."""
+    painted: list[bool] = []
     original = instances._LazyLabels.__getitem__
 
     def spy(self, key):  # type: ignore[no-untyped-def]
@@ -402,8 +396,75 @@ def test_the_pixel_gap_reads_the_painted_component_image_only_when_needed():
         got = [_key(i) for i in observe_frame(img, config)]
     finally:
         instances._LazyLabels.__getitem__ = original  # type: ignore[method-assign]
-    assert got == want
+    return got, painted
+
+
+def test_a_pixel_gap_is_measured_only_when_its_estimate_does_not_decide():
+    """A head near a shaft, another far: the estimates decide, nothing is measured; two
+    heads at the same gap from a shaft: which is nearer is measured (the component image
+    painted once, then read again)."""
+    config = dataclasses.replace(MERGED, min_area_px=5)
+    img = np.zeros((200, 300), np.uint8)
+    cv2.line(img, (10, 100), (120, 100), 10, 9)
+    cv2.circle(img, (150, 110), 4, 20, -1)  # within reach of the shaft
+    cv2.circle(img, (280, 20), 5, 30, -1)  # far away: its own instance
+    got, painted = _observe_counting_paints(img, config)
+    assert got == [_key(i) for i in _observe_before(img, config)]
+    assert not painted
+    img = np.zeros((200, 300), np.uint8)
+    cv2.line(img, (10, 100), (200, 100), 10, 9)
+    cv2.circle(img, (100, 80), 4, 30, -1)  # two heads, mirrored about the shaft's axis
+    cv2.circle(img, (100, 120), 4, 30, -1)
+    got, painted = _observe_counting_paints(img, config)
+    assert got == [_key(i) for i in _observe_before(img, config)]
     assert painted and painted[0] and not any(painted[1:])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_gap_estimate_is_within_its_bound_of_the_measured_gap(seed):
+    """chamfer_gap (real-number chamfer distance from the runs) against _pixel_gap
+    (cv2.distanceTransform on the component image): within 1e-3 px, 10x under the bound
+    the grouping assumes (GAP_ESTIMATE_PX); inf together."""
+    from mistool.kernels.instances import chamfer_gap
+    from mistool.tracking.instances import GAP_ESTIMATE_PX, _gap_window, _pixel_gap
+
+    rng = np.random.default_rng(seed)
+    img = _label_image(rng, np.uint8, [10, 20, 30])
+    bounds = foreground(img)
+    x, y, w, h = bounds
+    if w == 0:
+        return
+    _, ry, rx0, rx1, rv, n = label_runs(img, bounds)
+    ranges = np.array([[10, 10], [20, 20], [30, 30]], np.int64)
+    count, label, stats, *_ = components(
+        ry, rx0, rx1, rv, n, ranges, 0, x, y, w, h, img.shape[1], img.shape[0]
+    )
+    if count < 3:
+        return
+    cc = paint_components(ry, rx0, rx1, label, n, w, h)
+    labels = list(range(1, count))
+    rng.shuffle(labels)
+    k = int(rng.integers(1, len(labels)))
+    a, b = labels[:k], labels[k:]
+
+    def box(group: list[int]) -> list[int]:
+        return [
+            min(int(stats[i, 0]) for i in group),
+            min(int(stats[i, 1]) for i in group),
+            max(int(stats[i, 0] + stats[i, 2]) for i in group),
+            max(int(stats[i, 1] + stats[i, 3]) for i in group),
+        ]
+
+    reach = int(rng.integers(0, 200))
+    want = _pixel_gap(cc, a, b, box(a), box(b), reach)
+    in_a, in_b = np.zeros(count, np.bool_), np.zeros(count, np.bool_)
+    in_a[a], in_b[b] = True, True
+    got = chamfer_gap(ry, rx0, rx1, label, n, in_a, in_b, *_gap_window(box(a), box(b), reach), w, h)
+    if math.isinf(want):
+        assert math.isinf(got)
+        return
+    assert abs(got - want) <= 1e-3 < GAP_ESTIMATE_PX
 
 
 # --- the frame results' transport (mistool.parallel.pack_instances) -------------------------
