@@ -12,6 +12,9 @@ by :func:`kernel` with its signatures given, so that:
 - the arithmetic is IEEE (no ``fastmath``): the same operations in the same order give the
   same bits as numpy's.
 
+A function only kernels call is a :func:`helper` instead: compiled into its callers, not
+loaded by itself.
+
 The modules that use a kernel wrap it in a typed Python function; tests compare each kernel
 with the former numpy definition (``kernel.py_func`` runs the uncompiled Python).
 
@@ -29,7 +32,7 @@ from typing import Any, TypeVar, cast
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-__all__ = ["kernel", "warm"]
+__all__ = ["helper", "kernel", "warm"]
 
 
 def kernel(*signatures: str) -> Callable[[F], F]:
@@ -46,6 +49,18 @@ def kernel(*signatures: str) -> Callable[[F], F]:
         return cast(F, compiled)  # a dispatcher, called as the function it compiles
 
     return wrap
+
+
+def helper(fn: F) -> F:
+    """Compile a function called only from other kernels: typed and compiled within each
+    caller's compilation, its machine code linked into the caller's (cached with it), so
+    loading a module from the cache does not load it on its own (each kernel loaded costs
+    ~5-15 ms of numba's linking). Calling it from Python would compile it then: don't."""
+    from numba import njit
+
+    compiled = njit(cache=True, nogil=True, error_model="numpy")(fn)
+    compiled.mistool_helper = True
+    return cast(F, compiled)
 
 
 def warm() -> list[str]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mistool.kernels import kernel
+from mistool.kernels import helper, kernel
 
 #: Floats below this magnitude are formatted here (their scaled value fits an int64
 #: exactly); larger ones are left to Python.
@@ -15,7 +15,7 @@ FLOAT_LIMIT = 9.0e9
 _SPLIT = 134217729.0  # 2^27 + 1: Veltkamp's split of a double into two 26-bit halves
 
 
-@kernel("int64(uint8[::1], int64, int64)")
+@helper
 def _put_int(out: np.ndarray, pos: int, value: int) -> int:
     """``str(value)`` at ``out[pos:]``; the position after it (the magnitude taken as
     uint64, so the most negative int64 too)."""
@@ -37,7 +37,7 @@ def _put_int(out: np.ndarray, pos: int, value: int) -> int:
     return pos + digits
 
 
-@kernel("int64(float64)")
+@helper
 def scaled_micro(a: float) -> int:
     """``a * 10^6`` (``0 <= a < FLOAT_LIMIT``) rounded to the nearest integer, ties to even,
     from the exact product: Dekker's product gives ``a * 10^6 = p + e`` exactly (``p`` the
@@ -60,7 +60,7 @@ def scaled_micro(a: float) -> int:
     return n
 
 
-@kernel("int64(uint8[::1], int64, float64)")
+@helper
 def _put_float(out: np.ndarray, pos: int, v: float) -> int:
     """``v`` (finite, ``|v| < FLOAT_LIMIT``) as ``f"{v:.6f}"`` without trailing zeros."""
     n = scaled_micro(-v if v < 0 else v)

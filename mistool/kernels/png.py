@@ -9,18 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from mistool.kernels import kernel
-
-_ROW = "void(uint8[:, ::1], int64, int64, uint8[:, ::1])"  # rows, y, bpp, out
+from mistool.kernels import helper, kernel
 
 
-@kernel(_ROW)
+@helper
 def _none(rows: np.ndarray, y: int, bpp: int, out: np.ndarray) -> None:
     for x in range(out.shape[1]):
         out[y, x] = rows[y, x + 1]
 
 
-@kernel(_ROW)
+@helper
 def _sub(rows: np.ndarray, y: int, bpp: int, out: np.ndarray) -> None:
     w = out.shape[1]
     if bpp == 1:
@@ -35,13 +33,13 @@ def _sub(rows: np.ndarray, y: int, bpp: int, out: np.ndarray) -> None:
         out[y, x] = rows[y, x + 1] + out[y, x - bpp]
 
 
-@kernel(_ROW)
+@helper
 def _up(rows: np.ndarray, y: int, bpp: int, out: np.ndarray) -> None:
     for x in range(out.shape[1]):
         out[y, x] = rows[y, x + 1] + out[y - 1, x]
 
 
-@kernel(_ROW)
+@helper
 def _average(rows: np.ndarray, y: int, bpp: int, out: np.ndarray) -> None:
     """floor((left + above) / 2); the row above the first is zero."""
     w = out.shape[1]
@@ -53,7 +51,7 @@ def _average(rows: np.ndarray, y: int, bpp: int, out: np.ndarray) -> None:
         out[y, x] = rows[y, x + 1] + ((np.int32(out[y, x - bpp]) + up) >> 1)
 
 
-@kernel(_ROW)
+@helper
 def _paeth(rows: np.ndarray, y: int, bpp: int, out: np.ndarray) -> None:
     """Paeth's predictor, not on the first row (there it is Sub's)."""
     w = out.shape[1]

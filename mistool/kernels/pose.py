@@ -35,7 +35,7 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from mistool.kernels import kernel
+from mistool.kernels import helper, kernel
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -338,7 +338,7 @@ def _axis_from_lines(
     return True
 
 
-@kernel("void(float64, float64, float64, float64[::1])")
+@helper
 def _quat_from_z(x: float, y: float, z: float, out: np.ndarray) -> None:
     """``cylinder.quat_from_z`` into ``out[:4]``."""
     if z < -1.0 + 1e-12:
@@ -352,7 +352,7 @@ def _quat_from_z(x: float, y: float, z: float, out: np.ndarray) -> None:
 # -- boundary points ---------------------------------------------------------------------
 
 
-@kernel("void(int32[:, ::1], int64, int64, float64[::1])")
+@helper
 def _contour_moments(outline: np.ndarray, start: int, stop: int, mom: np.ndarray) -> None:
     """Adds a closed contour's region moments ``m00, m10, m01, m20, m11, m02`` to ``mom``
     (``cv2.moments`` of the contour: Green's theorem over its polygon, in exact integer
@@ -386,7 +386,7 @@ def _contour_moments(outline: np.ndarray, start: int, stop: int, mom: np.ndarray
         mom[5] += a02 * (sign * 0.083333333333333333333333333333333)
 
 
-@kernel("int64(uint8[::1], int64, int64, int64, int64)")
+@helper
 def _at(flat: np.ndarray, h: int, w: int, x: int, y: int) -> int:
     """1 when a crop (``flat``: its (h, w) bytes) holds its pixel ``(x, y)`` (any
     integers), else 0."""
@@ -621,7 +621,7 @@ def one_cut_shaft(
 # -- robust line fit ---------------------------------------------------------------------
 
 
-@kernel("void(float64, float64, float64, float64, float64, float64, float64[::1])")
+@helper
 def _tls(
     m00: float, m01: float, m02: float, m11: float, m12: float, sw: float, line: np.ndarray
 ) -> None:
@@ -636,7 +636,7 @@ def _tls(
     line[0], line[1], line[2] = nx, ny, -(nx * mx + ny * my)
 
 
-@kernel("float64(float64[::1], float64[::1], float64[::1], float64[::1], float64, float64)")
+@helper
 def _irls_step(
     x: np.ndarray, y: np.ndarray, r: np.ndarray, line: np.ndarray, scale: float, thresh: float
 ) -> float:
@@ -674,7 +674,7 @@ def _irls_step(
     return scale
 
 
-@kernel("float64(float64[::1])")
+@helper
 def _sum8(v: np.ndarray) -> float:
     """Sum in eight interleaved running sums (numpy's order for up to 128 values:
     independent sums run in parallel; a NaN anywhere gives NaN)."""
@@ -701,7 +701,7 @@ def _sum8(v: np.ndarray) -> float:
     return tot
 
 
-@kernel("int64(float64[::1], float64[::1], float64[::1], float64, int64, float64[::1])")
+@helper
 def _ransac(
     x: np.ndarray, y: np.ndarray, along: np.ndarray, thresh: float, iters: int, h: np.ndarray
 ) -> int:
@@ -1599,7 +1599,7 @@ def shaft_pose(
 # -- the clasper's tip ---------------------------------------------------------------------
 
 
-@kernel("int64(int32[:, ::1], float64, float64, float64, float64, float64, int64[::1])")
+@helper
 def _jaw_picks(
     ci: np.ndarray, ox: float, oy: float, ju: float, jv: float, width: float, picks: np.ndarray
 ) -> int:

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from mistool.kernels import kernel
+from mistool.kernels import helper, kernel
 
 #: Columns of the row values the kernel reads, in order.
 FUSION_INPUTS = (
@@ -37,7 +37,7 @@ FUSION_INPUTS = (
 )
 
 
-@kernel("void(float64[:, ::1], float64, float64, float64[::1])")
+@helper
 def _unit_ray(K: np.ndarray, u: float, v: float, out: np.ndarray) -> None:
     """The unit viewing ray ``K^-1 (u, v, 1)`` (Gaussian elimination with partial
     pivoting, as LAPACK's solve)."""
@@ -72,7 +72,7 @@ def _unit_ray(K: np.ndarray, u: float, v: float, out: np.ndarray) -> None:
         out[i] /= n
 
 
-@kernel("float64(float64[:, ::1], float64, float64, float64)")
+@helper
 def _sigma_across(cov: np.ndarray, d0: float, d1: float, d2: float) -> float:
     """RMS 1-sigma of the trocar across the unit direction ``d``:
     ``sqrt(max(trace(P cov P), 0) / 2)`` with ``P = I - d d^T``."""
@@ -87,7 +87,7 @@ def _sigma_across(cov: np.ndarray, d0: float, d1: float, d2: float) -> float:
     return math.sqrt(max(tr, 0.0) / 2.0)
 
 
-@kernel("float64(float64[::1], float64[::1], float64[::1])")
+@helper
 def _closest(ray: np.ndarray, p0: np.ndarray, a: np.ndarray) -> float:
     """Axial coordinate of the point of the axis ``(p0, a)`` closest to the ray."""
     da = ray[0] * a[0] + ray[1] * a[1] + ray[2] * a[2]
@@ -96,10 +96,7 @@ def _closest(ray: np.ndarray, p0: np.ndarray, a: np.ndarray) -> float:
     return (da * dp - ap) / max(1.0 - da * da, 1e-12)
 
 
-@kernel(
-    "int64(float64[::1], float64[:, ::1], float64[::1], float64[::1], float64,"
-    " float64[::1], float64[::1])"
-)
+@helper
 def _one_line(
     line: np.ndarray,
     K: np.ndarray,
@@ -141,10 +138,7 @@ def _one_line(
     return 1
 
 
-@kernel(
-    "int64(float64[::1], float64[::1], float64[:, ::1], float64, float64,"
-    " float64[::1], float64[::1])"
-)
+@helper
 def _two_lines(
     row: np.ndarray,
     T: np.ndarray,
