@@ -59,7 +59,7 @@ def helper(fn: F) -> F:
     from numba import njit
 
     compiled = njit(cache=True, nogil=True, error_model="numpy")(fn)
-    compiled.mistool_helper = True
+    setattr(compiled, "mistool_helper", True)  # noqa: B010 - numba types the dispatcher
     return cast(F, compiled)
 
 
