@@ -216,6 +216,19 @@ def _d2(x: float, y: float, seg: np.ndarray, k: int, single: bool) -> float:
     return d2
 
 
+@kernel("Tuple((float64[::1], float64[::1]))(float64[:, ::1])")
+def _columns(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The x and y columns of points (N, 2), each contiguous: loops over them become
+    vector code, over the interleaved pairs they do not (5x slower)."""
+    n = p.shape[0]
+    xs = np.empty(n, np.float64)
+    ys = np.empty(n, np.float64)
+    for i in range(n):
+        xs[i] = p[i, 0]
+        ys[i] = p[i, 1]
+    return xs, ys
+
+
 @kernel(f"void(float64[:, ::1], {_SEGMENTS}, float64[:, ::1])")
 def segment_d2_rows(
     p: np.ndarray,
@@ -229,9 +242,10 @@ def segment_d2_rows(
     n = p.shape[0]
     single = n == 1
     seg = _frames(ends, dirs, back, radius)
+    xs, ys = _columns(p)
     for k in range(ends.shape[0]):
         for i in range(n):
-            out[k, i] = _d2(p[i, 0], p[i, 1], seg, k, single)
+            out[k, i] = _d2(xs[i], ys[i], seg, k, single)
 
 
 @_inlined("int64(float64, float64, float64[:, ::1], float64, boolean, boolean)")
@@ -264,6 +278,27 @@ def _label(x: float, y: float, seg: np.ndarray, keep_d2: float, keep: bool, sing
     return lab
 
 
+@kernel("void(float64[::1], float64[::1], float64[:, ::1], float64, boolean, boolean, int64[::1])")
+def _labels(
+    xs: np.ndarray,
+    ys: np.ndarray,
+    seg: np.ndarray,
+    keep_d2: float,
+    keep: bool,
+    single: bool,
+    out: np.ndarray,
+) -> None:
+    """``out`` (N,): :func:`_label` of each point (``xs``, ``ys``); two segments without
+    ``keep`` in one loop without branches (vector code)."""
+    n = xs.shape[0]
+    if seg.shape[0] == 2 and not keep:
+        for i in range(n):
+            out[i] = _d2(xs[i], ys[i], seg, 1, single) < _d2(xs[i], ys[i], seg, 0, single)
+        return
+    for i in range(n):
+        out[i] = _label(xs[i], ys[i], seg, keep_d2, keep, single)
+
+
 @kernel(f"void(float64[:, ::1], {_SEGMENTS}, float64, boolean, int64[::1])")
 def nearest_labels(
     p: np.ndarray,
@@ -277,11 +312,8 @@ def nearest_labels(
 ) -> None:
     """``out`` (N,): each point's nearest segment (``split._Axes.nearest``; K beyond
     ``keep_d2`` from all, when ``keep``)."""
-    n = p.shape[0]
-    single = n == 1
-    seg = _frames(ends, dirs, back, radius)
-    for i in range(n):
-        out[i] = _label(p[i, 0], p[i, 1], seg, keep_d2, keep, single)
+    xs, ys = _columns(p)
+    _labels(xs, ys, _frames(ends, dirs, back, radius), keep_d2, keep, p.shape[0] == 1, out)
 
 
 @kernel(
@@ -396,11 +428,11 @@ def refit_axes(
     prev = np.empty(n, np.int64)
     q = np.empty((n, 2), np.float64)
     proj = np.empty(n, np.float64)
+    xs, ys = _columns(pts)
     for rnd in range(rounds):
+        _labels(xs, ys, _frames(ends, dirs, back, radius), keep_d2, keep, single, lab)
         same = rnd > 0
-        seg = _frames(ends, dirs, back, radius)
         for i in range(n):
-            lab[i] = _label(pts[i, 0], pts[i, 1], seg, keep_d2, keep, single)
             same = same and lab[i] == prev[i]
         if same:
             break  # the same points give the same axes: converged
@@ -457,6 +489,21 @@ def _argmin_column(d2: np.ndarray, i: int, keep_d2: float, keep: bool) -> int:
     return lab
 
 
+@kernel("void(float64[:, ::1], float64, boolean, int64[::1])")
+def _argmins(d2: np.ndarray, keep_d2: float, keep: bool, out: np.ndarray) -> None:
+    """``out`` (N,): :func:`_argmin_column` of every column of ``d2`` (K, N); two rows
+    without ``keep`` in one loop without branches (vector code)."""
+    n = d2.shape[1]
+    if d2.shape[0] == 2 and not keep:
+        for i in range(n):
+            d0 = d2[0, i]
+            d1 = d2[1, i]
+            out[i] = ((d1 < d0) or (d1 != d1)) and d0 == d0
+        return
+    for i in range(n):
+        out[i] = _argmin_column(d2, i, keep_d2, keep)
+
+
 @kernel(f"float64(float64[:, ::1], {_SEGMENTS}, float64, boolean, float64, float64)")
 def score_axes(
     pts: np.ndarray,
@@ -477,8 +524,7 @@ def score_axes(
     d2 = np.empty((kk, n), np.float64)
     segment_d2_rows(pts, ends, dirs, back, radius, d2)
     lab = np.empty(n, np.int64)
-    for i in range(n):
-        lab[i] = _argmin_column(d2, i, keep_d2, keep)
+    _argmins(d2, keep_d2, keep, lab)
     score = 0.0
     mine = np.empty(n, np.float64)
     for j in range(kk):
@@ -643,6 +689,63 @@ def _fill_cells(
 
 
 @kernel(
+    "void(uint8[:, ::1], int64, int64, int64, boolean[:, ::1], int64, float64[:, ::1], float64,"
+    " boolean, uint8[:, ::1], int64[:, ::1])"
+)
+def _refine_mixed(
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    s: int,
+    mixed: np.ndarray,
+    count: int,
+    seg: np.ndarray,
+    keep_d2: float,
+    keep: bool,
+    owner: np.ndarray,
+    bounds: np.ndarray,
+) -> None:
+    """:func:`shaft_owner`'s pixels in the ``mixed`` cells (``count`` of them) labelled
+    one by one: gathered, labelled in one loop (:func:`_labels`), put back, each label's
+    window grown to their cells."""
+    h, w = mask.shape
+    ch, cw = mixed.shape
+    xs = np.empty(count, np.float64)
+    ys = np.empty(count, np.float64)
+    at = np.empty(count, np.int64)
+    cell = np.empty(count, np.int64)
+    m = 0
+    for ci in range(ch):
+        ya, yb = ci * s, min(ci * s + s, h)
+        for cj in range(cw):
+            if not mixed[ci, cj]:
+                continue
+            xa, xb = cj * s, min(cj * s + s, w)
+            for y in range(ya, yb):
+                for x in range(xa, xb):
+                    if mask[y, x] != 0:
+                        xs[m] = x + x0
+                        ys[m] = y + y0
+                        at[m] = y * w + x
+                        cell[m] = ci * cw + cj
+                        m += 1
+    lab = np.empty(count, np.int64)
+    _labels(xs, ys, seg, keep_d2, keep, count == 1, lab)  # (one alone: dgemv's order)
+    flat = owner.reshape(-1)
+    seen = np.zeros(ch * cw, np.int64)  # the labels given in each cell, as bits
+    for i in range(count):
+        flat[at[i]] = lab[i]
+        seen[cell[i]] |= 1 << lab[i]
+    for c in range(ch * cw):
+        if seen[c] == 0:
+            continue
+        ci, cj = c // cw, c % cw
+        for j in range(bounds.shape[0]):
+            if seen[c] >> j & 1:
+                _grow(bounds, j, cj * s, ci * s, min(cj * s + s, w) - 1, min(ci * s + s, h) - 1)
+
+
+@kernel(
     f"void(uint8[:, ::1], int64, int64, {_SEGMENTS}, float64, boolean, int64, uint8[:, ::1],"
     " int64[:, ::1])"
 )
@@ -684,23 +787,8 @@ def shaft_owner(
         bounds[j, 2] = -1
         bounds[j, 3] = -1
     mixed = _mixed_cells(coarse)
-    one = _fill_cells(mask, s, coarse, mixed, owner, bounds) == 1
-    for ci in range(ch):  # then per pixel in the mixed cells
-        ya, yb = ci * s, min(ci * s + s, h)
-        for cj in range(cw):
-            if not mixed[ci, cj]:
-                continue
-            xa, xb = cj * s, min(cj * s + s, w)
-            seen = 0  # the labels given in this cell, as bits
-            for y in range(ya, yb):
-                for x in range(xa, xb):
-                    if mask[y, x] != 0:
-                        lab = _label(x + x0, y + y0, seg, keep_d2, keep, one)
-                        owner[y, x] = lab
-                        seen |= 1 << lab
-            for j in range(bounds.shape[0]):
-                if seen >> j & 1:
-                    _grow(bounds, j, xa, ya, xb - 1, yb - 1)
+    count = _fill_cells(mask, s, coarse, mixed, owner, bounds)
+    _refine_mixed(mask, x0, y0, s, mixed, count, seg, keep_d2, keep, owner, bounds)
 
 
 _RUNS = "Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))"
@@ -763,6 +851,37 @@ def label_runs(
         cap = 4 * cap
 
 
+@kernel("Tuple((float64[::1], float64[::1], int64[::1]))(uint8[:, ::1], int64, int64)")
+def _gather(mask: np.ndarray, x0: int, y0: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The full-image x and y of a crop's non-zero pixels (``mask`` at (x0, y0)), row by
+    row, and their flat indices in the crop (eight bytes at a time where they are all
+    zero)."""
+    h, w = mask.shape
+    flat = mask.reshape(-1)
+    n = flat.shape[0]
+    count = 0
+    for i in range(n):
+        count += flat[i] != 0
+    px = np.empty(count, np.float64)
+    py = np.empty(count, np.float64)
+    at = np.empty(count, np.int64)
+    m = 0
+    for y in range(h):
+        base = y * w
+        x = 0
+        while x < w:
+            if x + 8 <= w and load8(flat, base + x) == 0:
+                x += 8
+                continue
+            if flat[base + x] != 0:
+                px[m] = x + x0
+                py[m] = y + y0
+                at[m] = base + x
+                m += 1
+            x += 1
+    return px, py, at
+
+
 @kernel(
     f"void(uint8[:, ::1], int64, int64, {_SEGMENTS}, int64[::1], float64[:, ::1], boolean[::1],"
     " uint8[:, ::1])"
@@ -788,25 +907,12 @@ def head_owner(
     first of equal least distances, the first NaN (``split.argmin_rows``). ``owner``
     (h, w): its index at each mask pixel, 255 elsewhere. The pixels are gathered first,
     then each segment's distances computed over all of them (vector code)."""
-    h, w = mask.shape
     nrow = is_centre.shape[0]
-    count = 0
-    for y in range(h):
-        for x in range(w):
-            count += mask[y, x] != 0
-    px = np.empty(count, np.float64)
-    py = np.empty(count, np.float64)
-    at = np.empty(count, np.int64)
+    px, py, at = _gather(mask, x0, y0)
+    count = px.shape[0]
     flat = owner.reshape(-1)
-    m = 0
-    for y in range(h):
-        for x in range(w):
-            if mask[y, x] != 0:
-                px[m] = x + x0
-                py[m] = y + y0
-                at[m] = y * w + x
-                m += 1
-            owner[y, x] = 255
+    for i in range(flat.shape[0]):
+        flat[i] = 255
     single = count == 1  # (one point: dgemv's order)
     seg = _frames(ends, dirs, back, radius)
     d2 = np.empty((nrow, count), np.float64)
@@ -829,8 +935,10 @@ def head_owner(
                 dx = px[i] - cx
                 dy = py[i] - cy
                 d2[r, i] = (dx * dx + dy * dy) / rr
+    lab = np.empty(count, np.int64)
+    _argmins(d2, 0.0, False, lab)
     for i in range(count):
-        flat[at[i]] = _argmin_column(d2, i, 0.0, False)
+        flat[at[i]] = lab[i]
 
 
 @kernel("boolean[::1](uint8[:, ::1], int64, int64, int64, int64)")
