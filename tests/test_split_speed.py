@@ -371,36 +371,22 @@ def test_algorithm_1_of_a_window_equals_that_of_the_whole_crop(seed, min_area):
 
 
 def test_the_blas_orders_are_numpys() -> None:
-    """The float operations the kernels copy (mistool/kernels/_blas.py) give numpy's
-    bits: 2-vector and strided dot products, (2K, 2) @ (2, N) for N = 1 and more,
-    (N, 2) @ (2,), pairwise sums."""
-    from mistool.kernels import split as _blas
-    from mistool.kernels.split import segment_d2_rows as d2_kernel
+    """The strided dot products and pairwise sums the split's kernels copy
+    (mistool/kernels/split.py) give numpy's bits. (The orders of ``dot2`` and
+    ``row_dot``, helpers compiled only into kernels, are checked through those kernels:
+    the segment distances, box distances, refit, score and initial axes against their
+    former numpy definitions.)"""
+    from mistool.kernels import split as k
 
     rng = np.random.default_rng(11)
     for n in [1, 2, 3, 4, 5, 7, 8, 9, 15, 16, 17, 127, 128, 129, 1000, 4099, 10_000, 70001]:
         a = rng.normal(0, 100, (n, 2))
-        if n <= _blas.DOT_SERIAL_MAX:
-            assert _blas.dot_strided(a[:, 0], a[:, 1]) == float(a[:, 0] @ a[:, 1])
-            assert _blas.dot_strided(a[:, 1], a[:, 1]) == float(a[:, 1] @ a[:, 1])
+        if n <= k.DOT_SERIAL_MAX:
+            assert k.dot_strided(a[:, 0], a[:, 1]) == float(a[:, 0] @ a[:, 1])
+            assert k.dot_strided(a[:, 1], a[:, 1]) == float(a[:, 1] @ a[:, 1])
         v = rng.uniform(0, 30, n)
-        assert _blas.pairwise_sum(v, n) == float(np.add.reduce(v))
-        u = rng.normal(size=2)
-        got = [_blas.row_dot(x, y, u[0], u[1], True) for x, y in a.tolist()]
-        assert np.array_equal(got, a @ u)
-        dirs = rng.normal(size=(2, 2))
-        frame = np.concatenate([dirs, np.stack([-dirs[:, 1], dirs[:, 0]], 1)])
-        want = frame @ a.T
-        single = n == 1
-        got2 = [[_blas.row_dot(f0, f1, x, y, single) for x, y in a.tolist()] for f0, f1 in frame]
-        assert np.array_equal(got2, want)
-        # (the segment distances' kernel on points with no excess: perp^2 of that product)
-        out = np.empty((2, n))
-        d2_kernel(a, np.zeros((2, 2)), dirs, np.full(2, math.inf), np.ones(2), out)
-    for _ in range(300):
-        a, b = rng.normal(size=2), rng.normal(size=2)
-        assert _blas.dot2(a[0], a[1], b[0], b[1]) == float(a @ b)
-    assert _blas.pairwise_sum(np.array([-0.0]), 1) == np.add.reduce(np.array([-0.0]))
+        assert k.pairwise_sum(v, n) == float(np.add.reduce(v))
+    assert k.pairwise_sum(np.array([-0.0]), 1) == np.add.reduce(np.array([-0.0]))
 
 
 def _nearest_before(pts: np.ndarray, ax: Any) -> np.ndarray:

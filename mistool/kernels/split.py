@@ -31,14 +31,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, TypeVar, cast
+from typing import cast
 
 import numpy as np
-from numba import njit
 from numba.core import types
 from numba.extending import intrinsic
 
-from mistool.kernels import kernel
+from mistool.kernels import helper, kernel
 
 __all__ = [
     "DOT_SERIAL_MAX",
@@ -51,24 +50,6 @@ __all__ = [
     "score_axes",
     "segment_d2_rows",
 ]
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-
-def _inlined(signature: str) -> Callable[[F], F]:
-    """:func:`~mistool.kernels.kernel` for a small function called per point by the
-    kernels here: also compiled into each caller (numba's ``inline="always"``). A call
-    to a cached kernel from another stays a call: 3x the time of the inlined arithmetic
-    in the split's per-pixel loops."""
-
-    def wrap(fn: F) -> F:
-        compiled = njit([signature], cache=True, nogil=True, error_model="numpy", inline="always")(
-            fn
-        )
-        return cast(F, compiled)
-
-    return wrap
-
 
 # numpy's and OpenBLAS's float operations -----------------------------------------------
 
@@ -91,13 +72,13 @@ def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]  # (numba's intrin
 fma = cast(Callable[[float, float, float], float], _fma)
 
 
-@_inlined("float64(float64, float64, float64, float64)")
+@helper
 def dot2(a0: float, a1: float, b0: float, b1: float) -> float:
     """``np.array([a0, a1]) @ np.array([b0, b1])`` (contiguous ``ddot``)."""
     return fma(a1, b1, fma(a0, b0, 0.0))
 
 
-@_inlined("float64(float64, float64, float64, float64, boolean)")
+@helper
 def row_dot(f0: float, f1: float, x: float, y: float, single: bool) -> float:
     """One element of ``frame @ p.T`` (frame row ``(f0, f1)``, point ``(x, y)``):
     ``dgemm``'s order, or ``dgemv``'s when ``single`` (one point, or ``(N, 2) @ (2,)``)."""
@@ -196,7 +177,7 @@ def _frames(ends: np.ndarray, dirs: np.ndarray, back: np.ndarray, radius: np.nda
     return seg
 
 
-@_inlined("float64(float64, float64, float64[:, ::1], int64, boolean)")
+@helper
 def _d2(x: float, y: float, seg: np.ndarray, k: int, single: bool) -> float:
     """Point (x, y)'s squared distance to segment ``k`` (``seg``: :func:`_frames`), as
     ``split.segment_d2_rows`` computed it: the coordinates along and across by ``dgemm``
@@ -248,7 +229,7 @@ def segment_d2_rows(
             out[k, i] = _d2(xs[i], ys[i], seg, k, single)
 
 
-@_inlined("int64(float64, float64, float64[:, ::1], float64, boolean, boolean)")
+@helper
 def _label(x: float, y: float, seg: np.ndarray, keep_d2: float, keep: bool, single: bool) -> int:
     """The nearest segment's index (``split._Axes.nearest``): for two segments without
     ``keep``, 1 where the second is strictly nearer; else ``argmin`` (the first of equal
@@ -464,7 +445,7 @@ def _side_by_side(
     return hi_i - lo_j > radius[i] + radius[j]
 
 
-@_inlined("int64(float64[:, ::1], int64, float64, boolean)")
+@helper
 def _argmin_column(d2: np.ndarray, i: int, keep_d2: float, keep: bool) -> int:
     """``d2[:, i].argmin()`` (the first of equal minima, the first NaN; ``split.argmin_rows``);
     with ``keep``, K where the least (NaN if any) is above ``keep_d2``."""
@@ -569,7 +550,7 @@ load8 = cast(Callable[[np.ndarray, int], int], _load8)
 _ONES = np.uint64(0x0101010101010101)
 
 
-@_inlined("int64(uint64)")
+@helper
 def _bytes_set(v: int) -> int:
     """How many of the 8 bytes of ``v`` are non-zero."""
     t = v | (v >> np.uint64(4))
@@ -614,7 +595,7 @@ def nonzero_points(mask: np.ndarray, x0: int, y0: int, step: int, out: np.ndarra
         i = stop
 
 
-@_inlined("void(int64[:, ::1], int64, int64, int64, int64, int64)")
+@helper
 def _grow(bounds: np.ndarray, j: int, xa: int, ya: int, xb: int, yb: int) -> None:
     """Label ``j``'s window grown to hold the rectangle (xa, ya) - (xb, yb)."""
     bounds[j, 0] = min(bounds[j, 0], xa)
@@ -1017,9 +998,7 @@ def border_runs(
 # heads handed over (mistool.tracking.heads) --------------------------------------------
 
 
-@_inlined(
-    "float64(float64, float64, float64, float64, float64, float64, float64, float64, boolean)"
-)
+@helper
 def _box_d(
     x: float,
     y: float,
@@ -1122,7 +1101,7 @@ def shown_near(
 # the split's initial axes (mistool.tracking.split._initial_axes) ------------------------
 
 
-@_inlined("void(float64[::1], float64, float64, float64[::1])")
+@helper
 def _corners_along(box: np.ndarray, d0: float, d1: float, out: np.ndarray) -> None:
     """``out`` (4,): ``box.corners() @ d`` of a box ``(cx, cy, length, width, angle)``:
     ``RotatedBox.corners``' plain floats, then ``dgemv``'s fused multiply-adds."""
@@ -1138,7 +1117,7 @@ def _corners_along(box: np.ndarray, d0: float, d1: float, out: np.ndarray) -> No
     out[3] = fma(cx - ax + bx, d0, (cy - ay + by) * d1)
 
 
-@_inlined("float64(float64, float64, int64, int64)")
+@helper
 def _inside(x: float, y: float, hh: int, ww: int) -> float:
     """``split.distal_axis``' distance of (x, y) to the nearest image border: Python's
     ``min(x, w - 1 - x, y, h - 1 - y)`` (the first of equal ones)."""
