@@ -12,6 +12,7 @@ it is expected. Pure (no tracker state).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -60,13 +61,16 @@ def _covered(a: RotatedBox, b: RotatedBox, n: int = 5) -> float:
     """The share of box ``a`` lying inside box ``b`` (on an n x n grid of points)."""
     u = unit_vector(a.angle_deg)
     v = np.array([-u[1], u[0]])
-    s, t = np.meshgrid(np.linspace(-0.5, 0.5, n), np.linspace(-0.5, 0.5, n))
-    pts = (
-        np.array([a.cx, a.cy])
-        + (s.ravel() * a.length)[:, None] * u
-        + (t.ravel() * a.width)[:, None] * v
-    )
+    s, t = _grid(n)
+    pts = np.array([a.cx, a.cy]) + (s * a.length)[:, None] * u + (t * a.width)[:, None] * v
     return float((box_distance(pts, b) <= 0.0).mean())
+
+
+@functools.cache
+def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid over [-0.5, 0.5]^2, raveled (x, y) (computed once per n)."""
+    s, t = np.meshgrid(np.linspace(-0.5, 0.5, n), np.linspace(-0.5, 0.5, n))
+    return s.ravel(), t.ravel()
 
 
 def _pixels(inst: InstanceObservation, part: str) -> np.ndarray:

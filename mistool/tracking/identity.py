@@ -39,7 +39,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -207,11 +207,12 @@ class Track:
         """Where its head parts seen at most :data:`HEAD_MEMORY_FRAMES` ago are expected
         at ``frame``: moved on its velocity for at most :data:`SPLIT_STOP_FRAMES`."""
         out = {}
+        vx, vy = self.motion.velocity.tolist()
         for p, (b, seen) in self.heads.items():
             gap = frame - seen
             if 0 < gap <= HEAD_MEMORY_FRAMES:
-                dx, dy = self.motion.velocity * min(gap, SPLIT_STOP_FRAMES)
-                out[p] = replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy))
+                n = min(gap, SPLIT_STOP_FRAMES)
+                out[p] = RotatedBox(b.cx + vx * n, b.cy + vy * n, b.length, b.width, b.angle_deg)
         return out
 
     def predict_steps(self, frame: int) -> int:
@@ -223,6 +224,10 @@ class Track:
     def predict(self, frame: int) -> np.ndarray:
         """(2,) px: the expected centroid at ``frame``."""
         return self.motion.predict(self.predict_steps(frame))
+
+    def predict_xy(self, frame: int) -> tuple[float, float]:
+        """:meth:`predict` as two floats (the same values)."""
+        return self.motion.predict_xy(self.predict_steps(frame))
 
 
 def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
@@ -266,14 +271,15 @@ def track_cost(
     """
     gap = frame - t.last_frame
     lost = t.state is TrackState.LOST
-    c = np.asarray(inst.centroid_px)
+    cx, cy = inst.centroid_px
     # scale: the instrument's full size, also when it was last seen only partly
     scale = max(t.size, math.sqrt(inst.area_px), 10.0)
     if lost:  # unseen: the search area grows with time
         if inst.image_shape is not None:  # from where it left, whatever its size
             scale = min(scale, weights.lost_scale_frac * math.hypot(*inst.image_shape))
         scale *= 1.0 + weights.lost_search_growth * (gap - LOST_AFTER_FRAMES) / fps
-    dist = float(np.hypot(*(c - t.predict(frame))))
+    px, py = t.predict_xy(frame)  # (plain floats, numpy's values; np.hypot: the C
+    dist = float(np.hypot(cx - px, cy - py))  # library's, which math.hypot is not)
     if lost and entry is not None and t.entry is not None and inst.image_shape is not None:
         # a tool comes back through its trocar: its shaft enters where it left (its
         # centroid, predicted on from its exit, lies outside the view)
@@ -353,10 +359,13 @@ def _far_head(t: Track, inst: InstanceObservation, frame: int, entry_reach: floa
     first elsewhere is another."""
     if not (t.in_blob or t.state.coasting) or "shaft" in inst.parts:
         return False
-    c = np.asarray(inst.centroid_px)
-    if float(np.hypot(*(c - t.predict(frame)))) <= FAR_HEAD_SIZES * t.size:
+    cx, cy = inst.centroid_px
+    px, py = t.predict_xy(frame)
+    if float(np.hypot(cx - px, cy - py)) <= FAR_HEAD_SIZES * t.size:
         return False
-    near_entry = t.entry is not None and float(np.hypot(*(c - t.entry))) <= entry_reach
+    near_entry = (
+        t.entry is not None and float(np.hypot(cx - t.entry[0], cy - t.entry[1])) <= entry_reach
+    )
     return not (near_entry and _touches_border(inst))
 
 
@@ -595,11 +604,15 @@ class IdentityTracker:
         gap = frame - t.boxes_frame
         move = gap if steps is None else min(gap, steps)
         velocity = t.motion.velocity
-        dx, dy = velocity * move
-        out = {p: replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy)) for p, b in t.boxes.items()}
+        vx, vy = velocity.tolist()
+        dx, dy = vx * move, vy * move  # (plain floats: numpy's values, faster)
+        out = {
+            p: RotatedBox(b.cx + dx, b.cy + dy, b.length, b.width, b.angle_deg)
+            for p, b in t.boxes.items()
+        }
         s = out["shaft"]
         extra = 2.0 * abs(float(velocity @ unit_vector(s.angle_deg))) * (gap - move)
-        out["shaft"] = replace(s, length=s.length + extra)
+        out["shaft"] = RotatedBox(s.cx, s.cy, s.length + extra, s.width, s.angle_deg)
         return out
 
     def _split_crossings(self, fr: _Frame) -> None:

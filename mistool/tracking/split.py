@@ -266,21 +266,27 @@ def reference_boxes(
     if "shaft" not in boxes or len(runs) != 1 or not heads:
         return boxes
     ends, run_px = runs[0]
-    mid = ends[1]
-    d = np.mean([[b.cx, b.cy] for b in heads], axis=0) - mid
-    norm = float(np.hypot(*d))
+    (x0, y0), (mx, my), (x2, y2) = ends.tolist()
+    # (plain floats: numpy's values; np.mean over the first axis sums from 0 in order;
+    # np.hypot is the C library's, which math.hypot is not)
+    sx = sy = 0.0
+    for b in heads:
+        sx += b.cx
+        sy += b.cy
+    dx, dy = sx / len(heads) - mx, sy / len(heads) - my
+    norm = float(np.hypot(dx, dy))
     sb = boxes["shaft"]
-    angle = math.degrees(math.atan2(d[1], d[0])) % 180.0
+    angle = math.degrees(math.atan2(dy, dx)) % 180.0
     diff = abs(sb.angle_deg - angle) % 180.0
     if norm <= 0 or min(diff, 180.0 - diff) <= STUB_ANGLE_DEG:
         return boxes
-    d /= norm
-    tangent = ends[2] - ends[0]
-    tn = float(np.hypot(*tangent))
-    sin = abs(float(tangent[0] * d[1] - tangent[1] * d[0])) / tn if tn > 0 else 1.0
+    dx, dy = dx / norm, dy / norm
+    tx, ty = x2 - x0, y2 - y0
+    tn = float(np.hypot(tx, ty))
+    sin = abs(tx * dy - ty * dx) / tn if tn > 0 else 1.0
     width = max(float(run_px) * sin, sb.width, 1.0)
-    c = mid + 0.5 * width * d
-    boxes["shaft"] = RotatedBox(float(c[0]), float(c[1]), width, width, angle)
+    half = 0.5 * width
+    boxes["shaft"] = RotatedBox(mx + half * dx, my + half * dy, width, width, angle)
     return boxes
 
 

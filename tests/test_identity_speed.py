@@ -1,0 +1,258 @@
+"""The identity step's per-frame skeleton in plain floats equals the numpy definitions it
+replaces, bit for bit (issue 13: the sequential identity step's cost): the cost of a
+track for an instance, the far-head test, where a track's boxes and heads are expected,
+a track's reference shape, the share of a box under another."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mistool.model import InstanceObservation, PartObservation, RotatedBox
+from mistool.tracking import identity
+from mistool.tracking.identity import CostWeights, Track, TrackState, track_cost
+from mistool.tracking.instances import angle_diff_deg, unit_vector
+from mistool.tracking.motion import ConstantVelocity
+
+SHAPE = (576, 720)
+
+
+def _box(rng: np.random.Generator, length_max: float = 300.0) -> RotatedBox:
+    length = float(rng.uniform(0.5, length_max))
+    x, y = rng.uniform(-20, 740, 2)
+    return RotatedBox(
+        float(x), float(y), length, length * float(rng.uniform(0, 1)), float(rng.uniform(0, 180))
+    )
+
+
+def _instance(rng: np.random.Generator, shaft: bool = True) -> InstanceObservation:
+    parts = {}
+    for name in ("shaft", "wrist", "clasper"):
+        if (name == "shaft" and shaft) or (name != "shaft" and rng.random() < 0.6):
+            mask = np.ones((3, 4), bool)
+            box = _box(rng, 300.0 if name == "shaft" else 60.0)
+            offset = (int(rng.integers(0, 700)), int(rng.integers(0, 560)))
+            parts[name] = PartObservation(name, box, box.corners(), 12, mask, offset)
+    if not parts:
+        parts["clasper"] = PartObservation(
+            "clasper", _box(rng, 40), np.zeros((4, 2)), 5, np.ones((1, 5), bool), (3, 4)
+        )
+    x, y = rng.uniform(0, 720), rng.uniform(0, 576)
+    bx, by = int(rng.integers(-1, 700)), int(rng.integers(-1, 560))
+    return InstanceObservation(
+        None,
+        parts,
+        (float(x), float(y)),
+        int(rng.integers(1, 20000)),
+        (bx, by, int(rng.integers(1, 100)), int(rng.integers(1, 100))),
+        SHAPE if rng.random() < 0.9 else None,
+    )
+
+
+def _track(rng: np.random.Generator) -> Track:
+    motion = ConstantVelocity(rng.uniform(-50, 750, 2), rng.normal(0, 8, 2))
+    t = Track(
+        name="1",
+        motion=motion,
+        last_frame=int(rng.integers(0, 60)),
+        area=float(rng.uniform(0, 20000)),
+        angle=float(rng.uniform(0, 180)) if rng.random() < 0.9 else None,
+        elongation=float(rng.uniform(0, 1)),
+        state=list(TrackState)[int(rng.integers(0, len(TrackState)))],
+        size=float(rng.uniform(0, 200)),
+        entry=rng.uniform(0, 700, 2) if rng.random() < 0.6 else None,
+        in_blob=bool(rng.random() < 0.5),
+    )
+    t.boxes = {"shaft": _box(rng)} if rng.random() < 0.8 else None
+    if t.boxes is not None:
+        for p in ("wrist", "clasper"):
+            if rng.random() < 0.5:
+                t.boxes[p] = _box(rng, 60.0)
+    t.boxes_frame = t.last_frame - int(rng.integers(0, 8))
+    t.heads = {
+        p: (_box(rng, 60.0), t.last_frame - int(rng.integers(0, 14)))
+        for p in ("wrist", "clasper")
+        if rng.random() < 0.7
+    }
+    return t
+
+
+def _track_cost_before(
+    t: Track,
+    inst: InstanceObservation,
+    frame: int,
+    weights: CostWeights,
+    fps: float,
+    entry: np.ndarray | None = None,
+) -> float:
+    """``identity.track_cost`` as it was (commit ac466ae): the prediction and distances
+    as numpy (2,) arrays."""
+    gap = frame - t.last_frame
+    lost = t.state is TrackState.LOST
+    c = np.asarray(inst.centroid_px)
+    scale = max(t.size, math.sqrt(inst.area_px), 10.0)
+    if lost:
+        if inst.image_shape is not None:
+            scale = min(scale, weights.lost_scale_frac * math.hypot(*inst.image_shape))
+        scale *= 1.0 + weights.lost_search_growth * (gap - identity.LOST_AFTER_FRAMES) / fps
+    dist = float(np.hypot(*(c - t.predict(frame))))
+    if lost and entry is not None and t.entry is not None and inst.image_shape is not None:
+        moved = float(np.hypot(*(entry - t.entry)))
+        if moved <= weights.entry_scale_frac * math.hypot(*inst.image_shape):
+            dist = min(dist, moved)
+    cost = dist / scale
+    angle, elong = identity._appearance(inst)
+    if angle is not None and t.angle is not None and not (lost and "shaft" not in inst.parts):
+        w = min(elong, t.elongation)
+        cost += weights.angle * w * angle_diff_deg(angle, t.angle) / 90.0
+    if t.state is TrackState.TRACKED:
+        cost += weights.area * abs(math.log(max(inst.area_px, 1) / max(t.area, 1.0)))
+    cost += weights.gap * (gap - 1)
+    if t.state is TrackState.HIDDEN:
+        cost += weights.hidden_penalty
+    if entry is not None and t.entry is not None and inst.image_shape is not None:
+        diag = math.hypot(*inst.image_shape)
+        dist = float(np.hypot(*(entry - t.entry)))
+        cost += weights.entry * dist / (weights.entry_scale_frac * diag)
+    return cost
+
+
+def _far_head_before(t: Track, inst: InstanceObservation, frame: int, reach: float) -> bool:
+    if not (t.in_blob or t.state.coasting) or "shaft" in inst.parts:
+        return False
+    c = np.asarray(inst.centroid_px)
+    if float(np.hypot(*(c - t.predict(frame)))) <= identity.FAR_HEAD_SIZES * t.size:
+        return False
+    near_entry = t.entry is not None and float(np.hypot(*(c - t.entry))) <= reach
+    return not (near_entry and identity._touches_border(inst))
+
+
+def _expected_heads_before(t: Track, frame: int) -> dict[str, RotatedBox]:
+    out = {}
+    for p, (b, seen) in t.heads.items():
+        gap = frame - seen
+        if 0 < gap <= identity.HEAD_MEMORY_FRAMES:
+            dx, dy = t.motion.velocity * min(gap, identity.SPLIT_STOP_FRAMES)
+            out[p] = replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy))
+    return out
+
+
+def _expected_boxes_before(t: Track, frame: int, steps: int | None) -> Any:
+    if t.boxes is None or t.shaftless > identity.LOST_AFTER_FRAMES:
+        return None
+    gap = frame - t.boxes_frame
+    move = gap if steps is None else min(gap, steps)
+    velocity = t.motion.velocity
+    dx, dy = velocity * move
+    out = {p: replace(b, cx=b.cx + float(dx), cy=b.cy + float(dy)) for p, b in t.boxes.items()}
+    s = out["shaft"]
+    extra = 2.0 * abs(float(velocity @ unit_vector(s.angle_deg))) * (gap - move)
+    out["shaft"] = replace(s, length=s.length + extra)
+    return out
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_per_frame_skeleton_in_plain_floats_is_the_former_numpy(seed):
+    """track_cost, _far_head, Track.expected_heads and _expected_boxes give the former
+    numpy definitions' values bit for bit: every track state, lost tracks with and
+    without entries, instances with and without a shaft or an image shape."""
+    rng = np.random.default_rng(seed)
+    t = _track(rng)
+    inst = _instance(rng, shaft=bool(rng.random() < 0.7))
+    frame = t.last_frame + int(rng.integers(1, 40))
+    entry = rng.uniform(0, 700, 2) if rng.random() < 0.5 else None
+    weights = CostWeights()
+    got = track_cost(t, inst, frame, weights, 25.0, entry)
+    want = _track_cost_before(t, inst, frame, weights, 25.0, entry)
+    assert got == want or (math.isnan(got) and math.isnan(want))
+    reach = float(rng.uniform(10, 100))
+    assert identity._far_head(t, inst, frame, reach) == _far_head_before(t, inst, frame, reach)
+    assert t.expected_heads(frame) == _expected_heads_before(t, frame)
+    tracker = identity.IdentityTracker(_config())
+    for steps in (identity.SPLIT_STOP_FRAMES, None):
+        assert tracker._expected_boxes(t, frame, steps) == _expected_boxes_before(t, frame, steps)
+
+
+def _config() -> Any:
+    from mistool.config import config_from_dict
+
+    return config_from_dict({"labels": "endovis17", "fps": 25.0})
+
+
+def _reference_boxes_before(inst: InstanceObservation, runs: list) -> dict[str, RotatedBox]:
+    """``split.reference_boxes`` as it was (commit ac466ae): numpy (2,) arrays."""
+    from mistool.tracking.split import STUB_ANGLE_DEG
+
+    boxes = {p: o.box for p, o in inst.parts.items()}
+    heads = [b for p, b in boxes.items() if p != "shaft"]
+    if "shaft" not in boxes or len(runs) != 1 or not heads:
+        return boxes
+    ends, run_px = runs[0]
+    mid = ends[1]
+    d = np.mean([[b.cx, b.cy] for b in heads], axis=0) - mid
+    norm = float(np.hypot(*d))
+    sb = boxes["shaft"]
+    angle = math.degrees(math.atan2(d[1], d[0])) % 180.0
+    diff = abs(sb.angle_deg - angle) % 180.0
+    if norm <= 0 or min(diff, 180.0 - diff) <= STUB_ANGLE_DEG:
+        return boxes
+    d /= norm
+    tangent = ends[2] - ends[0]
+    tn = float(np.hypot(*tangent))
+    sin = abs(float(tangent[0] * d[1] - tangent[1] * d[0])) / tn if tn > 0 else 1.0
+    width = max(float(run_px) * sin, sb.width, 1.0)
+    c = mid + 0.5 * width * d
+    boxes["shaft"] = RotatedBox(float(c[0]), float(c[1]), width, width, angle)
+    return boxes
+
+
+@settings(max_examples=1500, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_reference_boxes_in_plain_floats_are_the_former_ones(seed):
+    """split.reference_boxes redraws a stub's box as before, bit for bit (a stub across
+    the line to its head, a shaft along it, one and two head parts, a zero-length
+    border run)."""
+    from mistool.tracking.split import reference_boxes
+
+    rng = np.random.default_rng(seed)
+    inst = _instance(rng)
+    a = rng.uniform(0, 700, 2)
+    b = a + (rng.uniform(-40, 40, 2) if rng.random() < 0.9 else 0.0)
+    ends = np.stack([a, 0.5 * (a + b), b])
+    runs = [(ends, int(rng.integers(6, 60)))] if rng.random() < 0.9 else []
+    heads = [o.box for p, o in inst.parts.items() if p != "shaft"]
+    if heads and rng.random() < 0.6:  # a thin stub across the line to its head
+        hx = sum(h.cx for h in heads) / len(heads) - ends[1, 0]
+        hy = sum(h.cy for h in heads) / len(heads) - ends[1, 1]
+        across = (math.degrees(math.atan2(hy, hx)) + 90.0 + float(rng.normal(0, 10))) % 180.0
+        shaft = inst.parts["shaft"]
+        stub = RotatedBox(shaft.box.cx, shaft.box.cy, 40.0, 2.0, across)
+        inst = replace(inst, parts={**inst.parts, "shaft": replace(shaft, box=stub)})
+    got, want = reference_boxes(inst, runs), _reference_boxes_before(inst, runs)
+    assert got == want
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_share_of_a_box_under_another_is_as_before(seed):
+    from mistool.tracking import heads
+
+    rng = np.random.default_rng(seed)
+    a, b = _box(rng, 60.0), _box(rng, 60.0)
+    if rng.random() < 0.5:
+        b = replace(b, cx=a.cx + float(rng.normal(0, 10)), cy=a.cy + float(rng.normal(0, 10)))
+    u = unit_vector(a.angle_deg)
+    v = np.array([-u[1], u[0]])
+    s, t = np.meshgrid(np.linspace(-0.5, 0.5, 5), np.linspace(-0.5, 0.5, 5))
+    pts = (
+        np.array([a.cx, a.cy])
+        + (s.ravel() * a.length)[:, None] * u
+        + (t.ravel() * a.width)[:, None] * v
+    )
+    assert heads._covered(a, b) == float((heads.box_distance(pts, b) <= 0.0).mean())
