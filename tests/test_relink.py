@@ -17,11 +17,14 @@ from mistool.config import config_from_dict
 from mistool.model import TrackTable
 from mistool.tracking.relink import (
     FRAGMENT_REACH_PX,
+    HEAD_SWAP_MIN_FRAMES,
     LINK_GATE,
+    attachment_cost,
     box_gap,
     link_cost,
     relink,
     sparse_gated_assignment,
+    swap_heads,
 )
 
 MERGED = config_from_dict({"labels": "endovis17", "fps": 25.0})
@@ -214,6 +217,72 @@ def test_a_name_given_back_to_the_wrong_tool_is_relinked():
         if f >= 80 and x < 400
     }
     assert b == b_late and b != {_names(out, 10)["shaft"]}
+
+
+def _heads_meeting(frame: int, swapped: tuple[str, ...]) -> list[dict[str, object]]:
+    """Tool "1" from the left border along y = 200 and tool "2" from the right along
+    y = 300, their jaws meeting between them; the ``swapped`` head parts carry the other
+    tool's name."""
+    other = {"1": "2", "2": "1"}
+    rows = [
+        _row(frame, "1", "shaft", 150.0, 200.0, 300.0, 60.0),
+        _row(frame, "1", "wrist", 330.0, 200.0, 40.0, 40.0),
+        _row(frame, "1", "clasper", 360.0, 205.0, 40.0, 16.0, 20.0),
+        _row(frame, "2", "shaft", 570.0, 300.0, 300.0, 60.0, 180.0),
+        _row(frame, "2", "wrist", 390.0, 300.0, 40.0, 40.0),
+        _row(frame, "2", "clasper", 365.0, 290.0, 40.0, 16.0, 160.0),
+    ]
+    for r in rows:
+        if r["part"] in swapped:
+            r["instrument"] = other[str(r["instrument"])]
+    return rows
+
+
+def _part_xy(table: TrackTable, frame: int, name: str, part: str) -> tuple[float, float]:
+    (i,) = [
+        k
+        for k, (f, n, p) in enumerate(
+            zip(table["frame"], table["instrument"], table["part"], strict=True)
+        )
+        if f == frame and n == name and p == part
+    ]
+    return float(table["cx_px"][i]), float(table["cy_px"][i])
+
+
+def test_attachment_cost_along_and_across_a_shaft_and_to_a_wrist():
+    end, u = np.array([300.0, 200.0]), np.array([1.0, 0.0])
+    assert attachment_cost(np.array([330.0, 200.0]), end, u) == pytest.approx(15.0)
+    assert attachment_cost(np.array([300.0, 240.0]), end, u) == pytest.approx(40.0)
+    assert attachment_cost(np.array([330.0, 240.0]), end, None) == pytest.approx(50.0)
+
+
+@pytest.mark.parametrize("parts", [("clasper",), ("wrist", "clasper"), ("wrist",)])
+def test_heads_swapped_for_several_frames_go_back_to_the_shafts_they_hang_on(parts):
+    """Two tools' jaws swapped where they touched, the head memory keeping the swap
+    after they parted (held-out seed 13, frames 71-115: 84.5%): each head goes back to
+    the tool whose shaft (wrist) it hangs on, through relink."""
+    rows = []
+    for f in range(12):
+        rows += _heads_meeting(f, parts if 3 <= f < 3 + HEAD_SWAP_MIN_FRAMES + 2 else ())
+    out = relink(_table(rows), 25.0)
+    want = _table(sum((_heads_meeting(f, ()) for f in range(12)), []))
+    for f in range(12):
+        for name in ("1", "2"):
+            for part in ("shaft", "wrist", "clasper"):
+                assert _part_xy(out, f, name, part) == _part_xy(want, f, name, part)
+
+
+def test_heads_swapped_for_two_frames_are_left_and_right_ones_untouched():
+    """A swap seen in two frames is no evidence (fewer than HEAD_SWAP_MIN_FRAMES: where
+    heads touch, merged heads' box centres lie between them, and a crossing's pieces'
+    shaft boxes are off); heads already on their own tool give the very table back."""
+    right = _table(sum((_heads_meeting(f, ()) for f in range(12)), []))
+    assert swap_heads(right) is right
+    rows = []
+    for f in range(12):
+        rows += _heads_meeting(f, ("clasper",) if f in (3, 4) else ())
+    short = _table(rows)
+    assert swap_heads(short) is short
 
 
 def test_nothing_to_relink_gives_the_table_back():

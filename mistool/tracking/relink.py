@@ -23,6 +23,16 @@ are plain to see, and undone here (:func:`relink`, called by :func:`mistool.api.
   identity step made (one name across a gap) cost less and are kept unless the assignment
   finds a better one. Each chain of linked tracklets is one instrument.
 
+- **Swapped heads.** Where the heads of two tools meet (jaws grasping, under an occluder),
+  a split or hand-over may give each tool the other's wrist or jaws, and the identity
+  step's head memory keeps the swap for tens of frames after they part. A head hangs on
+  its own tool: its wrist continues its shaft's axis from the shaft's distal end, its
+  jaws lie at its wrist (:func:`attachment_cost`). Per frame, two names' rows of one head
+  part are swapped when the swap attaches both better by at least
+  :data:`HEAD_SWAP_MARGIN` shaft widths (:func:`swap_heads`), only over runs of at least
+  :data:`HEAD_SWAP_MIN_FRAMES` consecutive frames of that pair (a frame alone where heads
+  touch is no evidence: box centres of merged heads lie between them).
+
 Names are then renumbered ``"1"``, ``"2"``, ... in order of first appearance, as the
 identity step numbers them (unchanged when nothing was relinked). Pure, table in and
 table out: it needs no pixels, only each row's part box, so it runs on the raw rows of a
@@ -46,9 +56,13 @@ __all__ = [
     "LINK_GATE",
     "LINK_MAX_GAP_S",
     "box_gap",
+    "HEAD_SWAP_MARGIN",
+    "HEAD_SWAP_MIN_FRAMES",
+    "attachment_cost",
     "link_cost",
     "relink",
     "sparse_gated_assignment",
+    "swap_heads",
 ]
 
 #: A name whose first run of consecutive frames is at most this long may be a fragment
@@ -76,6 +90,14 @@ LINK_SAME_NAME_BONUS = 0.5
 #: A tracklet's end (start) is where its shaft enters the view in the last (first) frame
 #: with a shaft among this many.
 ANCHOR_FRAMES = 5
+#: Two names' rows of one head part are swapped when that lowers the sum of their
+#: :func:`attachment_cost` by more than this many shaft widths (the mean of the two) ...
+HEAD_SWAP_MARGIN = 0.5
+#: ... in each of at least this many consecutive frames.
+HEAD_SWAP_MIN_FRAMES = 3
+#: A wrist's distance along its shaft's axis from the shaft's distal end counts this much
+#: (the part of the shaft an occluder or the other tool hides shortens its box) ...
+HEAD_ALONG_WEIGHT = 0.5
 
 
 @dataclass
@@ -110,6 +132,7 @@ class _Rows:
             np.float64
         )
         self.length = np.asarray(table["length_px"], dtype=np.float64)
+        self.width = np.asarray(table["width_px"], dtype=np.float64)
         self.angle = np.asarray(table["angle_deg"], dtype=np.float64)
         self.area = np.asarray(table["area_px"], dtype=np.float64)
         self.corners = np.stack(
@@ -387,5 +410,129 @@ def relink(table: TrackTable, fps: float) -> TrackTable:
     number = {c: str(k + 1) for k, c in enumerate(heads)}
     names = np.array([number[int(c)] for c in label], dtype=object)
     if keep.all() and np.array_equal(names.astype(str), rows.name):
+        return swap_heads(table)
+    return swap_heads(table.with_columns(instrument=names)[keep])
+
+
+def attachment_cost(head_xy: np.ndarray, anchor_xy: np.ndarray, axis: np.ndarray | None) -> float:
+    """How badly a head part's box centre ``head_xy`` (2,) px hangs on ``anchor_xy``: with
+    ``axis`` (a unit (2,) vector, the shaft's direction towards its distal end
+    ``anchor_xy``), the distance from the shaft's axis line plus
+    :data:`HEAD_ALONG_WEIGHT` times the distance along it from the distal end (a wrist);
+    without, the distance between the centres (jaws to their wrist's centre). px."""
+    u = None if axis is None else (float(axis[0]), float(axis[1]))
+    return _attachment(
+        float(head_xy[0]), float(head_xy[1]), (float(anchor_xy[0]), float(anchor_xy[1]), 0.0, u)
+    )
+
+
+_Anchor = tuple[float, float, float, "tuple[float, float] | None"]
+"""Where a name's head part hangs in one frame: x, y px, its shaft's width px, the
+shaft's unit direction towards its distal end (None: a point, the wrist's centre)."""
+
+
+def _attachment(hx: float, hy: float, anchor: _Anchor) -> float:
+    """:func:`attachment_cost` on plain floats."""
+    dx, dy = hx - anchor[0], hy - anchor[1]
+    u = anchor[3]
+    if u is None:
+        return math.hypot(dx, dy)
+    return abs(dx * u[1] - dy * u[0]) + HEAD_ALONG_WEIGHT * abs(dx * u[0] + dy * u[1])
+
+
+def _shaft_anchor(
+    x: float, y: float, length: float, width: float, angle_deg: float, extent: np.ndarray
+) -> _Anchor:
+    """A shaft box's distal end (the end farther inside the view: a shaft comes from the
+    border), its width and its direction towards that end."""
+    a = math.radians(angle_deg)
+    ux, uy = math.cos(a), math.sin(a)
+    w, h = float(extent[0]), float(extent[1])
+    ends = [(x + sg * 0.5 * length * ux, y + sg * 0.5 * length * uy, sg) for sg in (1.0, -1.0)]
+    inside = [min(ex, w - ex, ey, h - ey) for ex, ey, _ in ends]
+    ex, ey, sg = ends[1] if inside[1] > inside[0] else ends[0]
+    return ex, ey, width, (sg * ux, sg * uy)
+
+
+_Candidate = tuple[int, str, str, int, int]
+"""A swap found in one frame: ``(frame, name_a, name_b, row_a, row_b)``."""
+
+
+def _swap_candidates(
+    rows: _Rows, frames: list[dict[tuple[str, str], int]], part: str
+) -> list[_Candidate]:
+    """Per frame (``(name, part) -> row``), the pairs of names whose rows of ``part``
+    attach better swapped (:data:`HEAD_SWAP_MARGIN`), each name in at most one pair per
+    frame."""
+    x, y = rows.xy[:, 0].tolist(), rows.xy[:, 1].tolist()
+    out: list[_Candidate] = []
+    for f, by in enumerate(frames):
+        names = sorted({n for n, p in by if p == part and (n, "shaft") in by}, key=_name_key)
+        if len(names) < 2:
+            continue
+        anchors: dict[str, _Anchor] = {}
+        for n in names:
+            r = by[(n, "shaft")]
+            anchors[n] = _shaft_anchor(
+                x[r], y[r], float(rows.length[r]), float(rows.width[r]),
+                float(rows.angle[r]), rows.extent,
+            )  # fmt: skip
+            w = by.get((n, "wrist"))
+            if part == "clasper" and w is not None:
+                anchors[n] = (x[w], y[w], anchors[n][2], None)
+        paired: set[str] = set()
+        for i, a in enumerate(names):
+            for b in names[i + 1 :]:
+                if a in paired or b in paired:
+                    continue
+                ra, rb = by[(a, part)], by[(b, part)]
+                pa, pb = anchors[a], anchors[b]
+                now = _attachment(x[ra], y[ra], pa) + _attachment(x[rb], y[rb], pb)
+                swapped = _attachment(x[ra], y[ra], pb) + _attachment(x[rb], y[rb], pa)
+                if swapped + HEAD_SWAP_MARGIN * 0.5 * (pa[2] + pb[2]) < now:
+                    out.append((f, a, b, ra, rb))
+                    paired |= {a, b}
+    return out
+
+
+def swap_heads(table: TrackTable) -> TrackTable:
+    """Head rows (wrist, then jaws: ``"clasper"``) swapped between two names where they
+    hang on the other's shaft (or wrist) in at least :data:`HEAD_SWAP_MIN_FRAMES`
+    consecutive frames (see the module docstring); the very table when none is.
+
+    Args:
+        table: rows of a whole sequence (``frame``, ``instrument``, ``part``, the part
+            boxes as :func:`relink` reads them), in any order.
+    """
+    if table.num_rows == 0:
         return table
-    return table.with_columns(instrument=names)[keep]
+    rows = _Rows(table)
+    first = int(rows.frame.min())
+    frames: list[dict[tuple[str, str], int]] = [
+        {} for _ in range(int(rows.frame.max()) - first + 1)
+    ]
+    for r, (f, n, p) in enumerate(
+        zip(rows.frame.tolist(), rows.name.tolist(), rows.part.tolist(), strict=True)
+    ):
+        frames[f - first][(n, p)] = r
+    names = rows.name.copy()
+    swapped = False
+    for part in ("wrist", "clasper"):  # the jaws' anchors are the wrists as swapped
+        runs: dict[tuple[str, str], list[_Candidate]] = {}
+        for c in _swap_candidates(rows, frames, part):
+            runs.setdefault((c[1], c[2]), []).append(c)
+        for pair in runs.values():
+            start = 0
+            for j in range(1, len(pair) + 1):
+                if j < len(pair) and pair[j][0] == pair[j - 1][0] + 1:
+                    continue
+                if j - start >= HEAD_SWAP_MIN_FRAMES:
+                    for f, a, b, ra, rb in pair[start:j]:
+                        names[ra], names[rb] = b, a
+                        by = frames[f]
+                        by[(b, part)], by[(a, part)] = ra, rb
+                    swapped = True
+                start = j
+    if not swapped:
+        return table
+    return table.with_columns(instrument=names.astype(object))
