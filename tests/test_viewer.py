@@ -692,3 +692,40 @@ def test_scrubbing_a_source_video_decodes_ahead_instead_of_seeking(tmp_path: Pat
     finally:
         frames.close()
     assert ahead._thread is not None and not ahead._thread.is_alive()
+
+
+def test_the_viewer_reads_frames_without_waiting_for_the_compiled_decoder() -> None:
+    """The frame size probe (before the URL and the tracking process's fork) decodes with
+    OpenCV, imports no numba and starts no thread; the first frame read starts loading
+    the compiled PNG decoder in a thread and decodes with OpenCV meanwhile; every read
+    gives the labels the reader gives. In a fresh interpreter (numba not loaded yet)."""
+    import subprocess
+    import sys
+
+    code = """
+import sys, threading, time
+import numpy as np
+from mistool.config import load_config
+from mistool.resources import sample_masks_dir
+from mistool.sequence import read_label_image
+from mistool.viewer.overlay import FrameStore
+seq = sample_masks_dir()
+store = FrameStore(seq, load_config(seq))
+threads = threading.active_count()
+shape = store.mask_shape()
+assert "numba" not in sys.modules and threading.active_count() == threads, "probe"
+first = store.labels(0)
+assert not store._gate._loaded.is_set()
+deadline = time.time() + 120
+while not store._gate._loaded.is_set() and time.time() < deadline:
+    time.sleep(0.05)
+assert store._gate._loaded.is_set() and "mistool.kernels.png" in sys.modules
+later = store.labels(1)
+names = sorted(p for p in seq.iterdir() if p.suffix == ".png")
+for got, path in ((first, names[0]), (later, names[1])):
+    assert np.array_equal(got, read_label_image(path)), path
+print(shape == first.shape)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "True"

@@ -23,12 +23,50 @@ from mistool.errors import InputPathError, MaskFormatError
 from mistool.sequence import (
     IMAGE_EXTENSIONS,
     VIDEO_EXTENSIONS,
+    FastPathGate,
     is_frame_file,
     list_frames,
     read_label_image,
     source_frame_names,
 )
 from mistool.viewer.replay import PALETTE, Replay
+
+
+class _KernelsLoaded(FastPathGate):
+    """The viewer's reads take the compiled PNG decoder only once it is loaded: its first
+    use imports numba (~0.5-1 s of CPU), which the viewer must not wait for (nor its URL,
+    nor its first picture). Until then OpenCV decodes (the same pixels:
+    ``tests/test_png_decoder_fuzz.py``), and the first read starts loading the decoder in
+    a thread."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._loaded = threading.Event()
+        self._started = False
+        self._start_lock = threading.Lock()
+
+    @property
+    def open(self) -> bool:
+        if self._loaded.is_set():
+            return True
+        with self._start_lock:
+            if not self._started:
+                self._started = True
+                threading.Thread(target=self._load, name="mistool-png", daemon=True).start()
+        return False
+
+    def _load(self) -> None:
+        import mistool.kernels.png  # noqa: F401 - imported for its effect
+
+        self._loaded.set()
+
+    def record(self, decoded: bool) -> None:
+        """Nothing to count: the gate follows the loading only."""
+
+
+#: OpenCV alone: the probe of a sequence's frame size, read before the viewer's URL and
+#: before the tracking process is forked (no numba import, no thread before the fork).
+_OPENCV_ONLY = FastPathGate(patience=0)
 
 #: Longest side (px) of the overlay image sent to the browser.
 MAX_OVERLAY_SIDE = 400
@@ -226,6 +264,7 @@ class FrameStore:
             defer_listing: do not list a folder's frames (see the class docstring).
         """
         self.config = config
+        self._gate = _KernelsLoaded()  # the compiled PNG decoder once it is loaded
         self._lock = threading.Lock()
         self._cache: OrderedDict[tuple[str, int], np.ndarray | None] = OrderedDict()
         self._cache_frames = cache_frames
@@ -328,7 +367,9 @@ class FrameStore:
         if self._mask_video is not None:
             first = self.labels(0)
         elif self.probe_file is not None:
-            first = read_label_image(self.probe_file, colour=self.config.colour_masks)
+            first = read_label_image(
+                self.probe_file, colour=self.config.colour_masks, gate=_OPENCV_ONLY
+            )
         else:
             return None
         return None if first is None else (int(first.shape[0]), int(first.shape[1]))
@@ -374,7 +415,7 @@ class FrameStore:
         value = None
         if self._mask_dir is not None and 0 <= index < len(names):
             path = self._mask_dir / names[index]
-            value = read_label_image(path, colour=self.config.colour_masks)
+            value = read_label_image(path, colour=self.config.colour_masks, gate=self._gate)
         with self._lock:
             self._store(("mask", index), value)
         return value
