@@ -166,7 +166,7 @@ PIECES = (
     ("split", "_refit"),
     ("split", "_score"),
     ("identity", "split_with_heads"),
-    ("split", "_shaft_owner"),
+    ("split", "_shaft_pieces"),
     ("split", "_head_owner"),
     ("split", "_runs_parts"),
     ("split", "_instance"),

@@ -573,10 +573,12 @@ def _owner_cells_before(part: PartObservation, ax: Any) -> np.ndarray:
     st.integers(0, 2**32 - 1), st.integers(1, 4), st.booleans(), st.sampled_from([1, 6, 60, 200])
 )
 def test_the_compiled_shaft_owner_is_the_former_owner_image(seed, k, keep, size):
-    """split._shaft_owner (compiled) labels every shaft pixel as the former owner image
-    did (cells, then pixels in mixed cells; one cell, one mixed pixel: BLAS's one-point
-    order), 255 off the mask, and each label's window holds all its pixels."""
-    from mistool.tracking.split import _Axes, _shaft_owner
+    """split._shaft_pieces (from the shaft's runs, compiled) gives each axis the row runs
+    of the pixels the former owner image gave it (cells, then pixels in mixed cells; one
+    cell, one mixed pixel: BLAS's one-point order): the runs ``mask_runs`` finds in its
+    mask ``owner == j``, nothing off the mask."""
+    from mistool.kernels.boxes import mask_runs
+    from mistool.tracking.split import BlobPixels, _Axes, _owner_image, _shaft_pieces
 
     rng = np.random.default_rng(seed)
     h, w = int(rng.integers(1, size + 1)), int(rng.integers(1, size + 1))
@@ -596,19 +598,17 @@ def test_the_compiled_shaft_owner_is_the_former_owner_image(seed, k, keep, size)
         margin=np.zeros(k),
         keep_d2=float(rng.uniform(1, 30)) if keep else None,
     )
-    part = _blob(mask, offset).parts["shaft"]
-    owner, bounds = _shaft_owner(part, ax)
+    blob = _blob(mask, offset)
+    part = blob.parts["shaft"]
     want = _owner_cells_before(part, ax)
-    assert np.array_equal(owner[mask], want[mask])
-    assert np.all(owner[~mask] == 255)
+    want[~mask] = 255
+    ry, rx0, rx1, n = _shaft_pieces(BlobPixels(blob), ax, k + 1)
     for j in range(k + 1):
-        ys, xs = np.nonzero(owner == j)
-        x_lo, y_lo, x_hi, y_hi = bounds[j]
-        if x_hi < 0:
-            assert len(ys) == 0
-            continue
-        assert 0 <= x_lo <= x_hi < w and 0 <= y_lo <= y_hi < h
-        assert np.all((xs >= x_lo) & (xs <= x_hi) & (ys >= y_lo) & (ys <= y_hi))
+        wy, wx0, wx1, wn = mask_runs(np.where(want == j, np.uint8(1), np.uint8(0)))
+        assert n[j] == wn
+        assert np.array_equal(ry[j, :wn], wy[:wn]) and np.array_equal(rx0[j, :wn], wx0[:wn])
+        assert np.array_equal(rx1[j, :wn], wx1[:wn])
+    assert np.array_equal(_owner_image(part, ax), want)
 
 
 def _mirror_axes(c: float) -> Any:
@@ -636,7 +636,7 @@ def test_the_shaft_owner_takes_blas_one_point_order_where_numpy_did(where):
     with one pixel in a mixed cell (the only point of the pixels' product): labelled as
     numpy labelled that one point, which here differs from the label the same point gets
     among others."""
-    from mistool.tracking.split import _shaft_owner, nearest_axis
+    from mistool.tracking.split import _owner_image, nearest_axis
 
     centre = where == "one cell"
     c = 238.5 if centre else 238.0
@@ -656,7 +656,7 @@ def test_the_shaft_owner_takes_blas_one_point_order_where_numpy_did(where):
         mask[32, 32] = True
         offset = (int(x) - 32, int(y) - 32)
     part = _blob(mask, offset).parts["shaft"]
-    owner, _ = _shaft_owner(part, ax)
+    owner = _owner_image(part, ax)
     want = _owner_cells_before(part, ax)
     assert np.array_equal(owner[mask], want[mask])
     assert owner[mask][0] == alone[flips[0]] != many[flips[0]]

@@ -550,60 +550,6 @@ load8 = cast(Callable[[np.ndarray, int], int], _load8)
 _ONES = np.uint64(0x0101010101010101)
 
 
-@helper
-def _bytes_set(v: int) -> int:
-    """How many of the 8 bytes of ``v`` are non-zero."""
-    t = v | (v >> np.uint64(4))
-    t |= t >> np.uint64(2)
-    t |= t >> np.uint64(1)
-    t &= _ONES
-    return int((t * _ONES) >> np.uint64(56))
-
-
-@kernel("void(uint8[:, ::1], int64, int64, int64, float64[:, ::1])")
-def nonzero_points(mask: np.ndarray, x0: int, y0: int, step: int, out: np.ndarray) -> None:
-    """``out`` (M, 2): full-image (x, y) of every ``step``-th non-zero pixel of ``mask``
-    (row by row, from the first; ``mask`` a crop at (x0, y0)). Eight bytes at a time:
-    words without a sampled pixel are only counted."""
-    w = mask.shape[1]
-    flat = mask.reshape(-1)
-    n = flat.shape[0]
-    need = 0  # non-zero pixels to pass before the next sample
-    m = 0
-    i = 0
-    while i < n:
-        stop = min(i + 8, n)
-        if stop - i == 8:
-            v = load8(flat, i)
-            if v == 0:
-                i = stop
-                continue
-            c = _bytes_set(v)
-            if c <= need:
-                need -= c
-                i = stop
-                continue
-        for k in range(i, stop):
-            if flat[k] != 0:
-                if need == 0:
-                    out[m, 0] = k % w + x0
-                    out[m, 1] = k // w + y0
-                    m += 1
-                    need = step - 1
-                else:
-                    need -= 1
-        i = stop
-
-
-@helper
-def _grow(bounds: np.ndarray, j: int, xa: int, ya: int, xb: int, yb: int) -> None:
-    """Label ``j``'s window grown to hold the rectangle (xa, ya) - (xb, yb)."""
-    bounds[j, 0] = min(bounds[j, 0], xa)
-    bounds[j, 1] = min(bounds[j, 1], ya)
-    bounds[j, 2] = max(bounds[j, 2], xb)
-    bounds[j, 3] = max(bounds[j, 3], yb)
-
-
 @kernel("boolean[:, ::1](uint8[:, ::1])")
 def _mixed_cells(coarse: np.ndarray) -> np.ndarray:
     """(ch, cw): whether each cell's 3 x 3 neighbourhood holds two labels (``cv2.dilate
@@ -631,145 +577,6 @@ def _mixed_cells(coarse: np.ndarray) -> np.ndarray:
             b = max(hi[r0, cj], hi[ci, cj], hi[r1, cj])
             mixed[ci, cj] = a != b
     return mixed
-
-
-@kernel("int64(uint8[:, ::1], int64, uint8[:, ::1], boolean[:, ::1], uint8[:, ::1], int64[:, ::1])")
-def _fill_cells(
-    mask: np.ndarray,
-    s: int,
-    coarse: np.ndarray,
-    mixed: np.ndarray,
-    owner: np.ndarray,
-    bounds: np.ndarray,
-) -> int:
-    """``owner``: each mask pixel its cell's label, 255 off the mask; ``bounds``: the
-    windows of the labels of the cells not ``mixed``. How many mask pixels the mixed
-    cells hold."""
-    h, w = mask.shape
-    ch, cw = coarse.shape
-    rowlab = np.empty(w, np.uint8)
-    count = 0
-    off = np.uint8(255)
-    for ci in range(ch):
-        ya, yb = ci * s, min(ci * s + s, h)
-        for cj in range(cw):
-            xa, xb = cj * s, min(cj * s + s, w)
-            lab = coarse[ci, cj]
-            if mixed[ci, cj]:
-                for y in range(ya, yb):
-                    for x in range(xa, xb):
-                        count += mask[y, x] != 0
-            else:
-                _grow(bounds, lab, xa, ya, xb - 1, yb - 1)
-            for x in range(xa, xb):
-                rowlab[x] = lab
-        for y in range(ya, yb):
-            for x in range(w):
-                owner[y, x] = rowlab[x] if mask[y, x] != 0 else off
-    return count
-
-
-@kernel(
-    "void(uint8[:, ::1], int64, int64, int64, boolean[:, ::1], int64, float64[:, ::1], float64,"
-    " boolean, uint8[:, ::1], int64[:, ::1])"
-)
-def _refine_mixed(
-    mask: np.ndarray,
-    x0: int,
-    y0: int,
-    s: int,
-    mixed: np.ndarray,
-    count: int,
-    seg: np.ndarray,
-    keep_d2: float,
-    keep: bool,
-    owner: np.ndarray,
-    bounds: np.ndarray,
-) -> None:
-    """:func:`shaft_owner`'s pixels in the ``mixed`` cells (``count`` of them) labelled
-    one by one: gathered, labelled in one loop (:func:`_labels`), put back, each label's
-    window grown to their cells."""
-    h, w = mask.shape
-    ch, cw = mixed.shape
-    xs = np.empty(count, np.float64)
-    ys = np.empty(count, np.float64)
-    at = np.empty(count, np.int64)
-    cell = np.empty(count, np.int64)
-    m = 0
-    for ci in range(ch):
-        ya, yb = ci * s, min(ci * s + s, h)
-        for cj in range(cw):
-            if not mixed[ci, cj]:
-                continue
-            xa, xb = cj * s, min(cj * s + s, w)
-            for y in range(ya, yb):
-                for x in range(xa, xb):
-                    if mask[y, x] != 0:
-                        xs[m] = x + x0
-                        ys[m] = y + y0
-                        at[m] = y * w + x
-                        cell[m] = ci * cw + cj
-                        m += 1
-    lab = np.empty(count, np.int64)
-    _labels(xs, ys, seg, keep_d2, keep, count == 1, lab)  # (one alone: dgemv's order)
-    flat = owner.reshape(-1)
-    seen = np.zeros(ch * cw, np.int64)  # the labels given in each cell, as bits
-    for i in range(count):
-        flat[at[i]] = lab[i]
-        seen[cell[i]] |= 1 << lab[i]
-    for c in range(ch * cw):
-        if seen[c] == 0:
-            continue
-        ci, cj = c // cw, c % cw
-        for j in range(bounds.shape[0]):
-            if seen[c] >> j & 1:
-                _grow(bounds, j, cj * s, ci * s, min(cj * s + s, w) - 1, min(ci * s + s, h) - 1)
-
-
-@kernel(
-    f"void(uint8[:, ::1], int64, int64, {_SEGMENTS}, float64, boolean, int64, uint8[:, ::1],"
-    " int64[:, ::1])"
-)
-def shaft_owner(
-    mask: np.ndarray,
-    x0: int,
-    y0: int,
-    ends: np.ndarray,
-    dirs: np.ndarray,
-    back: np.ndarray,
-    radius: np.ndarray,
-    keep_d2: float,
-    keep: bool,
-    s: int,
-    owner: np.ndarray,
-    bounds: np.ndarray,
-) -> None:
-    """The nearest axis of each pixel of a shaft crop (``mask`` at (x0, y0)), rasterised
-    as ``split._owner_cells`` did: the label (:func:`nearest_labels`) of each ``s`` x ``s``
-    cell's centre, and per pixel only in the cells whose 3 x 3 neighbourhood holds two
-    labels. ``owner`` (h, w): the label of each mask pixel, 255 elsewhere; ``bounds``
-    (K + 1, 4): ``x_lo, y_lo, x_hi, y_hi`` (inclusive, px of the crop) of a window
-    holding every pixel of each label (the cells that may hold it; ``x_hi`` -1: none)."""
-    h, w = mask.shape
-    ch = (h + s - 1) // s
-    cw = (w + s - 1) // s
-    half = 0.5 * (s - 1)
-    coarse = np.empty((ch, cw), np.uint8)
-    single = ch * cw == 1  # (one point: dgemv's order)
-    seg = _frames(ends, dirs, back, radius)
-    for ci in range(ch):
-        cy = (y0 + ci * s) + half
-        for cj in range(cw):
-            cx = (x0 + cj * s) + half
-            coarse[ci, cj] = _label(cx, cy, seg, keep_d2, keep, single)
-    for j in range(bounds.shape[0]):
-        bounds[j, 0] = w
-        bounds[j, 1] = h
-        bounds[j, 2] = -1
-        bounds[j, 3] = -1
-    mixed = _mixed_cells(coarse)
-    count = _fill_cells(mask, s, coarse, mixed, owner, bounds)
-    _refine_mixed(mask, x0, y0, s, mixed, count, seg, keep_d2, keep, owner, bounds)
 
 
 _RUNS = "Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))"
@@ -1208,3 +1015,185 @@ def initial_axes(
         low = 2.0 * r
         top = grown if grown > low else low  # max(2r, grown)
         head_len[k] = top if top < longest else longest  # min(longest, top)
+
+
+# the shaft from its row runs (mistool.kernels.boxes.mask_runs) --------------------------
+
+
+@kernel("void(int32[::1], int32[::1], int32[::1], int64, int64, int64, int64, float64[:, ::1])")
+def run_points(
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    n: int,
+    x0: int,
+    y0: int,
+    step: int,
+    out: np.ndarray,
+) -> None:
+    """``out`` (M, 2): full-image (x, y) of every ``step``-th pixel of ``n`` row runs in
+    raster order (run ``i``: ``rx0[i] <= x < rx1[i]`` of row ``ry[i]``, a crop at (x0,
+    y0)), from the first (numpy's ``flatnonzero`` of their mask, sampled)."""
+    m = 0
+    k = 0  # index of the runs' next pixel
+    for i in range(n):
+        a, b = rx0[i], rx1[i]
+        first = a + (-k) % step  # the run's first pixel whose index is a multiple of step
+        for x in range(first, b, step):
+            out[m, 0] = x + x0
+            out[m, 1] = ry[i] + y0
+            m += 1
+        k += b - a
+
+
+@helper
+def _emit(
+    j: int,
+    y: int,
+    a: int,
+    b: int,
+    out_y: np.ndarray,
+    out_a: np.ndarray,
+    out_b: np.ndarray,
+    got: np.ndarray,
+) -> bool:
+    """Run ``a <= x < b`` of row ``y`` appended to label ``j``'s (none beyond ``nlab``);
+    False when its arrays are full."""
+    if j >= out_y.shape[0]:
+        return True
+    k = got[j]
+    if k == out_y.shape[1]:
+        return False
+    out_y[j, k] = y
+    out_a[j, k] = a
+    out_b[j, k] = b
+    got[j] = k + 1
+    return True
+
+
+@kernel(
+    "boolean(int32[::1], int32[::1], int32[::1], int64, int64, uint8[:, ::1], boolean[:, ::1],"
+    " int64[::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1])"
+)
+def _cut_runs(
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    n: int,
+    s: int,
+    coarse: np.ndarray,
+    mixed: np.ndarray,
+    lab: np.ndarray,
+    out_y: np.ndarray,
+    out_a: np.ndarray,
+    out_b: np.ndarray,
+    got: np.ndarray,
+) -> bool:
+    """:func:`shaft_label_runs`' runs cut where the label changes (the mixed cells'
+    pixels labelled ``lab``, in the runs' order); False when the outputs are too short."""
+    nlab, cap = out_y.shape
+    m = 0
+    for i in range(n):
+        y = ry[i]
+        ci = y // s
+        cur = -1
+        start = rx0[i]
+        x = rx0[i]
+        while x < rx1[i]:
+            cj = x // s
+            stop = min(rx1[i], cj * s + s)
+            if mixed[ci, cj]:
+                for xx in range(x, stop):
+                    v = lab[m]
+                    m += 1
+                    if v != cur:
+                        if cur >= 0 and not _emit(cur, y, start, xx, out_y, out_a, out_b, got):
+                            return False
+                        cur = v
+                        start = xx
+            else:
+                v = np.int64(coarse[ci, cj])
+                if v != cur:
+                    if cur >= 0 and not _emit(cur, y, start, x, out_y, out_a, out_b, got):
+                        return False
+                    cur = v
+                    start = x
+            x = stop
+        if cur >= 0 and not _emit(cur, y, start, rx1[i], out_y, out_a, out_b, got):
+            return False
+    return True
+
+
+@kernel(
+    f"Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))(int32[::1], int32[::1],"
+    f" int32[::1], int64, int64, int64, int64, int64, {_SEGMENTS}, float64, boolean, int64,"
+    " int64)"
+)
+def shaft_label_runs(
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    n: int,
+    h: int,
+    w: int,
+    x0: int,
+    y0: int,
+    ends: np.ndarray,
+    dirs: np.ndarray,
+    back: np.ndarray,
+    radius: np.ndarray,
+    keep_d2: float,
+    keep: bool,
+    s: int,
+    nlab: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The nearest axis of each pixel of an (h, w) shaft crop at (x0, y0) given as its
+    ``n`` row runs (:func:`mistool.kernels.boxes.mask_runs`), as row runs per axis: what
+    :func:`label_runs` gave of the owner image ``split._owner_cells`` made, without the
+    image. Each ``s`` x ``s`` cell's label (:func:`_label`) from its centre (one cell
+    alone: ``dgemv``'s one-point order), per pixel in the cells whose 3 x 3
+    neighbourhood holds two labels (gathered and labelled in one loop; one alone: the
+    one-point order), each run cut where the label changes. ``(ry, rx0, rx1, count)``
+    per label ``j < nlab``, in raster order, maximal (as ``mask_runs`` of
+    ``owner == j``)."""
+    ch = (h + s - 1) // s
+    cw = (w + s - 1) // s
+    half = 0.5 * (s - 1)
+    coarse = np.empty((ch, cw), np.uint8)
+    seg = _frames(ends, dirs, back, radius)
+    cx = np.empty(cw, np.float64)
+    for cj in range(cw):
+        cx[cj] = (x0 + cj * s) + half
+    for ci in range(ch):
+        cy = (y0 + ci * s) + half
+        for cj in range(cw):
+            coarse[ci, cj] = _label(cx[cj], cy, seg, keep_d2, keep, ch * cw == 1)
+    mixed = _mixed_cells(coarse)
+    count = 0  # pixels in mixed cells
+    for i in range(n):
+        ci = ry[i] // s
+        for cj in range(rx0[i] // s, (rx1[i] - 1) // s + 1):
+            if mixed[ci, cj]:
+                count += min(rx1[i], cj * s + s) - max(rx0[i], cj * s)
+    xs = np.empty(count, np.float64)
+    ys = np.empty(count, np.float64)
+    m = 0
+    for i in range(n):
+        ci = ry[i] // s
+        for cj in range(rx0[i] // s, (rx1[i] - 1) // s + 1):
+            if mixed[ci, cj]:
+                for x in range(max(rx0[i], cj * s), min(rx1[i], cj * s + s)):
+                    xs[m] = x + x0
+                    ys[m] = ry[i] + y0
+                    m += 1
+    lab = np.empty(count, np.int64)
+    _labels(xs, ys, seg, keep_d2, keep, count == 1, lab)
+    cap = n + count + 1
+    while True:
+        out_y = np.empty((nlab, cap), np.int32)
+        out_a = np.empty((nlab, cap), np.int32)
+        out_b = np.empty((nlab, cap), np.int32)
+        got = np.zeros(nlab, np.int64)
+        if _cut_runs(ry, rx0, rx1, n, s, coarse, mixed, lab, out_y, out_a, out_b, got):
+            return out_y, out_a, out_b, got
+        cap *= 4

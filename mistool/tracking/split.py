@@ -18,7 +18,7 @@ import numpy as np
 
 from mistool.geometry import fit_of
 from mistool.kernels import split as kernels
-from mistool.kernels.boxes import fit_runs
+from mistool.kernels.boxes import fit_runs, mask_runs
 from mistool.kernels.split import DOT_SERIAL_MAX
 from mistool.model import InstanceObservation, PartObservation, RotatedBox
 from mistool.tracking.instances import unit_vector
@@ -590,24 +590,19 @@ def _owner_image(part: PartObservation, ax: _Axes) -> np.ndarray:
     every pixel of a part's crop, 255 off its mask: rasterised, the nearest axis of each
     :data:`OWNER_CELL_PX` cell's centre, refined per pixel only in the cells that border
     a cell of another axis (the regions are bounded by bisectors and parabolas, smooth on
-    the scale of a cell)."""
-    return _shaft_owner(part, ax)[0]
+    the scale of a cell). The split uses its runs (:func:`_shaft_pieces`); this paints
+    them."""
+    ry, rx0, rx1, n = _shaft_pieces(BlobPixels(_shaft_blob(part)), ax, len(ax.dirs) + 1)
+    owner = np.full(part.mask.shape, 255, np.uint8)
+    for j in range(len(n)):
+        for y, a, b in zip(ry[j, : n[j]], rx0[j, : n[j]], rx1[j, : n[j]], strict=True):
+            owner[y, a:b] = j
+    return owner
 
 
-def _shaft_owner(part: PartObservation, ax: _Axes) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_owner_image` and the bounds of each index's pixels: (K + 1, 4) ``x_lo,
-    y_lo, x_hi, y_hi`` px of the crop, inclusive (``x_hi`` -1: none); one compiled pass
-    (:func:`mistool.kernels.split.shaft_owner`)."""
-    k = len(ax.dirs)
-    owner = np.empty(part.mask.shape, np.uint8)
-    bounds = np.empty((k + 1, 4), np.int64)
-    kernels.shaft_owner(
-        _mask_u8(part.mask), int(part.offset[0]), int(part.offset[1]), _points(ax.ends),
-        _points(ax.dirs), _values(ax.back), _values(ax.radius),
-        ax.keep_d2 if ax.keep_d2 is not None else 0.0, ax.keep_d2 is not None,
-        OWNER_CELL_PX, owner, bounds,
-    )  # fmt: skip
-    return owner, bounds
+def _shaft_blob(part: PartObservation) -> InstanceObservation:
+    """An instance of one shaft part (for :func:`_owner_image`)."""
+    return InstanceObservation(None, {"shaft": part}, (0.0, 0.0), part.area_px, (0, 0, 1, 1))
 
 
 def _mask_u8(mask: np.ndarray) -> np.ndarray:
@@ -632,13 +627,23 @@ class BlobPixels:
     def __init__(self, inst: InstanceObservation) -> None:
         self.inst = inst
         self._cache: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        self._count: int | None = None
+        self._runs: tuple[np.ndarray, np.ndarray, np.ndarray, int] | None = None
+        self._count = 0
         self._samples: dict[int, np.ndarray] = {}  # shaft points by step (1: all)
+
+    def shaft_runs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """The shaft crop's row runs, ``(ry, rx0, rx1, n)`` in raster order
+        (:func:`mistool.kernels.boxes.mask_runs`: one pass over the mask, 8 px at a time
+        where it does not change); the samples and the split's pieces come from them."""
+        if self._runs is None:
+            self._runs = mask_runs(_mask_u8(self.inst.parts["shaft"].mask))
+            ry, rx0, rx1, n = self._runs
+            self._count = int((rx1[:n] - rx0[:n]).sum())
+        return self._runs
 
     def _shaft_count(self) -> int:
         """How many shaft pixels the blob has."""
-        if self._count is None:
-            self._count = int(np.count_nonzero(self.inst.parts["shaft"].mask))
+        self.shaft_runs()
         return self._count
 
     def shaft_points(self) -> np.ndarray:
@@ -647,17 +652,18 @@ class BlobPixels:
 
     def shaft_sample(self, max_points: int) -> tuple[np.ndarray, int]:
         """``(shaft_points()[::step], step)`` with ``step = len // max_points`` (at
-        least 1): about ``max_points`` points, the others never converted (one compiled
-        pass over the mask, :func:`mistool.kernels.split.nonzero_points`)."""
+        least 1): about ``max_points`` points, the others never converted (from the
+        shaft's runs, :func:`mistool.kernels.split.run_points`)."""
         step = max(1, self._shaft_count() // max_points)
         return self._sample(step), step
 
     def _sample(self, step: int) -> np.ndarray:
         if step not in self._samples:
             part = self.inst.parts["shaft"]
-            pts = np.empty((-(-self._shaft_count() // step), 2), np.float64)
+            ry, rx0, rx1, n = self.shaft_runs()
+            pts = np.empty((-(-self._count // step), 2), np.float64)
             x0, y0 = part.offset
-            kernels.nonzero_points(_mask_u8(part.mask), int(x0), int(y0), step, pts)
+            kernels.run_points(ry, rx0, rx1, n, int(x0), int(y0), step, pts)
             self._samples[step] = pts
         return self._samples[step]
 
@@ -781,17 +787,16 @@ def split_with_heads(
     instrument's piece has no shaft left.
 
     Each part's pixels get the index of their piece in a label image (the shaft's:
-    :func:`_shaft_owner`; a head part's: its nearest head, :func:`_head_owner`), whose
+    :func:`_shaft_pieces`; a head part's: its nearest head, :func:`_head_owner`), whose
     row runs per index are measured (Algorithm 1, :func:`_runs_parts`)."""
     inst = pixels.inst
     k = len(fit.expected)
     n = k + len(anchors)
     got: dict[str, list[_Measured | None]] = {}
     if "shaft" in inst.parts:
-        owner, _ = _shaft_owner(inst.parts["shaft"], fit.axes)
         # (shaft pixels far from every axis, index k: a lone anchor's shaft)
-        nlab = k + (len(anchors) == 1)
-        got["shaft"] = _runs_parts("shaft", owner, nlab, inst.parts["shaft"].offset, min_area_px)
+        runs = _shaft_pieces(pixels, fit.axes, k + (len(anchors) == 1))
+        got["shaft"] = _measure_runs("shaft", runs, inst.parts["shaft"].offset, min_area_px)
     if any(m is None for m in got.get("shaft", [None])[:k]):
         return None
     for name, part in inst.parts.items():
@@ -863,7 +868,38 @@ def _runs_parts(
     (:func:`mistool.kernels.boxes.fit_runs`: the result of
     :func:`~mistool.tracking.instances.part_observation` on their mask), None when no
     pixel is kept."""
-    ry, rx0, rx1, count = kernels.label_runs(owner, nlab)
+    return _measure_runs(name, kernels.label_runs(owner, nlab), offset, min_area_px)
+
+
+def _shaft_pieces(
+    pixels: BlobPixels, ax: _Axes, nlab: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The row runs of each axis's shaft pixels (index ``j < nlab``; the pixels of
+    :func:`_owner_image` labelled ``j``), from the shaft's runs
+    (:meth:`BlobPixels.shaft_runs`) without an image
+    (:func:`mistool.kernels.split.shaft_label_runs`)."""
+    part = pixels.inst.parts["shaft"]
+    ry, rx0, rx1, n = pixels.shaft_runs()
+    h, w = part.mask.shape
+    return kernels.shaft_label_runs(
+        ry, rx0, rx1, n, h, w, int(part.offset[0]), int(part.offset[1]), _points(ax.ends),
+        _points(ax.dirs), _values(ax.back), _values(ax.radius),
+        ax.keep_d2 if ax.keep_d2 is not None else 0.0, ax.keep_d2 is not None, OWNER_CELL_PX,
+        nlab,
+    )  # fmt: skip
+
+
+def _measure_runs(
+    name: str,
+    runs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    offset: tuple[int, int],
+    min_area_px: int,
+) -> list[_Measured | None]:
+    """Part ``name`` of each piece from its row runs (``(ry, rx0, rx1, count)`` per
+    piece, crop coordinates at ``offset``): Algorithm 1 of the runs
+    (:func:`mistool.kernels.boxes.fit_runs`, as :func:`geometry.fit_part` of their
+    mask), None when no pixel is kept."""
+    ry, rx0, rx1, count = runs
     ox, oy = int(offset[0]), int(offset[1])
     out: list[_Measured | None] = []
     for j, n in enumerate(count.tolist()):
