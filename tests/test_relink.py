@@ -17,6 +17,8 @@ from mistool.config import config_from_dict
 from mistool.model import TrackTable
 from mistool.tracking.relink import (
     FRAGMENT_REACH_PX,
+    HEAD_SWAP_KEEP_MARGIN,
+    HEAD_SWAP_MARGIN,
     HEAD_SWAP_MIN_FRAMES,
     LINK_GATE,
     attachment_cost,
@@ -219,12 +221,35 @@ def test_a_name_given_back_to_the_wrong_tool_is_relinked():
     assert b == b_late and b != {_names(out, 10)["shaft"]}
 
 
-def _heads_meeting(frame: int, swapped: tuple[str, ...]) -> list[dict[str, object]]:
+def _heads_meeting(
+    frame: int, swapped: tuple[str, ...], jaws_gain: float | None = None
+) -> list[dict[str, object]]:
     """Tool "1" from the left border along y = 200 and tool "2" from the right along
     y = 300, their jaws meeting between them; the ``swapped`` head parts carry the other
-    tool's name."""
+    tool's name. ``jaws_gain``: the jaws lie on the line between the wrists, each nearer
+    its own by ``jaws_gain / 4`` px (a swap of them gains ``jaws_gain`` px)."""
     other = {"1": "2", "2": "1"}
-    rows = [
+    rows = _heads_apart(frame, jaws_gain)
+    for r in rows:
+        if r["part"] in swapped:
+            r["instrument"] = other[str(r["instrument"])]
+    return rows
+
+
+def _heads_apart(frame: int, jaws_gain: float | None) -> list[dict[str, object]]:
+    if jaws_gain is not None:
+        w1, w2 = np.array([330.0, 200.0]), np.array([390.0, 300.0])
+        mid, u = 0.5 * (w1 + w2), (w2 - w1) / np.hypot(*(w2 - w1))
+        j1, j2 = mid - 0.25 * jaws_gain * u, mid + 0.25 * jaws_gain * u
+        return [
+            _row(frame, "1", "shaft", 150.0, 200.0, 300.0, 60.0),
+            _row(frame, "1", "wrist", 330.0, 200.0, 40.0, 40.0),
+            _row(frame, "1", "clasper", float(j1[0]), float(j1[1]), 40.0, 16.0, 60.0),
+            _row(frame, "2", "shaft", 570.0, 300.0, 300.0, 60.0, 180.0),
+            _row(frame, "2", "wrist", 390.0, 300.0, 40.0, 40.0),
+            _row(frame, "2", "clasper", float(j2[0]), float(j2[1]), 40.0, 16.0, 60.0),
+        ]
+    return [
         _row(frame, "1", "shaft", 150.0, 200.0, 300.0, 60.0),
         _row(frame, "1", "wrist", 330.0, 200.0, 40.0, 40.0),
         _row(frame, "1", "clasper", 360.0, 205.0, 40.0, 16.0, 20.0),
@@ -232,10 +257,6 @@ def _heads_meeting(frame: int, swapped: tuple[str, ...]) -> list[dict[str, objec
         _row(frame, "2", "wrist", 390.0, 300.0, 40.0, 40.0),
         _row(frame, "2", "clasper", 365.0, 290.0, 40.0, 16.0, 160.0),
     ]
-    for r in rows:
-        if r["part"] in swapped:
-            r["instrument"] = other[str(r["instrument"])]
-    return rows
 
 
 def _part_xy(table: TrackTable, frame: int, name: str, part: str) -> tuple[float, float]:
@@ -283,6 +304,29 @@ def test_heads_swapped_for_two_frames_are_left_and_right_ones_untouched():
         rows += _heads_meeting(f, ("clasper",) if f in (3, 4) else ())
     short = _table(rows)
     assert swap_heads(short) is short
+
+
+def test_a_swap_goes_on_where_the_heads_are_still_close():
+    """Jaws swapped for 7 frames: 4 far from the other tool's wrist, then 3 where both
+    lie near the middle (a swap of them gains between HEAD_SWAP_KEEP_MARGIN and
+    HEAD_SWAP_MARGIN shaft widths, 60 px): the run goes back over those too. Held alone,
+    such frames are no swap (held-out seed 0, two-tool seed 0: jaws kept swapped while
+    they part)."""
+    gain = 0.5 * (HEAD_SWAP_KEEP_MARGIN + HEAD_SWAP_MARGIN) * 60.0
+    rows = []
+    for f in range(12):
+        near = 7 <= f < 10
+        rows += _heads_meeting(f, ("clasper",) if 3 <= f < 10 else (), gain if near else None)
+    out = swap_heads(_table(rows))
+    for f in range(12):
+        want = _table(_heads_meeting(f, (), gain if 7 <= f < 10 else None))
+        for name in ("1", "2"):
+            assert _part_xy(out, f, name, "clasper") == _part_xy(want, f, name, "clasper")
+    near_only = []
+    for f in range(12):
+        near_only += _heads_meeting(f, ("clasper",) if 3 <= f < 10 else (), gain)
+    table = _table(near_only)
+    assert swap_heads(table) is table
 
 
 def test_nothing_to_relink_gives_the_table_back():

@@ -31,7 +31,9 @@ are plain to see, and undone here (:func:`relink`, called by :func:`mistool.api.
   part are swapped when the swap attaches both better by at least
   :data:`HEAD_SWAP_MARGIN` shaft widths (:func:`swap_heads`), only over runs of at least
   :data:`HEAD_SWAP_MIN_FRAMES` consecutive frames of that pair (a frame alone where heads
-  touch is no evidence: box centres of merged heads lie between them).
+  touch is no evidence: box centres of merged heads lie between them), and the frames
+  next to such a run where the swap gains less (:data:`HEAD_SWAP_KEEP_MARGIN`: the heads
+  still close).
 
 Names are then renumbered ``"1"``, ``"2"``, ... in order of first appearance, as the
 identity step numbers them (unchanged when nothing was relinked). Pure, table in and
@@ -56,6 +58,7 @@ __all__ = [
     "LINK_GATE",
     "LINK_MAX_GAP_S",
     "box_gap",
+    "HEAD_SWAP_KEEP_MARGIN",
     "HEAD_SWAP_MARGIN",
     "HEAD_SWAP_MIN_FRAMES",
     "attachment_cost",
@@ -93,8 +96,11 @@ ANCHOR_FRAMES = 5
 #: Two names' rows of one head part are swapped when that lowers the sum of their
 #: :func:`attachment_cost` by more than this many shaft widths (the mean of the two) ...
 HEAD_SWAP_MARGIN = 0.5
-#: ... in each of at least this many consecutive frames.
+#: ... in each of at least this many consecutive frames; such a run goes on over the
+#: frames next to it where the swap lowers the sum by more than
+#: :data:`HEAD_SWAP_KEEP_MARGIN` shaft widths.
 HEAD_SWAP_MIN_FRAMES = 3
+HEAD_SWAP_KEEP_MARGIN = 0.25
 #: A wrist's distance along its shaft's axis from the shaft's distal end counts this much
 #: (the part of the shaft an occluder or the other tool hides shortens its box) ...
 HEAD_ALONG_WEIGHT = 0.5
@@ -454,16 +460,17 @@ def _shaft_anchor(
     return ex, ey, width, (sg * ux, sg * uy)
 
 
-_Candidate = tuple[int, str, str, int, int]
-"""A swap found in one frame: ``(frame, name_a, name_b, row_a, row_b)``."""
+_Candidate = tuple[int, str, str, int, int, bool]
+"""A swap found in one frame: ``(frame, name_a, name_b, row_a, row_b, strong)``, strong
+when it gains more than :data:`HEAD_SWAP_MARGIN` (else :data:`HEAD_SWAP_KEEP_MARGIN`)."""
 
 
 def _swap_candidates(
     rows: _Rows, frames: list[dict[tuple[str, str], int]], part: str
 ) -> list[_Candidate]:
     """Per frame (``(name, part) -> row``), the pairs of names whose rows of ``part``
-    attach better swapped (:data:`HEAD_SWAP_MARGIN`), each name in at most one pair per
-    frame."""
+    attach better swapped (by :data:`HEAD_SWAP_KEEP_MARGIN` at least), each name in at
+    most one pair per frame."""
     x, y = rows.xy[:, 0].tolist(), rows.xy[:, 1].tolist()
     out: list[_Candidate] = []
     for f, by in enumerate(frames):
@@ -489,16 +496,29 @@ def _swap_candidates(
                 pa, pb = anchors[a], anchors[b]
                 now = _attachment(x[ra], y[ra], pa) + _attachment(x[rb], y[rb], pb)
                 swapped = _attachment(x[ra], y[ra], pb) + _attachment(x[rb], y[rb], pa)
-                if swapped + HEAD_SWAP_MARGIN * 0.5 * (pa[2] + pb[2]) < now:
-                    out.append((f, a, b, ra, rb))
+                width = 0.5 * (pa[2] + pb[2])
+                if swapped + HEAD_SWAP_KEEP_MARGIN * width < now:
+                    strong = swapped + HEAD_SWAP_MARGIN * width < now
+                    out.append((f, a, b, ra, rb, strong))
                     paired |= {a, b}
     return out
+
+
+def _strong_frames(run: list[_Candidate]) -> int:
+    """The most consecutive strong swaps in a run of consecutive frames."""
+    best = now = 0
+    for c in run:
+        now = now + 1 if c[5] else 0
+        best = max(best, now)
+    return best
 
 
 def swap_heads(table: TrackTable) -> TrackTable:
     """Head rows (wrist, then jaws: ``"clasper"``) swapped between two names where they
     hang on the other's shaft (or wrist) in at least :data:`HEAD_SWAP_MIN_FRAMES`
-    consecutive frames (see the module docstring); the very table when none is.
+    consecutive frames, and in the frames next to them where they still do by
+    :data:`HEAD_SWAP_KEEP_MARGIN` (see the module docstring); the very table when none
+    is.
 
     Args:
         table: rows of a whole sequence (``frame``, ``instrument``, ``part``, the part
@@ -526,8 +546,8 @@ def swap_heads(table: TrackTable) -> TrackTable:
             for j in range(1, len(pair) + 1):
                 if j < len(pair) and pair[j][0] == pair[j - 1][0] + 1:
                     continue
-                if j - start >= HEAD_SWAP_MIN_FRAMES:
-                    for f, a, b, ra, rb in pair[start:j]:
+                if _strong_frames(pair[start:j]) >= HEAD_SWAP_MIN_FRAMES:
+                    for f, a, b, ra, rb, _ in pair[start:j]:
                         names[ra], names[rb] = b, a
                         by = frames[f]
                         by[(b, part)], by[(a, part)] = ra, rb
