@@ -1073,7 +1073,7 @@ def _emit(
 
 @kernel(
     "boolean(int32[::1], int32[::1], int32[::1], int64, int64, uint8[:, ::1], boolean[:, ::1],"
-    " int64[::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1])"
+    " int64[:, ::1], int64[::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1])"
 )
 def _cut_runs(
     ry: np.ndarray,
@@ -1083,6 +1083,7 @@ def _cut_runs(
     s: int,
     coarse: np.ndarray,
     mixed: np.ndarray,
+    nxt: np.ndarray,
     lab: np.ndarray,
     out_y: np.ndarray,
     out_a: np.ndarray,
@@ -1090,7 +1091,8 @@ def _cut_runs(
     got: np.ndarray,
 ) -> bool:
     """:func:`shaft_label_runs`' runs cut where the label changes (the mixed cells'
-    pixels labelled ``lab``, in the runs' order); False when the outputs are too short."""
+    pixels labelled ``lab``, in the runs' order; ``nxt``: :func:`_stretches`); False
+    when the outputs are too short."""
     nlab, cap = out_y.shape
     m = 0
     for i in range(n):
@@ -1101,7 +1103,7 @@ def _cut_runs(
         x = rx0[i]
         while x < rx1[i]:
             cj = x // s
-            stop = min(rx1[i], cj * s + s)
+            stop = min(rx1[i], nxt[ci, cj] * s)  # (a stretch of one label, or a mixed cell)
             if mixed[ci, cj]:
                 for xx in range(x, stop):
                     v = lab[m]
@@ -1122,6 +1124,26 @@ def _cut_runs(
         if cur >= 0 and not _emit(cur, y, start, rx1[i], out_y, out_a, out_b, got):
             return False
     return True
+
+
+@kernel("int64[:, ::1](uint8[:, ::1], boolean[:, ::1])")
+def _stretches(coarse: np.ndarray, mixed: np.ndarray) -> np.ndarray:
+    """(ch, cw): for each cell, the first cell after it in its row that is mixed, or not
+    mixed with another label (cw: none): a run crossing unmixed cells of one label is
+    walked one stretch at a time, not cell by cell."""
+    ch, cw = coarse.shape
+    nxt = np.empty((ch, cw), np.int64)
+    for ci in range(ch):
+        nxt[ci, cw - 1] = cw
+        for cj in range(cw - 2, -1, -1):
+            same = not mixed[ci, cj] and not mixed[ci, cj + 1]
+            nxt[ci, cj] = (
+                nxt[ci, cj + 1] if same and coarse[ci, cj] == coarse[ci, cj + 1] else cj + 1
+            )
+        for cj in range(cw):
+            if mixed[ci, cj]:
+                nxt[ci, cj] = cj + 1
+    return nxt
 
 
 @kernel(
@@ -1159,33 +1181,42 @@ def shaft_label_runs(
     ch = (h + s - 1) // s
     cw = (w + s - 1) // s
     half = 0.5 * (s - 1)
-    coarse = np.empty((ch, cw), np.uint8)
     seg = _frames(ends, dirs, back, radius)
-    cx = np.empty(cw, np.float64)
-    for cj in range(cw):
-        cx[cj] = (x0 + cj * s) + half
+    cx = np.empty(ch * cw, np.float64)  # the cells' centres, row by row
+    cy = np.empty(ch * cw, np.float64)
     for ci in range(ch):
-        cy = (y0 + ci * s) + half
         for cj in range(cw):
-            coarse[ci, cj] = _label(cx[cj], cy, seg, keep_d2, keep, ch * cw == 1)
+            cx[ci * cw + cj] = (x0 + cj * s) + half
+            cy[ci * cw + cj] = (y0 + ci * s) + half
+    cells = np.empty(ch * cw, np.int64)
+    _labels(cx, cy, seg, keep_d2, keep, ch * cw == 1, cells)  # (one cell: dgemv's order)
+    coarse = np.empty((ch, cw), np.uint8)
+    for ci in range(ch):
+        for cj in range(cw):
+            coarse[ci, cj] = cells[ci * cw + cj]
     mixed = _mixed_cells(coarse)
+    nxt = _stretches(coarse, mixed)
     count = 0  # pixels in mixed cells
     for i in range(n):
         ci = ry[i] // s
-        for cj in range(rx0[i] // s, (rx1[i] - 1) // s + 1):
+        cj, last = rx0[i] // s, (rx1[i] - 1) // s
+        while cj <= last:
             if mixed[ci, cj]:
                 count += min(rx1[i], cj * s + s) - max(rx0[i], cj * s)
+            cj = nxt[ci, cj]
     xs = np.empty(count, np.float64)
     ys = np.empty(count, np.float64)
     m = 0
     for i in range(n):
         ci = ry[i] // s
-        for cj in range(rx0[i] // s, (rx1[i] - 1) // s + 1):
+        cj, last = rx0[i] // s, (rx1[i] - 1) // s
+        while cj <= last:
             if mixed[ci, cj]:
                 for x in range(max(rx0[i], cj * s), min(rx1[i], cj * s + s)):
                     xs[m] = x + x0
                     ys[m] = ry[i] + y0
                     m += 1
+            cj = nxt[ci, cj]
     lab = np.empty(count, np.int64)
     _labels(xs, ys, seg, keep_d2, keep, count == 1, lab)
     cap = n + count + 1
@@ -1194,6 +1225,6 @@ def shaft_label_runs(
         out_a = np.empty((nlab, cap), np.int32)
         out_b = np.empty((nlab, cap), np.int32)
         got = np.zeros(nlab, np.int64)
-        if _cut_runs(ry, rx0, rx1, n, s, coarse, mixed, lab, out_y, out_a, out_b, got):
+        if _cut_runs(ry, rx0, rx1, n, s, coarse, mixed, nxt, lab, out_y, out_a, out_b, got):
             return out_y, out_a, out_b, got
         cap *= 4
