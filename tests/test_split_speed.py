@@ -846,31 +846,35 @@ def test_split_pieces_measured_from_runs_are_the_former_pieces(seed, k, n_anchor
 
 @settings(max_examples=150, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 5), st.integers(1, 90), st.integers(1, 90))
-def test_label_runs_are_each_labels_mask_runs(seed, nlab, h, w):
-    """kernels.split.label_runs: per label, the row runs mask_runs gives for its mask
-    (long stretches of one label, single pixels, 255 off the part)."""
+def test_runs_cut_by_label_are_each_labels_mask_runs(seed, nlab, h, w):
+    """kernels.split.cut_runs: a mask's runs, their pixels labelled, cut per label into
+    the row runs mask_runs gives for the mask of that label (long stretches of one
+    label, single pixels, labels beyond nlab left out)."""
     from mistool.kernels.boxes import mask_runs
-    from mistool.kernels.split import label_runs
+    from mistool.kernels.split import cut_runs
 
     rng = np.random.default_rng(seed)
-    owner = rng.integers(0, nlab + 1, (h, w)).astype(np.uint8)
-    owner[owner == nlab] = 255
+    labels = rng.integers(0, nlab + 1, (h, w))
     if rng.random() < 0.5:  # long runs
-        owner = np.repeat(owner[:, : max(1, w // 9)], 9, 1)[:, :w].copy()
-        w = owner.shape[1]
-    ry, rx0, rx1, n = label_runs(owner, nlab)
+        labels = np.repeat(labels[:, : max(1, w // 9)], 9, 1)[:, :w].copy()
+    mask = rng.random(labels.shape) < rng.uniform(0.2, 1.0)
+    ry, rx0, rx1, nr = mask_runs(mask.view(np.uint8))
+    lab = np.concatenate(
+        [labels[y, a:b] for y, a, b in zip(ry[:nr], rx0[:nr], rx1[:nr], strict=True)] or [[]]
+    ).astype(np.int64)
+    oy, oa, ob, n = cut_runs(ry, rx0, rx1, nr, lab, nlab)
     for j in range(nlab):
-        wy, wx0, wx1, wn = mask_runs(np.where(owner == j, np.uint8(1), np.uint8(0)))
+        wy, wx0, wx1, wn = mask_runs((mask & (labels == j)).view(np.uint8))
         assert n[j] == wn
-        assert np.array_equal(ry[j, :wn], wy[:wn]) and np.array_equal(rx0[j, :wn], wx0[:wn])
-        assert np.array_equal(rx1[j, :wn], wx1[:wn])
+        assert np.array_equal(oy[j, :wn], wy[:wn]) and np.array_equal(oa[j, :wn], wx0[:wn])
+        assert np.array_equal(ob[j, :wn], wx1[:wn])
 
 
 def test_a_one_pixel_head_part_takes_blas_one_point_order():
     """A head part of one pixel: its head distances as numpy computed them for that one
     point (BLAS's one-point order), which here differ from the same point's among
     others."""
-    from mistool.tracking.split import _head_owner
+    from mistool.tracking.split import _head_labels
 
     c = 238.0
     ax = _mirror_axes(c)
@@ -887,8 +891,8 @@ def test_a_one_pixel_head_part_takes_blas_one_point_order():
     mask = np.ones((1, 1), bool)
     box = RotatedBox(0.0, 0.0, 1.0, 1.0, 0.0)
     part = PartObservation("clasper", box, np.zeros((4, 2)), 1, mask, (int(x), int(y)))
-    owner = _head_owner(part, ax, [{}, {}], [])
-    assert owner[0, 0] == alone[flips[0]] != many[flips[0]]
+    _, lab = _head_labels(part, ax, [{}, {}], [])
+    assert lab[0] == alone[flips[0]] != many[flips[0]]
 
 
 def _border_runs_before(inst: Any) -> list:

@@ -529,27 +529,6 @@ def score_axes(
 # the split's pixels ----------------------------------------------------------------------
 
 
-@intrinsic
-def _load8(typingctx, arr, i):  # type: ignore[no-untyped-def]  # (numba's intrinsic protocol)
-    sig = types.uint64(arr, types.int64)
-
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        word = context.get_value_type(types.uint64)
-        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), word.as_pointer())
-        return builder.load(ptr, align=1)
-
-    return sig, codegen
-
-
-#: ``load8(a, i)``: bytes ``i .. i + 7`` of a C-contiguous 1-D uint8 array as one
-#: little-endian uint64 (unaligned; the caller keeps ``i + 8`` within the array).
-load8 = cast(Callable[[np.ndarray, int], int], _load8)
-
-
-_ONES = np.uint64(0x0101010101010101)
-
-
 @kernel("boolean[:, ::1](uint8[:, ::1])")
 def _mixed_cells(coarse: np.ndarray) -> np.ndarray:
     """(ch, cw): whether each cell's 3 x 3 neighbourhood holds two labels (``cv2.dilate
@@ -579,105 +558,38 @@ def _mixed_cells(coarse: np.ndarray) -> np.ndarray:
     return mixed
 
 
-_RUNS = "Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))"
-
-
-@kernel("boolean(uint8[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1])")
-def _label_runs_into(
-    owner: np.ndarray, ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: np.ndarray
+@helper
+def _emit(
+    j: int,
+    y: int,
+    a: int,
+    b: int,
+    out_y: np.ndarray,
+    out_a: np.ndarray,
+    out_b: np.ndarray,
+    got: np.ndarray,
 ) -> bool:
-    """:func:`label_runs` into arrays of a given size; False when they are too short.
-    Eight pixels at a time where they all hold the label of the run going on."""
-    h, w = owner.shape
-    flat = owner.reshape(-1)
-    nlab, cap = ry.shape
-    for j in range(nlab):
-        n[j] = 0
-    for y in range(h):
-        base = y * w
-        v = owner[y, 0]
-        same = np.uint64(v) * _ONES
-        start = 0
-        x = 1
-        while x <= w:
-            if x + 8 <= w and load8(flat, base + x) == same:
-                x += 8
-                continue
-            u = owner[y, x] if x < w else np.uint8(255)
-            if u != v or x == w:
-                if v < nlab:
-                    k = n[v]
-                    if k == cap:
-                        return False
-                    ry[v, k] = y
-                    rx0[v, k] = start
-                    rx1[v, k] = x
-                    n[v] = k + 1
-                v = u
-                same = np.uint64(v) * _ONES
-                start = x
-            x += 1
+    """Run ``a <= x < b`` of row ``y`` appended to label ``j``'s (none beyond ``nlab``);
+    False when its arrays are full."""
+    if j >= out_y.shape[0]:
+        return True
+    k = got[j]
+    if k == out_y.shape[1]:
+        return False
+    out_y[j, k] = y
+    out_a[j, k] = a
+    out_b[j, k] = b
+    got[j] = k + 1
     return True
 
 
-@kernel(_RUNS + "(uint8[:, ::1], int64)")
-def label_runs(
-    owner: np.ndarray, nlab: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The row runs of each label ``j < nlab`` of an (h, w) label image, in raster order
-    (as :func:`mistool.kernels.boxes.mask_runs` gives them for the mask ``owner == j``):
-    ``(ry, rx0, rx1, n)``, run ``i < n[j]`` of label ``j`` covers ``rx0[j, i] <= x <
-    rx1[j, i]`` of row ``ry[j, i]``. Other values (255: off the part) have none."""
-    cap = 2 * owner.shape[0] + 16
-    n = np.zeros(nlab, np.int64)
-    while True:
-        ry = np.empty((nlab, cap), np.int32)
-        rx0 = np.empty((nlab, cap), np.int32)
-        rx1 = np.empty((nlab, cap), np.int32)
-        if _label_runs_into(owner, ry, rx0, rx1, n):
-            return ry, rx0, rx1, n
-        cap = 4 * cap
-
-
-@kernel("Tuple((float64[::1], float64[::1], int64[::1]))(uint8[:, ::1], int64, int64)")
-def _gather(mask: np.ndarray, x0: int, y0: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The full-image x and y of a crop's non-zero pixels (``mask`` at (x0, y0)), row by
-    row, and their flat indices in the crop (eight bytes at a time where they are all
-    zero)."""
-    h, w = mask.shape
-    flat = mask.reshape(-1)
-    n = flat.shape[0]
-    count = 0
-    for i in range(n):
-        count += flat[i] != 0
-    px = np.empty(count, np.float64)
-    py = np.empty(count, np.float64)
-    at = np.empty(count, np.int64)
-    m = 0
-    for y in range(h):
-        base = y * w
-        x = 0
-        while x < w:
-            if x + 8 <= w and load8(flat, base + x) == 0:
-                x += 8
-                continue
-            if flat[base + x] != 0:
-                px[m] = x + x0
-                py[m] = y + y0
-                at[m] = base + x
-                m += 1
-            x += 1
-    return px, py, at
-
-
 @kernel(
-    f"void(uint8[:, ::1], int64, int64, {_SEGMENTS}, int64[::1], float64[:, ::1], boolean[::1],"
-    " uint8[:, ::1])"
+    f"void(float64[::1], float64[::1], {_SEGMENTS}, int64[::1], float64[:, ::1], boolean[::1],"
+    " int64[::1])"
 )
-def head_owner(
-    mask: np.ndarray,
-    x0: int,
-    y0: int,
+def head_labels(
+    px: np.ndarray,
+    py: np.ndarray,
     ends: np.ndarray,
     dirs: np.ndarray,
     back: np.ndarray,
@@ -685,23 +597,19 @@ def head_owner(
     row: np.ndarray,
     centres: np.ndarray,
     is_centre: np.ndarray,
-    owner: np.ndarray,
+    out: np.ndarray,
 ) -> None:
-    """The nearest of R heads of each pixel of a head part's crop (``mask`` at (x0,
-    y0)), as ``split.split_with_heads`` computed it in numpy: head ``r``'s distance is
-    the least (``np.minimum``, NaN spreading) over the segments ``s`` with ``row[s] ==
-    r``, in their order, or, where ``is_centre[r]``, ``|p - c|^2 / rr`` with ``(cx, cy,
-    rr) = centres[r]`` (``np.einsum``: ``dx * dx + dy * dy``); the nearest head is the
-    first of equal least distances, the first NaN (``split.argmin_rows``). ``owner``
-    (h, w): its index at each mask pixel, 255 elsewhere. The pixels are gathered first,
-    then each segment's distances computed over all of them (vector code)."""
+    """``out`` (N,): the nearest of R heads of each of a head part's N pixels (``px``,
+    ``py``; all of them: one alone takes ``dgemv``'s one-point order), as
+    ``split.split_with_heads`` computed it in numpy: head ``r``'s distance is the least
+    (``np.minimum``, NaN spreading) over the segments ``s`` with ``row[s] == r``, in
+    their order, or, where ``is_centre[r]``, ``|p - c|^2 / rr`` with ``(cx, cy, rr) =
+    centres[r]`` (``np.einsum``: ``dx * dx + dy * dy``); the nearest is the first of
+    equal least distances, the first NaN (``split.argmin_rows``). Each segment's
+    distances over all the pixels in one loop (vector code)."""
     nrow = is_centre.shape[0]
-    px, py, at = _gather(mask, x0, y0)
     count = px.shape[0]
-    flat = owner.reshape(-1)
-    for i in range(flat.shape[0]):
-        flat[i] = 255
-    single = count == 1  # (one point: dgemv's order)
+    single = count == 1
     seg = _frames(ends, dirs, back, radius)
     d2 = np.empty((nrow, count), np.float64)
     taken = np.zeros(nrow, np.bool_)
@@ -723,10 +631,81 @@ def head_owner(
                 dx = px[i] - cx
                 dy = py[i] - cy
                 d2[r, i] = (dx * dx + dy * dy) / rr
-    lab = np.empty(count, np.int64)
-    _argmins(d2, 0.0, False, lab)
-    for i in range(count):
-        flat[at[i]] = lab[i]
+    _argmins(d2, 0.0, False, out)
+
+
+@kernel(
+    "Tuple((float64[::1], float64[::1]))(int32[::1], int32[::1], int32[::1], int64, int64, int64)"
+)
+def run_pixels(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, x0: int, y0: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The full-image x and y of every pixel of ``n`` row runs (a crop at (x0, y0)), in
+    the runs' order."""
+    count = 0
+    for i in range(n):
+        count += rx1[i] - rx0[i]
+    px = np.empty(count, np.float64)
+    py = np.empty(count, np.float64)
+    m = 0
+    for i in range(n):
+        y = ry[i] + y0
+        for x in range(rx0[i], rx1[i]):
+            px[m] = x + x0
+            py[m] = y
+            m += 1
+    return px, py
+
+
+@kernel(
+    "boolean(int32[::1], int32[::1], int32[::1], int64, int64[::1], int32[:, ::1], int32[:, ::1],"
+    " int32[:, ::1], int64[::1])"
+)
+def _cut_by_pixel(
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    n: int,
+    lab: np.ndarray,
+    out_y: np.ndarray,
+    out_a: np.ndarray,
+    out_b: np.ndarray,
+    got: np.ndarray,
+) -> bool:
+    """``n`` row runs cut where their pixels' labels (``lab``, in the runs' order)
+    change; False when the outputs are too short."""
+    m = 0
+    for i in range(n):
+        a, b = np.int64(rx0[i]), np.int64(rx1[i])
+        start = a
+        for x in range(a + 1, b + 1):
+            if x == b or lab[m + x - a] != lab[m + start - a]:
+                if not _emit(lab[m + start - a], ry[i], start, x, out_y, out_a, out_b, got):
+                    return False
+                start = x
+        m += b - a
+    return True
+
+
+@kernel(
+    "Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))(int32[::1], int32[::1],"
+    " int32[::1], int64, int64[::1], int64)"
+)
+def cut_runs(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, lab: np.ndarray, nlab: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The row runs of each label ``j < nlab`` of ``n`` row runs whose pixels carry the
+    labels ``lab`` (in the runs' order): maximal, in raster order (:func:`label_runs` of
+    the label image they paint)."""
+    cap = n + 1
+    for i in range(lab.shape[0] - 1):
+        cap += lab[i] != lab[i + 1]
+    got = np.zeros(nlab, np.int64)
+    out_y = np.empty((nlab, cap), np.int32)
+    out_a = np.empty((nlab, cap), np.int32)
+    out_b = np.empty((nlab, cap), np.int32)
+    _cut_by_pixel(ry, rx0, rx1, n, lab, out_y, out_a, out_b, got)
+    return out_y, out_a, out_b, got
 
 
 @kernel("boolean[::1](uint8[:, ::1], int64, int64, int64, int64)")
@@ -1044,31 +1023,6 @@ def run_points(
             out[m, 1] = ry[i] + y0
             m += 1
         k += b - a
-
-
-@helper
-def _emit(
-    j: int,
-    y: int,
-    a: int,
-    b: int,
-    out_y: np.ndarray,
-    out_a: np.ndarray,
-    out_b: np.ndarray,
-    got: np.ndarray,
-) -> bool:
-    """Run ``a <= x < b`` of row ``y`` appended to label ``j``'s (none beyond ``nlab``);
-    False when its arrays are full."""
-    if j >= out_y.shape[0]:
-        return True
-    k = got[j]
-    if k == out_y.shape[1]:
-        return False
-    out_y[j, k] = y
-    out_a[j, k] = a
-    out_b[j, k] = b
-    got[j] = k + 1
-    return True
 
 
 @kernel(

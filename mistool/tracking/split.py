@@ -787,8 +787,8 @@ def split_with_heads(
     instrument's piece has no shaft left.
 
     Each part's pixels get the index of their piece in a label image (the shaft's:
-    :func:`_shaft_pieces`; a head part's: its nearest head, :func:`_head_owner`), whose
-    row runs per index are measured (Algorithm 1, :func:`_runs_parts`)."""
+    :func:`_shaft_pieces`; a head part's: its nearest head, :func:`_head_labels`), whose
+    row runs per index are measured (Algorithm 1, :func:`_measure_runs`)."""
     inst = pixels.inst
     k = len(fit.expected)
     n = k + len(anchors)
@@ -802,8 +802,9 @@ def split_with_heads(
     for name, part in inst.parts.items():
         if name == "shaft":
             continue
-        owner = _head_owner(part, fit.axes, fit.expected, anchors)
-        got[name] = _runs_parts(name, owner, n, part.offset, min_area_px)
+        (ry, rx0, rx1, nr), lab = _head_labels(part, fit.axes, fit.expected, anchors)
+        runs = kernels.cut_runs(ry, rx0, rx1, nr, lab, n)
+        got[name] = _measure_runs(name, runs, part.offset, min_area_px)
     pieces: list[dict[str, _Measured]] = [{} for _ in range(n)]
     for name in inst.parts:  # (the blob's order of parts)
         for j, m in enumerate(got[name]):
@@ -816,16 +817,17 @@ def split_with_heads(
     )
 
 
-def _head_owner(
+def _head_labels(
     part: PartObservation,
     ax: _Axes,
     expected: list[dict[str, RotatedBox]],
     anchors: list[HeadAnchor],
-) -> np.ndarray:
-    """(h, w) uint8 index of the nearest head of every pixel of a head part's crop (255
-    off its mask): the instruments' (:func:`_head_segments`), then the anchors' (their
-    boxes' segments, or their centre), the first of equal distances; one compiled pass
-    (:func:`mistool.kernels.split.head_owner`)."""
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]:
+    """A head part's row runs (:func:`mistool.kernels.boxes.mask_runs`) and the index of
+    the nearest head of each of its pixels, in the runs' order: the instruments'
+    (:func:`_head_segments`), then the anchors' (their boxes' segments, or their
+    centre), the first of equal distances (compiled:
+    :func:`mistool.kernels.split.head_labels`)."""
     segs, rows = _head_segments(part.part, ax, expected)
     parts = [segs]
     row = [rows]
@@ -838,15 +840,17 @@ def _head_owner(
         parts.append(seg)
         row.append(np.full(len(seg[2]), a))
     ends, dirs, back, radius = (np.concatenate(c) for c in zip(*parts, strict=True))
+    rows = np.concatenate(row).astype(np.int64)
     is_centre = np.ones(len(centres), np.bool_)
-    is_centre[np.concatenate(row)] = False
-    owner = np.empty(part.mask.shape, np.uint8)
-    kernels.head_owner(
-        _mask_u8(part.mask), int(part.offset[0]), int(part.offset[1]), _points(ends),
-        _points(dirs), _values(back), _values(radius), np.concatenate(row).astype(np.int64),
-        centres, is_centre, owner,
+    is_centre[rows] = False
+    runs = mask_runs(_mask_u8(part.mask))
+    px, py = kernels.run_pixels(*runs, int(part.offset[0]), int(part.offset[1]))
+    lab = np.empty(len(px), np.int64)
+    kernels.head_labels(
+        px, py, _points(ends), _points(dirs), _values(back), _values(radius), rows, centres,
+        is_centre, lab,
     )  # fmt: skip
-    return owner
+    return runs, lab
 
 
 @dataclass(frozen=True)
@@ -858,17 +862,6 @@ class _Measured:
     sum_x: int
     """Sum of the pixels' full-image x, px."""
     sum_y: int
-
-
-def _runs_parts(
-    name: str, owner: np.ndarray, nlab: int, offset: tuple[int, int], min_area_px: int
-) -> list[_Measured | None]:
-    """Part ``name`` of each piece ``j < nlab``: the pixels labelled ``j`` in ``owner``
-    (a label image of the part's crop at ``offset``), Algorithm 1 of their row runs
-    (:func:`mistool.kernels.boxes.fit_runs`: the result of
-    :func:`~mistool.tracking.instances.part_observation` on their mask), None when no
-    pixel is kept."""
-    return _measure_runs(name, kernels.label_runs(owner, nlab), offset, min_area_px)
 
 
 def _shaft_pieces(
