@@ -1118,3 +1118,36 @@ def test_the_compiled_initial_axes_are_the_former_ones(seed, k, how):
     got, want = _initial_axes(expected, axes, shape), _initial_axes_before(expected, axes, shape)
     for name in ("ends", "dirs", "back", "radius", "limit_end", "start_dirs", "margin", "head_len"):
         assert np.array_equal(getattr(got, name), getattr(want, name)), name
+
+
+def _entry_lane_before(pts: np.ndarray, mid: np.ndarray, half: float) -> np.ndarray:
+    """``split._entry_lane`` as it was (commit ff8f414): (N, K) numpy products."""
+    from mistool.tracking.split import _ENTRY_DIRS
+
+    rel = pts - mid
+    along = rel @ _ENTRY_DIRS
+    across = rel @ np.stack([-_ENTRY_DIRS[1], _ENTRY_DIRS[0]])
+    inside = (along >= 0.0) & (np.abs(across) <= half)
+    return pts[inside[:, int(np.argmax(inside.sum(axis=0)))]]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2, 3, 40, 700, 4000]), st.booleans())
+def test_the_compiled_entry_lane_is_the_former_one(seed, n, border):
+    """split._entry_lane (compiled) keeps the points the former (N, K) products kept:
+    lanes along and across a shaft from the border, one point (BLAS's one-point order),
+    points on a lane's edge (pixel centres, half-integer widths)."""
+    from mistool.tracking.split import _entry_lane
+
+    rng = np.random.default_rng(seed)
+    mid = np.array([0.0, float(rng.integers(0, 576))]) if border else rng.uniform(0, 700, 2)
+    t = rng.uniform(-1.2, 1.2)
+    along = rng.uniform(0, 200, n)
+    across = rng.normal(0, rng.uniform(2, 40), n)
+    pts = mid + np.stack(
+        [along * math.cos(t) - across * math.sin(t), along * math.sin(t) + across * math.cos(t)], 1
+    )
+    if rng.random() < 0.5:
+        pts = np.round(pts)
+    half = float(rng.integers(1, 40)) * 0.5
+    assert np.array_equal(_entry_lane(pts, mid, half), _entry_lane_before(pts, mid, half))

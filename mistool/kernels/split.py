@@ -1182,3 +1182,41 @@ def shaft_label_runs(
         if _cut_runs(ry, rx0, rx1, n, s, coarse, mixed, nxt, lab, out_y, out_a, out_b, got):
             return out_y, out_a, out_b, got
         cap *= 4
+
+
+# a shaft entering the view (mistool.tracking.split.border_entries) ----------------------
+
+
+@kernel("void(float64[:, ::1], float64, float64, float64, float64[:, ::1], boolean[::1])")
+def entry_lane(
+    pts: np.ndarray, mx: float, my: float, half: float, dirs: np.ndarray, out: np.ndarray
+) -> None:
+    """``out`` (N,): which of the points ``pts`` (N, 2) lie in the straight lane from
+    (mx, my), ``2 * half`` px wide, along the direction (a column of ``dirs`` (2, K))
+    holding the most of them, the first of equal counts (``split._entry_lane``: ``rel =
+    pts - m``, ``rel @ dirs`` and ``rel @ (-dirs[1], dirs[0])`` by ``dgemm``, one point:
+    its one-point order)."""
+    n = pts.shape[0]
+    single = n == 1
+    rx = np.empty(n, np.float64)
+    ry = np.empty(n, np.float64)
+    for i in range(n):
+        rx[i] = pts[i, 0] - mx
+        ry[i] = pts[i, 1] - my
+    best = -1
+    most = -1
+    for k in range(dirs.shape[1]):
+        d0, d1 = dirs[0, k], dirs[1, k]
+        count = 0
+        for i in range(n):
+            along = row_dot(rx[i], ry[i], d0, d1, single)
+            across = row_dot(rx[i], ry[i], -d1, d0, single)
+            count += along >= 0.0 and abs(across) <= half
+        if count > most:
+            most = count
+            best = k
+    d0, d1 = dirs[0, best], dirs[1, best]
+    for i in range(n):
+        along = row_dot(rx[i], ry[i], d0, d1, single)
+        across = row_dot(rx[i], ry[i], -d1, d0, single)
+        out[i] = along >= 0.0 and abs(across) <= half

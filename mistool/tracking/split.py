@@ -190,11 +190,12 @@ def _entry_lane(pts: np.ndarray, mid: np.ndarray, half: float) -> np.ndarray:
     border), ``2 * half`` px wide, that holds the most of them (of the directions every
     :data:`ENTRY_STEP_DEG`): a shaft entering the view fills its own lane, while
     another tool's shaft passing near the entry only crosses it."""
-    rel = pts - mid
-    along = rel @ _ENTRY_DIRS  # (N, K)
-    across = rel @ np.stack([-_ENTRY_DIRS[1], _ENTRY_DIRS[0]])
-    inside = (along >= 0.0) & (np.abs(across) <= half)
-    return pts[inside[:, int(np.argmax(inside.sum(axis=0)))]]
+    pts = _points(pts)
+    inside = np.empty(len(pts), np.bool_)
+    # (compiled: the float operations of numpy's (N, 2) @ (2, K) products, in one pass
+    # per direction instead of (N, K) arrays)
+    kernels.entry_lane(pts, float(mid[0]), float(mid[1]), half, _ENTRY_DIRS, inside)
+    return pts[inside]
 
 
 def border_entries(
