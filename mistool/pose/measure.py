@@ -123,38 +123,12 @@ _FIT_ITERS = 12
 
 _NAN_ROW = {k: math.nan for k in POSE_KEYS + AUX_KEYS}
 
-#: The shaft row's cells the kernel fills (``mistool.kernels.pose.OUT["row"]`` onward).
-_SHAFT_CELLS: tuple[str, ...] = (
-    "aux_distal",
-    "aux_l1a",
-    "aux_l1b",
-    "aux_l1c",
-    "aux_l2a",
-    "aux_l2b",
-    "aux_l2c",
-    "aux_u_px",
-    "aux_v_px",
-    "aux_su_px",
-    "aux_sv_px",
-    "aux_sigma_mm",
-    "aux_sigma_deg",
-    "end_x_mm",
-    "end_y_mm",
-    "end_z_mm",
-    "axis_x",
-    "axis_y",
-    "axis_z",
-    "start_x_mm",
-    "start_y_mm",
-    "start_z_mm",
-    "qw",
-    "qx",
-    "qy",
-    "qz",
-)
-_CLASPER_CELLS = ("end_x_mm", "end_y_mm", "end_z_mm", "axis_x", "axis_y", "axis_z")
-_QUAT_CELLS = ("qw", "qx", "qy", "qz")
-_START_CELLS = ("start_x_mm", "start_y_mm", "start_z_mm")
+#: The shaft row's cells the kernel fills (``mistool.kernels.pose.OUT["row"]`` onward):
+#: the distal flag, the limb lines to the sigmas, then the pose without its quality.
+_SHAFT_CELLS: tuple[str, ...] = ("aux_distal", *AUX_KEYS[:12], *POSE_KEYS[:13])
+_CLASPER_CELLS = POSE_KEYS[:6]  # end and axis
+_START_CELLS = POSE_KEYS[6:9]
+_QUAT_CELLS = POSE_KEYS[9:13]
 
 
 def _nan_row() -> dict[str, float]:
