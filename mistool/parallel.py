@@ -43,8 +43,9 @@ import numpy as np
 
 from mistool import tracking
 from mistool.config import Config
-from mistool.errors import MistoolError
+from mistool.errors import InputPathError, MistoolError
 from mistool.model import InstanceObservation, PartObservation, RotatedBox
+from mistool.pngdecode import decode_png_runs, grey8
 from mistool.pose import measure_instance
 from mistool.sequence import (
     VIDEO_TOLERANCE,
@@ -52,6 +53,8 @@ from mistool.sequence import (
     MaskSequence,
     VideoReader,
     VideoSource,
+    check_pixels,
+    header_size,
     read_label_image,
 )
 from mistool.tracking.instances import LabelRuns, scan_labels
@@ -221,7 +224,7 @@ def measure_frames(
 
 
 def unknown_values(
-    labels: np.ndarray,
+    labels: np.ndarray | None,
     config: Config,
     lossy: bool = False,
     bounds: tuple[int, int, int, int] | None = None,
@@ -232,7 +235,8 @@ def unknown_values(
     given: 0 is never unknown, so the pixels outside do not matter. An 8-bit image's
     values are counted from its runs (:func:`mistool.tracking.instances.scan_labels`)
     when given, else with an 8-bit histogram (~7x faster than scanning the image in
-    numpy).
+    numpy). ``labels`` may be None when ``runs`` are those of an 8-bit image (a PNG
+    decoded straight to runs: :func:`_load`).
 
     In a mask video (``lossy``) the codec smears values around every edge, so a value
     counts only where it covers at least ``min_area_px`` pixels of the frame, and values
@@ -243,14 +247,17 @@ def unknown_values(
         x, y, w, h = bounds
         if w == 0 or h == 0:
             return np.zeros(0, np.int64)
-        labels = labels[y : y + h, x : x + w]
-    if labels.dtype == np.uint8 and labels.ndim == 2:
+        if labels is not None:
+            labels = labels[y : y + h, x : x + w]
+    if labels is None or (labels.dtype == np.uint8 and labels.ndim == 2):
         if runs is not None:
             from mistool.kernels.instances import value_counts
 
             hist = value_counts(runs.rv, runs.rx0, runs.rx1, runs.n)
-        else:
+        elif labels is not None:
             hist = cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel()
+        else:
+            raise ValueError("unknown_values: give the labels or their runs")
         values = np.flatnonzero(hist >= (max(config.min_area_px, 1) if lossy else 1))
         if lossy:
             values = values[values > VIDEO_TOLERANCE]
@@ -259,9 +266,14 @@ def unknown_values(
 
 
 def observe_labels(
-    labels: np.ndarray, config: Config, metric: bool, lossy: bool = False, defer_below: int = 0
+    labels: np.ndarray | LabelRuns,
+    config: Config,
+    metric: bool,
+    lossy: bool = False,
+    defer_below: int = 0,
 ) -> FrameResult:
-    """The per-frame work on a decoded label image (pure; thread- and process-safe).
+    """The per-frame work on a decoded label image, or on the runs of an 8-bit one
+    (:func:`_load`: a PNG decoded straight to its runs); pure, thread- and process-safe.
 
     ``defer_below``: with the metric pose on, a frame with instances but fewer than this
     many is returned ``deferred`` (no pose measured): fewer instances than instruments
@@ -269,10 +281,13 @@ def observe_labels(
     likely split, its pose then thrown away. Only where the work is done changes: the
     caller measures the deferred frames' instances after the identity step, with the
     same function, so the output is the same whatever ``defer_below``."""
-    runs = scan_labels(labels)  # one pass: shared by the instances and the unknown values
-    instances = tracking.observe_frame(labels, config, runs=runs)
-    shape = (int(labels.shape[0]), int(labels.shape[1]))
-    unknown = unknown_values(labels, config, lossy, runs=runs)
+    if isinstance(labels, LabelRuns):
+        runs, pixels = labels, None
+    else:  # one pass: shared by the instances and the unknown values
+        runs, pixels = scan_labels(labels), labels
+    instances = tracking.observe_frame(pixels, config, runs=runs)
+    shape = runs.shape
+    unknown = unknown_values(pixels, config, lossy, runs=runs)
     # the identity step's border runs, here rather than in the (sequential) caller
     runs_in = (
         [border_runs(i) for i in instances] if any(i.label is None for i in instances) else None
@@ -312,13 +327,37 @@ class Batch:
 _GATES: dict[Path, FastPathGate] = {}
 
 
-def _load(item: Path | np.ndarray, config: Config) -> np.ndarray:
+def _load(item: Path | np.ndarray, config: Config) -> np.ndarray | LabelRuns:
+    """A frame's label image; an 8-bit grey PNG (grey labels) straight to its runs
+    (:func:`mistool.pngdecode.decode_png_runs`: the image itself is never written)."""
     if isinstance(item, np.ndarray):
         return item
     gate = _GATES.setdefault(item.parent, FastPathGate())
+    if not config.colour_masks and gate.open and item.parent not in _NOT_GREY8:
+        try:
+            data = item.read_bytes()
+        except OSError as exc:  # (read_label_image's error)
+            raise InputPathError(f"{item}: cannot read: {exc.strerror or exc}") from None
+        if not grey8(data):  # (its folder's other files are read as they are)
+            _NOT_GREY8.add(item.parent)
+        else:
+            check_pixels(header_size(data), str(item), config.max_pixels)
+            got = decode_png_runs(data, config.max_pixels)
+            gate.record(got is not None)
+            if got is None:  # OpenCV decides (and reports)
+                return read_label_image(item, gate=_OPENCV, max_pixels=config.max_pixels)
+            bounds, ry, rx0, rx1, rv, n, shape = got
+            return LabelRuns(bounds, ry, rx0, rx1, rv, n, shape, _UINT8)
     return read_label_image(
         item, colour=config.colour_masks, gate=gate, max_pixels=config.max_pixels
     )
+
+
+#: Folders whose files are not 8-bit grey PNGs (read by ``read_label_image`` alone).
+_NOT_GREY8: set[Path] = set()
+#: A closed fast-path gate: straight to OpenCV.
+_OPENCV = FastPathGate(patience=0)
+_UINT8 = np.dtype(np.uint8)
 
 
 # The video a worker process decodes spans of (one at a time: a new video closes the last).

@@ -4,11 +4,13 @@ from a worker, and no worker process left behind on errors or interrupts."""
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import signal
 import threading
 import time
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -649,3 +651,66 @@ def test_the_pools_cancelled_future_race_is_not_printed(monkeypatch: pytest.Monk
     threading.excepthook(race)
     threading.excepthook(other)
     assert seen == [InvalidStateError, ValueError]
+
+
+def _frame_key(r: parallel.FrameResult) -> tuple:
+    """Everything in a frame's result, numbers as bits (``pickle`` of the packed form)."""
+    import pickle
+
+    packed = parallel.pack_instances(r.instances)
+    return (
+        pickle.dumps(packed),
+        repr(r.metrics),
+        r.unknown.tolist(),
+        r.shape,
+        r.deferred,
+        repr(r.runs),
+    )
+
+
+def test_an_8_bit_grey_png_is_read_straight_to_runs_with_the_same_results(
+    crossing: Path, tmp_path: Path
+) -> None:
+    """A worker decodes an 8-bit grey PNG straight to its runs (``_load``: no image):
+    the frame's results are those of the decoded image, bit for bit (instances, boxes,
+    masks, metric pose, unknown values, border runs). Other files (16-bit, palette, a
+    file the fast decoder leaves to OpenCV, colour labels) are read as images, as
+    before; a broken file is the same one-line error."""
+    from mistool.sequence import read_label_image
+    from mistool.tracking.instances import LabelRuns
+
+    cfg = open_sequence(crossing).config
+    frames = sorted(crossing.glob("*.png"))[::7]
+    for path in frames:
+        runs = parallel._load(path, cfg)
+        assert isinstance(runs, LabelRuns)
+        image = read_label_image(path, max_pixels=cfg.max_pixels)
+        for metric in (False, True):
+            assert _frame_key(parallel.observe_labels(runs, cfg, metric)) == _frame_key(
+                parallel.observe_labels(image, cfg, metric)
+            )
+    img = read_label_image(frames[3])
+    img[0, :3] = 7  # a value the config does not know
+    folder = tmp_path / "odd"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "sixteen.png"), img.astype(np.uint16))
+    blob = cv2.imencode(".png", img)[1].tobytes()
+    gama = b"gAMA\x00\x00\xb1\x8f"  # an ancillary chunk the fast decoder leaves to OpenCV
+    chunk = len(gama[4:]).to_bytes(4, "big") + gama + zlib.crc32(gama).to_bytes(4, "big")
+    (folder / "gama.png").write_bytes(blob[:33] + chunk + blob[33:])
+    want = parallel.observe_labels(img, cfg, True)
+    for name in ("gama", "sixteen"):
+        got = parallel._load(folder / f"{name}.png", cfg)
+        assert isinstance(got, np.ndarray)
+        result = parallel.observe_labels(got, cfg, True)
+        assert result.unknown.tolist() == [7]
+        assert _frame_key(result)[:4] == _frame_key(want)[:4]
+    grey = tmp_path / "grey"
+    grey.mkdir()
+    (grey / "a.png").write_bytes(blob)
+    assert isinstance(parallel._load(grey / "a.png", cfg), LabelRuns)
+    colour = dataclasses.replace(cfg, colour_masks=True)  # packed colours: an image
+    assert parallel._load(grey / "a.png", colour).dtype == np.uint32  # type: ignore[union-attr]
+    (grey / "cut.png").write_bytes(blob[: len(blob) // 2])
+    with pytest.raises(MaskFormatError, match=r"cut\.png: cannot decode"):
+        parallel._load(grey / "cut.png", cfg)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import struct
 import tracemalloc
 import zlib
+from unittest import mock
 
 import cv2
 import numpy as np
@@ -20,8 +21,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_sequence import _filter_rows  # the encoder's side of the row filters
 
+from mistool import pngdecode
 from mistool.errors import MaskFormatError
-from mistool.pngdecode import ANCILLARY_OK, decode_png
+from mistool.kernels.instances import label_runs
+from mistool.pngdecode import ANCILLARY_OK, decode_png, decode_png_runs
 from mistool.sequence import FastPathGate, read_label_image
 
 
@@ -69,6 +72,10 @@ def _opencv(data: bytes) -> np.ndarray | None:
 
 def _agrees_with_opencv(data: bytes) -> None:
     got = decode_png(data, 10**8)
+    if got is None or got.palette is not None or got.pixels.dtype != np.uint8:
+        assert decode_png_runs(data, 10**8) is None  # (runs: 8-bit grey only)
+    else:
+        assert _runs_fast(data) == _runs_of(got.pixels)
     if got is None:
         return
     ref = _opencv(data)
@@ -118,6 +125,7 @@ def _png(w: int, h: int, idat: bytes, depth: int = 8, ctype: int = 0, extra: byt
 def test_arbitrary_bytes_never_raise(data: bytes) -> None:
     got = decode_grey_png_fast(data)
     assert got is None or (got.dtype == np.uint8 and got.ndim == 2)
+    assert decode_png_runs(data, 10**8) is None or got is not None
 
 
 @FUZZ
@@ -165,6 +173,7 @@ def test_every_truncation_is_refused(
     blob = _encode(img, level)
     cut = data.draw(st.integers(0, len(blob) - 1))
     assert decode_grey_png_fast(blob[:cut]) is None
+    assert decode_png_runs(blob[:cut], 10**8) is None
 
 
 def test_truncated_file_is_one_error(tmp_path) -> None:
@@ -235,6 +244,67 @@ def test_every_filter_8_bit_grey(img: np.ndarray, data: st.DataObject) -> None:
     assert got is not None and got.palette is None
     np.testing.assert_array_equal(got.pixels, img)
     _agrees_with_opencv(blob)
+
+
+def _runs_of(pixels: np.ndarray) -> tuple:
+    """``label_runs`` of an image, the arrays cut to their runs (what is compared)."""
+    bounds, ry, rx0, rx1, rv, n = label_runs(np.ascontiguousarray(pixels))
+    return bounds, ry[:n].tolist(), rx0[:n].tolist(), rx1[:n].tolist(), rv[:n].tolist(), n
+
+
+def _runs_fast(data: bytes) -> tuple | None:
+    got = decode_png_runs(data, 10**8)
+    if got is None:
+        return None
+    bounds, ry, rx0, rx1, rv, n, shape = got
+    for a in (ry, rx0, rx1, rv):
+        assert a.dtype == np.int32 and len(a) >= n
+    return bounds, ry[:n].tolist(), rx0[:n].tolist(), rx1[:n].tolist(), rv[:n].tolist(), n
+
+
+@FUZZ
+@given(masks(), st.data())
+def test_every_filter_8_bit_grey_straight_to_runs(img: np.ndarray, data: st.DataObject) -> None:
+    """``decode_png_runs`` (the rows unfiltered only where they are not zero, straight
+    to runs) gives ``label_runs`` of the decoded image, bit for bit: any filter mix,
+    rows of zeros between (every filter's shortcut under a zero row), noise (more runs
+    than the first arrays hold)."""
+    img = img.astype(np.uint8)
+    h, w = img.shape
+    if data.draw(st.booleans()):  # bands of zero rows: the filters' shortcuts under them
+        img[data.draw(st.integers(0, h)) : data.draw(st.integers(0, h))] = 0
+    filters = data.draw(st.lists(st.integers(0, 4), min_size=h, max_size=h))
+    blob = _raw_png(_filter_rows(img, filters, 1), filters, w, 8, 0)
+    assert _runs_fast(blob) == _runs_of(img)
+    got = decode_png_runs(blob, 10**8)
+    assert got is not None and got[6] == (h, w)
+
+
+def test_straight_to_runs_takes_8_bit_grey_only_and_declines_as_decode_png() -> None:
+    img = np.zeros((9, 70), np.uint8)
+    img[2:7, 5:60] = 160
+    img[4:6, 30:65] = 70
+    filters = [0, 1, 2, 3, 4, 4, 3, 2, 1]
+    rows = _filter_rows(img, filters, 1)
+    assert _runs_fast(_raw_png(rows, filters, 70, 8, 0)) == _runs_of(img)
+    for bad in (5, 255):  # a filter type that does not exist, on a zero row or not
+        for y in (0, 3):
+            assert (
+                _runs_fast(_raw_png(rows, filters[:y] + [bad] + filters[y + 1 :], 70, 8, 0)) is None
+            )
+    palette = _raw_png(rows, filters, 70, 8, 3, _chunk(b"PLTE", bytes(3 * 256)))
+    assert decode_png(palette, 10**8) is not None and _runs_fast(palette) is None
+    sixteen = img.astype(">u2").view(np.uint8).reshape(9, 140)
+    blob16 = _raw_png(_filter_rows(sixteen, filters, 2), filters, 70, 16, 0)
+    assert decode_png(blob16, 10**8) is not None and _runs_fast(blob16) is None
+    assert _runs_fast(_raw_png(np.zeros((4, 8), np.uint8), [0, 2, 4, 1], 8, 8, 0)) == (
+        (0, 0, 0, 0),
+        [],
+        [],
+        [],
+        [],
+        0,
+    )
 
 
 @FUZZ
@@ -376,6 +446,7 @@ def test_files_the_decoder_leaves_to_opencv(case: str, tmp_path) -> None:
     }
     data = make[case]()
     assert decode_png(data, 10**8) is None
+    assert decode_png_runs(data, 10**8) is None
     path = tmp_path / "odd.png"
     path.write_bytes(data)
     if _opencv(data) is None:
@@ -484,3 +555,28 @@ def test_large_images_scratch_is_not_kept() -> None:
     t.start()
     t.join()
     assert kept and max(kept.values()) <= pngdecode.SCRATCH_KEEP_BYTES
+
+
+@FUZZ
+@given(label_images(), st.sampled_from([None, 9]), st.data())
+def test_zlib_ngs_inflate_called_directly_agrees_with_decompressobj(
+    img: np.ndarray, level: int | None, data: st.DataObject
+) -> None:
+    """The image data inflated by zlib-ng's own inflate (ctypes, one call into the
+    scratch buffer) or by ``decompressobj`` a piece at a time: the same bytes, and the
+    same refusals (cut, mutated, longer or shorter than the header says, data after
+    the stream)."""
+    assert pngdecode._native_inflate() is not None  # (zlib-ng 2.x is installed here)
+    h, w = img.shape
+    idat = _idat_body(_encode(img, level))
+    mutated = bytearray(idat)
+    mutated[data.draw(st.integers(0, len(idat) - 1))] = data.draw(st.integers(0, 255))
+    cut = data.draw(st.integers(0, len(idat) - 1))
+    size = h * (w + 1)
+    for stream in (idat, idat[:cut], idat + b"\x00", bytes(mutated)):
+        for n in (size, size - 1, size + 1):
+            native = pngdecode._inflate_into(stream, n)
+            native = None if native is None else native.tobytes()
+            with mock.patch.object(pngdecode, "_native_inflate", lambda: None):
+                pieces = pngdecode._inflate_into(stream, n)
+            assert native == (None if pieces is None else pieces.tobytes())

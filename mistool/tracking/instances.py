@@ -249,7 +249,7 @@ def foreground_bounds(labels: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def observe_frame(
-    labels: np.ndarray,
+    labels: np.ndarray | None,
     config: Config,
     *,
     bounds: tuple[int, int, int, int] | None = None,
@@ -261,7 +261,8 @@ def observe_frame(
 
     Args:
         labels: (H, W) integer label image (uint8/uint16, or uint32 packed RGB when
-            ``config.colour_masks``).
+            ``config.colour_masks``); None when ``runs`` are given (they are all that is
+            read then).
         config: part value ranges, instruments, ``min_area_px``.
         bounds: :func:`foreground_bounds` of ``labels`` when the caller has them.
         runs: :func:`scan_labels` of ``labels`` when the caller has them.
@@ -275,6 +276,8 @@ def observe_frame(
         MaskFormatError: if ``labels`` is not a 2-D integer image.
     """
     if runs is None:
+        if labels is None:
+            raise TypeError("observe_frame: give labels or runs")
         runs = scan_labels(labels, bounds)
     if runs.n == 0:  # (every part pixel is non-zero: the runs cover them all)
         return []
