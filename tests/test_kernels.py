@@ -1,4 +1,5 @@
-"""mistool.kernels: every kernel is compiled at import for its declared signatures."""
+"""mistool.kernels: every kernel is loaded for its declared signatures at its first call
+(or by ``warm``/``load``), then closed."""
 
 from __future__ import annotations
 
@@ -29,8 +30,10 @@ def _kernels() -> list[tuple[str, object]]:
 
 
 def test_there_are_kernels_and_each_is_compiled_and_closed() -> None:
-    """A kernel is compiled at import and closed; a helper (called by kernels only) is
-    never compiled on its own, not even once every kernel module is loaded."""
+    """Once loaded (``warm``), a kernel is compiled for its signatures and closed; a
+    helper (called by kernels only) is never compiled on its own, not even once every
+    kernel module is loaded."""
+    warm()
     found = _kernels()
     assert found
     helpers = [name for name, d in found if getattr(d, "mistool_helper", False)]
@@ -39,8 +42,35 @@ def test_there_are_kernels_and_each_is_compiled_and_closed() -> None:
         if name in helpers:
             assert not dispatcher.signatures, name  # linked into its callers only
             continue
-        assert dispatcher.signatures, name  # compiled at import
+        assert dispatcher.signatures, name  # compiled by warm()
+        declared = getattr(dispatcher, "mistool_signatures", ())  # (none: compiled eagerly)
+        assert len(dispatcher.signatures) >= len(declared), name
         assert not dispatcher._can_compile, name  # no second compilation at a call
+
+
+_LAZY = """
+import numpy as np
+from mistool.kernels import png, pose
+kernels = [v for v in vars(pose).values() if getattr(v, "mistool_signatures", None)]
+assert len(kernels) > 10 and not any(k.signatures for k in kernels), "pose loaded"
+assert not png.unfilter_rows.signatures
+rows = np.array([[1, 5, 6], [2, 1, 1]], np.uint8)
+out = np.zeros((2, 2), np.uint8)
+try:
+    png.unfilter_rows(rows.astype(np.int16), 1, out)  # a first call of other types
+except TypeError:
+    print("TypeError", len(png.unfilter_rows.signatures), png.unfilter_rows._can_compile)
+png.unfilter_rows(rows, 1, out)
+print(out.tolist(), len(png.unfilter_rows.signatures))
+"""
+
+
+def test_a_kernel_is_loaded_at_its_first_call_only() -> None:
+    """Importing a kernel module loads no machine code (~5-15 ms per kernel): a process
+    pays only for the kernels it calls; the first call loads the declared signatures
+    and closes the kernel: a call of other types is refused, the declared ones run."""
+    out = subprocess.run([sys.executable, "-c", _LAZY], capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[:2] == ["TypeError 1 False", "[[5, 11], [6, 12]] 1"]
 
 
 def test_an_argument_of_another_dtype_is_an_error_not_a_new_compilation() -> None:

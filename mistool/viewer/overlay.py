@@ -56,8 +56,10 @@ class _KernelsLoaded(FastPathGate):
         return False
 
     def _load(self) -> None:
-        import mistool.kernels.png  # noqa: F401 - imported for its effect
+        from mistool import kernels
+        from mistool.kernels import png
 
+        kernels.load(png)  # (a kernel is loaded at its first call, not at import)
         self._loaded.set()
 
     def record(self, decoded: bool) -> None:
