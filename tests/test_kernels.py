@@ -94,3 +94,30 @@ def test_warm_imports_every_kernel_module() -> None:
         [sys.executable, "-m", "mistool.kernels"], capture_output=True, text=True, check=True
     )
     assert out.stdout.startswith("mistool kernels ready (") and "png" in out.stdout
+
+
+_THREADS = """
+import threading
+import numpy as np
+from mistool.kernels import png
+rows = np.array([[1, 5, 6], [2, 1, 1]], np.uint8)
+outs, errors = [np.zeros((2, 2), np.uint8) for _ in range(8)], []
+def call(out):
+    try:
+        png.unfilter_rows(rows, 1, out)
+    except Exception as exc:
+        errors.append(repr(exc))
+threads = [threading.Thread(target=call, args=(o,)) for o in outs]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+print(errors, {str(o.tolist()) for o in outs}, len(png.unfilter_rows.signatures))
+"""
+
+
+def test_threads_calling_a_kernel_first_at_once_all_get_its_result() -> None:
+    out = subprocess.run(
+        [sys.executable, "-c", _THREADS], capture_output=True, text=True, check=True
+    )
+    assert out.stdout.strip() == "[] {'[[5, 11], [6, 12]]'} 1"

@@ -61,9 +61,10 @@ def kernel(*signatures: str) -> Callable[[F], F]:
         unmatched = compiled._compile_for_args  # numba's path for a call no overload fits
 
         def first_call(*args: Any, **kwargs: Any) -> Any:
-            # numba's dispatcher calls what this returns with the call's arguments
-            compiled._compile_for_args = unmatched  # (a second mismatch: numba's TypeError)
+            # numba's dispatcher calls what this returns with the call's arguments; a
+            # thread calling meanwhile waits in _load, then finds the kernel loaded
             _load(compiled)
+            compiled._compile_for_args = unmatched  # (a later mismatch: numba's TypeError)
             return compiled
 
         compiled._compile_for_args = first_call
