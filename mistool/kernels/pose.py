@@ -36,6 +36,7 @@ from typing import Any, TypeVar, cast
 import numpy as np
 
 from mistool.kernels import helper, kernel
+from mistool.kernels.contours import outer_contour
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -56,8 +57,12 @@ def _inlined(signature: str) -> Callable[[F], F]:
 
 __all__ = [
     "FIT_LEN",
+    "GEO_OTHERS",
     "OUT",
     "PARAMS",
+    "SHAFT_ASK_PYTHON",
+    "SHAFT_MEASURED",
+    "SHAFT_NOT_VISIBLE",
     "TIP",
     "WHY",
     "cylinder_outline",
@@ -65,6 +70,7 @@ __all__ = [
     "iou_count",
     "jaw_ends",
     "shaft_boundary",
+    "shaft_from_masks",
     "shaft_pose",
     "tip_pose",
     "tip_solve",
@@ -1594,6 +1600,78 @@ def shaft_pose(
     if not why:
         out[_O_JOINT : _O_JOINT + 3] = joint
         out[_O_CLASPER] = 1.0
+
+
+#: :func:`shaft_from_masks`' answers.
+SHAFT_MEASURED, SHAFT_NOT_VISIBLE, SHAFT_ASK_PYTHON = 0, 1, 2
+#: ``geo`` of :func:`shaft_from_masks`: the entries :func:`shaft_pose` reads, then the
+#: number of the instrument's other parts.
+GEO_OTHERS = 7
+
+
+@kernel(
+    "int64(boolean[:, ::1], boolean[:, ::1], int64, int64, boolean[:, ::1], int64, int64,"
+    " float64[:, ::1], float64, float64[::1], float64[::1], int64[::1], float32[:, ::1],"
+    " int32[:, ::1], int64[::1])"
+)
+def shaft_from_masks(
+    shaft: np.ndarray,
+    o1: np.ndarray,
+    x1: int,
+    y1: int,
+    o2: np.ndarray,
+    x2: int,
+    y2: int,
+    K: np.ndarray,  # noqa: N803
+    radius: float,
+    par: np.ndarray,
+    out: np.ndarray,
+    geo: np.ndarray,
+    rims: np.ndarray,
+    shifted: np.ndarray,
+    canvas: np.ndarray,
+) -> int:
+    """The shaft's pose from its mask, in one call, for an undistorted camera: its outer
+    contour (:func:`mistool.kernels.contours.outer_contour`), its boundary points and
+    moments (:func:`shaft_boundary`), its centroid, then :func:`shaft_pose`; the steps of
+    ``measure._shaft_points`` on its common path.
+
+    Args:
+        shaft: the shaft crop; o1, o2: the other parts' crops (``(0, 0)`` for none) at
+            ``(x1, y1)``, ``(x2, y2)``.
+        K, radius, par, out, rims, shifted, canvas: as :func:`shaft_pose`.
+        geo: as :func:`shaft_pose` (the shaft crop's ``x0, y0, h, w``, the image's
+            ``H, W``, ``max_pixels``), then the number of other parts (at most 2).
+
+    Returns:
+        :data:`SHAFT_MEASURED` (``out`` and the rims filled); :data:`SHAFT_NOT_VISIBLE`
+        (no pixel); :data:`SHAFT_ASK_PYTHON` where ``measure._shaft_points`` takes
+        another path (several pieces, an outline without area, a junction across a gap):
+        nothing is written then.
+    """
+    h, w = shaft.shape
+    sx, sy = geo[0], geo[1]
+    buf = np.empty((4 * (h + w) + 16, 2), np.int32)
+    n = outer_contour(shaft, buf)
+    if n == -2:  # a long border: the bound that always holds
+        buf = np.empty((4 * h * w + 4, 2), np.int32)
+        n = outer_contour(shaft, buf)
+    if n == 0:
+        return SHAFT_NOT_VISIBLE
+    if n < 0:
+        return SHAFT_ASK_PYTHON
+    starts = np.empty(2, np.int64)
+    starts[0], starts[1] = 0, n
+    pix, border, bg, other, mom = shaft_boundary(
+        buf[:n], starts, shaft, sx, sy, o1, x1, y1, o2, x2, y2, geo[4], geo[5]
+    )
+    if mom[0] < 1.0 or (len(other) < 3 and geo[GEO_OTHERS] > 0):
+        return SHAFT_ASK_PYTHON
+    centre = np.empty(2)
+    centre[0] = mom[1] / mom[0] + float(sx)
+    centre[1] = mom[2] / mom[0] + float(sy)
+    shaft_pose(pix, border, centre, mom, bg, other, K, radius, par, out, geo, rims, shifted, canvas)
+    return SHAFT_MEASURED
 
 
 # -- the clasper's tip ---------------------------------------------------------------------

@@ -22,11 +22,14 @@ Steps (camera frame, mm; see the package docstring for the conventions):
 Never a confident wrong answer: where the geometry is degenerate (one limb line, the
 shaft seen end-on, J out of the image, numerically unstable solutions) the cells are NaN.
 
-Where the work runs: this module gathers the masks' outlines (OpenCV's contours), then
-compiled kernels (:mod:`mistool.kernels.pose`, imported at the first pose: numba is not
-loaded by a program that only imports mistool) do steps 1-4 on them in a few passes; the
-parameters below are passed to them as one array (:func:`_params`). With a distorted lens
-the points are undistorted (:mod:`mistool.lens`) between the kernels.
+Where the work runs: compiled kernels (:mod:`mistool.kernels.pose`, imported at the
+first pose: numba is not loaded by a program that only imports mistool) do steps 1-4 in a
+few passes; the parameters below are passed to them as one array (:func:`_params`). For
+an undistorted lens the shaft goes from its mask to its row in one call
+(:func:`_shaft_in_one_call`, the masks' outlines traced as OpenCV traces them,
+:mod:`mistool.kernels.contours`); a shaft in several pieces or with a gap at its junction
+takes the steps in Python (:func:`_shaft_in_steps`, OpenCV's contours). With a distorted
+lens the points are undistorted (:mod:`mistool.lens`) between the kernels.
 """
 
 from __future__ import annotations
@@ -372,6 +375,102 @@ def _shaft_points(
     return _ShaftPoints(ideal_pix, centre, mom, shaft.offset, bnd, border, shaft_mask, merged)
 
 
+_NO_MASK = np.zeros((0, 0), dtype=bool)
+
+
+class _ShaftMask:
+    """The measured shaft region of :func:`_shaft_in_one_call` (the fields of
+    :class:`_ShaftPoints` that :func:`measure_instance` reads after the kernel)."""
+
+    __slots__ = ("mask", "merged", "offset")
+
+    def __init__(self, mask: np.ndarray, offset: tuple[int, int]) -> None:
+        self.mask, self.offset, self.merged = mask, offset, False
+
+
+def _shaft_in_one_call(
+    parts: Mapping[str, PartObservation],
+    shaft: PartObservation,
+    image_shape: tuple[int, int],
+    K: np.ndarray,  # noqa: N803
+    radius: float,
+    res: np.ndarray,
+    rims: Rims,
+) -> _ShaftMask | str | None:
+    """:func:`_shaft_points` and the shaft's pose in one kernel call
+    (:func:`mistool.kernels.pose.shaft_from_masks`) for an undistorted camera and at most
+    two other parts: the shaft region (``res`` and ``rims`` filled), ``"not visible"``,
+    or None where :func:`_shaft_points` takes another path (nothing filled)."""
+    others = [p for n, p in parts.items() if n != "shaft"]
+    if len(others) > 2:
+        return None
+    kp = kernels()
+    mask = as_mask(shaft.mask)
+    masks = [(as_mask(p.mask), int(p.offset[0]), int(p.offset[1])) for p in others]
+    masks += [(_NO_MASK, 0, 0)] * (2 - len(masks))
+    (m1, x1, y1), (m2, x2, y2) = masks
+    ox, oy = int(shaft.offset[0]), int(shaft.offset[1])
+    H, W = image_shape
+    geo = np.array([ox, oy, *mask.shape, H, W, _QUALITY_MAX_PIXELS, len(others)], np.int64)
+    got = kp.shaft_from_masks(
+        mask,
+        m1,
+        x1,
+        y1,
+        m2,
+        x2,
+        y2,
+        K,
+        radius,
+        _params(),
+        res,
+        geo,
+        rims.pts,
+        rims.shifted,
+        rims.canvas,
+    )
+    if got == kp.SHAFT_MEASURED:
+        return _ShaftMask(mask, (ox, oy))
+    return "not visible" if got == kp.SHAFT_NOT_VISIBLE else None
+
+
+def _shaft_in_steps(
+    parts: Mapping[str, PartObservation],
+    image_shape: tuple[int, int],
+    camera: Camera,
+    distorted: bool,
+    K: np.ndarray,  # noqa: N803
+    radius: float,
+    res: np.ndarray,
+    rims: Rims,
+) -> _ShaftPoints | str:
+    """:func:`_shaft_points`, then the shaft's pose from them
+    (:func:`mistool.kernels.pose.shaft_pose`, into ``res`` and ``rims``): every path
+    (a distorted lens, several pieces, a gap at the junction)."""
+    sp = _shaft_points(parts, image_shape, camera, distorted)
+    if isinstance(sp, str):
+        return sp
+    geo = np.array([*sp.offset, *sp.mask.shape, *image_shape, _QUALITY_MAX_PIXELS])
+    bnd = sp.bnd
+    kernels().shaft_pose(
+        sp.pix,
+        sp.border,
+        sp.centre,
+        sp.moments,
+        bnd.bg,
+        bnd.other,
+        K,
+        radius,
+        _params(),
+        res,
+        geo,
+        rims.pts,
+        rims.shifted,
+        rims.canvas,
+    )
+    return sp
+
+
 def measure_instance(
     instance: InstanceObservation,
     image_shape: tuple[int, int],
@@ -416,30 +515,16 @@ def measure_instance(
     OUT = kp.OUT
     K, distorted = _camera(camera)
     radius = 0.5 * float(shaft_diameter_mm)
-    sp = _shaft_points(parts, image_shape, camera, distorted)
+    res = np.empty(OUT["size"])
+    rims = Rims()
+    sp: _ShaftMask | _ShaftPoints | str | None = None
+    if not distorted:
+        sp = _shaft_in_one_call(parts, shaft, image_shape, K, radius, res, rims)
+    if sp is None:
+        sp = _shaft_in_steps(parts, image_shape, camera, distorted, K, radius, res, rims)
     if isinstance(sp, str):
         _why(out, sp)
         return out
-    res = np.empty(OUT["size"])
-    rims = Rims()
-    geo = np.array([*sp.offset, *sp.mask.shape, *image_shape, _QUALITY_MAX_PIXELS])
-    bnd = sp.bnd
-    kp.shaft_pose(
-        sp.pix,
-        sp.border,
-        sp.centre,
-        sp.moments,
-        bnd.bg,
-        bnd.other,
-        K,
-        radius,
-        _params(),
-        res,
-        geo,
-        rims.pts,
-        rims.shifted,
-        rims.canvas,
-    )
     row = out["shaft"]
     row.update(zip(_SHAFT_CELLS, res[: len(_SHAFT_CELLS)].tolist(), strict=True))
     qa, qb = OUT["quality_a"], OUT["quality_b"]
@@ -506,13 +591,13 @@ def _clasper_rows(
     clasper = parts.get("clasper")
     tip = np.full(kernels().TIP["size"], math.nan)
     mask = as_mask(clasper.mask) if clasper is not None else None
-    contours = () if mask is None else _contours(mask)
-    if clasper is not None and mask is not None and contours:  # a clasper with pixels
+    outline = None if mask is None else _longest_outline(mask)
+    if clasper is not None and mask is not None and outline is not None:  # with pixels
         rims = Rims()
         got = _tip(
             clasper,
             mask,
-            contours,
+            outline,
             joint,
             a,
             K,
@@ -557,15 +642,31 @@ def _clasper_rows(
         wrow.update(zip(_START_CELLS, joint.tolist(), strict=True))
 
 
-def _contours(mask: np.ndarray) -> Sequence[np.ndarray]:
-    """The outer contours of a bool crop (``cv2.findContours``, every outline pixel)."""
-    return cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0]
+def _longest_outline(mask: np.ndarray) -> np.ndarray | None:
+    """The longest outer contour of a bool crop (N, 2) int32 (crop px, every outline
+    pixel: ``cv2.findContours``' first longest, traced by
+    :func:`mistool.kernels.contours.outer_contour` when the crop holds one piece), or
+    None for an empty crop."""
+    from mistool.kernels.contours import outer_contour
+
+    h, w = mask.shape
+    buf = np.empty((4 * (h + w) + 16, 2), np.int32)
+    n = outer_contour(mask, buf)
+    if n == -2:  # a long border: the bound that always holds
+        buf = np.empty((4 * h * w + 4, 2), np.int32)
+        n = outer_contour(mask, buf)
+    if n > 0:
+        return buf[:n]
+    if n == 0:
+        return None
+    contours = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0]
+    return max(contours, key=len).reshape(-1, 2)
 
 
 def _tip(
     clasper: PartObservation,
     mask: np.ndarray,
-    contours: Sequence[np.ndarray],
+    ci: np.ndarray,
     joint: np.ndarray,
     a: np.ndarray,
     K: np.ndarray,
@@ -578,7 +679,9 @@ def _tip(
     rims: Rims,
 ) -> int:
     """The tip's pixel, the tip and the clasper axis (ideal image; camera frame, mm) into
-    ``out`` (``mistool.kernels.pose.TIP``); 0: none found, 1: the tip's pixel only, 2: all.
+    ``out`` (``mistool.kernels.pose.TIP``) from the clasper's crop ``mask`` and its
+    outline pixels ``ci`` (crop px, :func:`_longest_outline`); 0: none found, 1: the
+    tip's pixel only, 2: all.
     Undistorted, the clasper's quality cylinder's image into ``rims`` as well.
 
     The jaw ends are found on the clasper's mask, in the camera's image
@@ -604,7 +707,6 @@ def _tip(
     width_px = max(K[0, 0] * 0.25 * (2.0 * radius) / max(float(joint[2]), 1.0), 2.0)
     box = _crop_bounds(mask, clasper.offset)
     at_border = min(box[:2]) <= 0 or box[2] >= W - 1 or box[3] >= H - 1
-    ci = max(contours, key=len).reshape(-1, 2)  # outline pixels (crop px)
     length_mm = math.nan if length is None else float(length)
     par, cap = _params(), float(_TIP_CAP)
     if not distorted:

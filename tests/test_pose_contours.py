@@ -1,0 +1,157 @@
+"""The pose's compiled contour tracing (``mistool.kernels.contours``) against OpenCV, and
+the shaft's one-call path (``measure._shaft_in_one_call``) against the steps it joins.
+
+Both bit for bit: the contour points are integers, and the one-call path runs the same
+kernels on the same points (only the Python between them is gone)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_pose_kernels import SHAPE, scene
+
+from mistool.kernels import pose as kp
+from mistool.kernels.contours import outer_contour
+from mistool.pose import measure as measure_mod
+from mistool.pose.quality import Rims
+from mistool.pose.silhouette import as_mask, outline_points
+
+
+def _opencv(mask: np.ndarray) -> tuple[np.ndarray, ...]:
+    return tuple(
+        c.reshape(-1, 2)
+        for c in cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0]
+    )
+
+
+def _components(mask: np.ndarray) -> int:
+    return int(cv2.connectedComponents(mask.view(np.uint8), connectivity=8)[0]) - 1
+
+
+@st.composite
+def masks(draw: st.DrawFn) -> np.ndarray:
+    """Small random masks: noise of any density (one piece, several, pieces in holes,
+    one-pixel lines, touching the crop's edges), or a blob with holes."""
+    h, w = draw(st.integers(1, 14)), draw(st.integers(1, 14))
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    if draw(st.booleans()):
+        return rng.random((h, w)) < draw(st.floats(0.05, 0.95))
+    m = np.zeros((h + 10, w + 10), np.uint8)
+    cv2.ellipse(m, (m.shape[1] // 2, m.shape[0] // 2), (w // 2 + 3, h // 2 + 3), 30, 0, 360, 1, -1)
+    m[rng.random(m.shape) < 0.08] = 0
+    return m.astype(bool)
+
+
+@settings(max_examples=600, deadline=None)
+@given(masks())
+def test_outer_contour_equals_opencv(mask: np.ndarray) -> None:
+    """One piece: OpenCV's every point in its order; several: -1; none: 0."""
+    pts = np.empty((4 * mask.size + 4, 2), np.int32)
+    n = outer_contour(mask, pts)
+    ref = _opencv(mask)
+    pieces = _components(mask)
+    if pieces == 0:
+        assert n == 0 and not ref
+    elif pieces > 1:
+        assert n == -1
+    else:
+        assert len(ref) == 1 and np.array_equal(pts[:n], ref[0])
+
+
+def test_outer_contour_on_a_long_border_and_a_short_buffer() -> None:
+    """A comb's border is longer than ``4 (h + w)``: -2 with that buffer, OpenCV's
+    points with the bound that always holds; a single pixel is one point."""
+    comb = np.zeros((30, 40), bool)
+    comb[0, :] = True
+    comb[:, ::2] = True
+    short = np.empty((4 * (30 + 40) + 16, 2), np.int32)
+    assert outer_contour(comb, short) == -2
+    full = np.empty((4 * comb.size + 4, 2), np.int32)
+    n = outer_contour(comb, full)
+    assert n > len(short) and np.array_equal(full[:n], _opencv(comb)[0])
+    one = np.zeros((3, 3), bool)
+    one[1, 2] = True
+    assert outer_contour(one, full) == 1 and full[0].tolist() == [2, 1]
+
+
+def test_the_longest_outline_is_opencvs_first_longest() -> None:
+    """Several pieces go to OpenCV: the first of the longest, as ``max(..., key=len)``."""
+    m = np.zeros((20, 30), bool)
+    m[2:6, 2:6] = m[10:14, 20:24] = m[15:17, 2:4] = True
+    got = measure_mod._longest_outline(m)
+    assert got is not None and np.array_equal(got, max(_opencv(m), key=len))
+    assert measure_mod._longest_outline(np.zeros((4, 4), bool)) is None
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_shaft_in_one_call_equals_its_steps(seed: int) -> None:
+    """Where the one-call kernel answers, its results and the quality cylinder's image are
+    those of ``_shaft_points`` then ``shaft_pose``; where it does not, ``_shaft_points``
+    takes one of its other paths (several pieces, no area, a gap at the junction)."""
+    obs, camera, _ = scene(seed)
+    parts = obs.parts
+    shaft = parts.get("shaft")
+    if shaft is None or camera.distorted:
+        return
+    K = np.ascontiguousarray(camera.K, dtype=np.float64)
+    res, rims = np.full(kp.OUT["size"], -7.0), Rims()
+    got = measure_mod._shaft_in_one_call(parts, shaft, SHAPE, K, 4.0, res, rims)
+    sp = measure_mod._shaft_points(parts, SHAPE, camera, False)
+    if got is None:  # asked for the Python path: nothing written, and it takes another
+        assert (res == -7.0).all()
+        mask = as_mask(shaft.mask)
+        contours = _opencv(mask)
+        others = [(p.mask, p.offset) for n, p in parts.items() if n != "shaft"]
+        if len(contours) == 1 and len(others) <= 2:
+            _, _, bnd, mom = outline_points(mask, shaft.offset, contours, others, SHAPE)
+            assert mom[0] < 1.0 or (len(bnd.other) < 3 and others)
+        return
+    if isinstance(got, str):
+        assert sp == got
+        return
+    assert not isinstance(sp, str) and not sp.merged
+    ref, ref_rims = np.empty(kp.OUT["size"]), Rims()
+    geo = np.array([*sp.offset, *sp.mask.shape, *SHAPE, measure_mod._QUALITY_MAX_PIXELS])
+    kp.shaft_pose(
+        sp.pix,
+        sp.border,
+        sp.centre,
+        sp.moments,
+        sp.bnd.bg,
+        sp.bnd.other,
+        K,
+        4.0,
+        measure_mod._params(),
+        ref,
+        geo,
+        ref_rims.pts,
+        ref_rims.shifted,
+        ref_rims.canvas,
+    )
+    assert np.array_equal(res, ref, equal_nan=True)
+    assert np.array_equal(rims.canvas, ref_rims.canvas)
+    if rims.canvas[5]:
+        assert np.array_equal(rims.pts, ref_rims.pts)
+        assert np.array_equal(rims.shifted, ref_rims.shifted)
+    assert got.offset == sp.offset and np.array_equal(got.mask, sp.mask)
+
+
+def test_the_one_call_path_is_the_common_one() -> None:
+    """Most undistorted scenes' shafts are measured in the one call (else the test above
+    would prove little)."""
+    answered = tried = 0
+    for seed in range(30):
+        obs, camera, _ = scene(seed)
+        shaft = obs.parts.get("shaft")
+        if shaft is None or camera.distorted:
+            continue
+        tried += 1
+        res, rims = np.empty(kp.OUT["size"]), Rims()
+        K = np.ascontiguousarray(camera.K, dtype=np.float64)
+        got = measure_mod._shaft_in_one_call(obs.parts, shaft, SHAPE, K, 4.0, res, rims)
+        answered += got is not None
+    assert tried >= 6 and answered >= 0.6 * tried, (answered, tried)
