@@ -44,7 +44,7 @@ import numpy as np
 from mistool import tracking
 from mistool.config import Config
 from mistool.errors import InputPathError, MistoolError
-from mistool.model import InstanceObservation, PartObservation, RotatedBox
+from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
 from mistool.pngdecode import decode_png_runs, grey8
 from mistool.pose import measure_instance
 from mistool.sequence import (
@@ -119,67 +119,165 @@ class FrameResult:
     that the identity step splits is never measured (see :func:`observe_labels`)."""
 
     def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
-        # sent from a worker to the caller: the instances packed (pack_instances)
-        state = (self.metrics, self.unknown, self.shape, self.corrupt, self.runs, self.deferred)
-        return _frame_result, (pack_instances(self.instances), *state)
+        # sent alone (a batch's are sent together: FrameResults)
+        return _frame_result, (pack_frames([self]),)
 
 
-def _frame_result(packed: tuple[Any, ...], *state: Any) -> FrameResult:
-    return FrameResult(unpack_instances(packed), *state)
+def _frame_result(packed: tuple[Any, ...]) -> FrameResult:
+    return unpack_frames(packed)[0]
 
 
-def pack_instances(instances: list[InstanceObservation]) -> tuple[Any, ...]:
-    """One frame's instances as a few flat values for pickling (what a worker sends the
-    caller): the part masks as bits in one buffer (8x fewer bytes), the corners in one
-    array, every number in flat lists. :func:`unpack_instances` gives the same objects
-    back (every value, dtype and shape; a mask is then a bool view of its unpacked
-    bytes)."""
-    parts = [p for inst in instances for p in inst.parts.values()]
-    if not parts:
-        return (
-            [
-                (i.label, (), i.centroid_px, i.area_px, i.bbox_xywh, i.image_shape)
-                for i in instances
-            ],
+class FrameResults(list[FrameResult]):
+    """A batch's results as :func:`observe_batch` returns them: a list that a worker
+    sends as a few flat arrays for the whole batch (:func:`pack_frames`); it unpickles
+    to a plain list of :class:`FrameResult` with the same values."""
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return unpack_frames, (pack_frames(self),)
+
+
+#: Columns of :func:`pack_frames`' integer tables.
+_FRAME_INTS = 7  # instances, H, W, corrupt, deferred, unknown values, border runs given
+_INST_INTS = 9  # area, bbox x, y, w, h, image shape given, its H, W, parts
+_PART_INTS = 6  # part (index in PARTS), area, offset x, y, mask h, w
+
+
+def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
+    """Several frames' results as a few flat values for pickling (a batch sent by a
+    worker): every number in one integer and one float table per level (frame,
+    instance, part), the masks' bits in one buffer (each frame's from a byte boundary),
+    the unknown values and border runs concatenated; the labels and the metric pose as
+    they are. :func:`unpack_frames` gives the same results back."""
+    frames = np.zeros((len(results), _FRAME_INTS), np.int64)
+    inst_i: list[tuple[int, ...]] = []
+    inst_f: list[tuple[float, float]] = []
+    part_i: list[tuple[int, ...]] = []
+    part_f: list[tuple[float, ...]] = []
+    corners: list[np.ndarray] = []
+    masks: list[np.ndarray] = []
+    labels: list[str | None] = []
+    run_counts: list[int] = []
+    run_lengths: list[int] = []
+    run_ends: list[np.ndarray] = []
+    unknown = []
+    for k, r in enumerate(results):
+        frames[k] = (
+            len(r.instances),
+            r.shape[0],
+            r.shape[1],
+            r.corrupt,
+            r.deferred,
+            len(r.unknown),
+            r.runs is not None,
         )
-    heads = [
-        (i.label, tuple(i.parts), i.centroid_px, i.area_px, i.bbox_xywh, i.image_shape)
-        for i in instances
-    ]
-    numbers = []
-    for p in parts:
-        b = p.box
-        numbers.append((p.part, b.cx, b.cy, b.length, b.width, b.angle_deg, p.area_px, p.offset))
-    bits = np.packbits(np.concatenate([p.mask.reshape(-1) for p in parts]))
-    shapes = [p.mask.shape for p in parts]
-    corners = np.stack([p.corners for p in parts])
-    return heads, numbers, shapes, bits, corners
+        unknown.append(r.unknown)
+        bits = 0
+        for inst in r.instances:
+            shape = inst.image_shape
+            inst_i.append(
+                (
+                    inst.area_px,
+                    *inst.bbox_xywh,
+                    shape is not None,
+                    *(shape or (0, 0)),
+                    len(inst.parts),
+                )
+            )
+            inst_f.append(inst.centroid_px)
+            labels.append(inst.label)
+            for name, p in inst.parts.items():
+                b = p.box
+                part_i.append((_PART_CODE[name], p.area_px, *p.offset, *p.mask.shape))
+                part_f.append((b.cx, b.cy, b.length, b.width, b.angle_deg))
+                corners.append(p.corners)
+                masks.append(p.mask.reshape(-1))
+                bits += p.mask.size
+        if bits % 8:  # the next frame's bits from a byte boundary
+            masks.append(np.zeros(8 - bits % 8, np.bool_))
+        for runs in r.runs or []:
+            run_counts.append(len(runs))
+            for ends, length in runs:
+                run_lengths.append(length)
+                run_ends.append(ends)
+    return (
+        frames,
+        np.array(inst_i, np.int64).reshape(-1, _INST_INTS),
+        np.array(inst_f, np.float64).reshape(-1, 2),
+        np.array(part_i, np.int64).reshape(-1, _PART_INTS),
+        np.array(part_f, np.float64).reshape(-1, 5),
+        np.stack(corners) if corners else np.zeros((0, 4, 2)),
+        np.packbits(np.concatenate(masks)) if masks else np.zeros(0, np.uint8),
+        labels,
+        [r.metrics for r in results],
+        np.concatenate(unknown).astype(np.int64) if unknown else np.zeros(0, np.int64),
+        np.array(run_counts, np.int64),
+        np.array(run_lengths, np.int64),
+        np.array(run_ends, np.float64).reshape(-1, 3, 2),
+    )
 
 
-def unpack_instances(packed: tuple[Any, ...]) -> list[InstanceObservation]:
-    """The instances :func:`pack_instances` packed."""
-    if len(packed) == 1:
-        return [
-            InstanceObservation(label, {}, centroid, area, bbox, shape)
-            for label, _, centroid, area, bbox, shape in packed[0]
-        ]
-    heads, numbers, shapes, bits, corners = packed
-    masks = np.unpackbits(bits, count=sum(h * w for h, w in shapes)).view(np.bool_)
-    parts = []
-    start = 0
-    for k, ((part, cx, cy, length, width, angle, area, offset), (h, w)) in enumerate(
-        zip(numbers, shapes, strict=True)
-    ):
-        mask = masks[start : start + h * w].reshape(h, w)
-        start += h * w
-        box = RotatedBox(cx, cy, length, width, angle)
-        parts.append(PartObservation(part, box, corners[k], area, mask, offset))
+_PART_CODE = {name: k for k, name in enumerate(PARTS)}
+
+
+def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
+    """The results :func:`pack_frames` packed (every value, dtype and shape; a mask is a
+    bool view of its frame's unpacked bytes)."""
+    frames, inst_i, inst_f, part_i, part_f, corners, bits, labels, metrics, *rest = packed
+    unknown, run_counts, run_lengths, run_ends = rest
+    inst_rows, inst_xy = inst_i.tolist(), inst_f.tolist()
+    part_rows, part_nums = part_i.tolist(), part_f.tolist()
+    run_n, run_len = run_counts.tolist(), run_lengths.tolist()
     out = []
-    k = 0
-    for label, names, centroid, area, bbox, shape in heads:
-        own = dict(zip(names, parts[k : k + len(names)], strict=True))
-        k += len(names)
-        out.append(InstanceObservation(label, own, centroid, area, bbox, shape))
+    i = p = u = r = e = b = 0  # next instance, part, unknown value, runs list, run, bit
+    for k, (count, h, w, corrupt, deferred, n_unknown, has_runs) in enumerate(frames.tolist()):
+        parts_here = sum(row[8] for row in inst_rows[i : i + count])
+        sizes = [row[4] * row[5] for row in part_rows[p : p + parts_here]]
+        nbits = sum(sizes)
+        flat = np.unpackbits(bits[b // 8 :], count=nbits).view(np.bool_)
+        b += -(-nbits // 8) * 8
+        instances = []
+        at = 0
+        for area, x, y, bw, bh, given, sh, sw, n_parts in inst_rows[i : i + count]:
+            own = {}
+            for _ in range(n_parts):
+                code, parea, ox, oy, mh, mw = part_rows[p]
+                box = RotatedBox(*part_nums[p])
+                mask = flat[at : at + mh * mw].reshape(mh, mw)
+                at += mh * mw
+                own[PARTS[code]] = PartObservation(
+                    PARTS[code], box, corners[p], parea, mask, (ox, oy)
+                )
+                p += 1
+            instances.append(
+                InstanceObservation(
+                    labels[i],
+                    own,
+                    (inst_xy[i][0], inst_xy[i][1]),
+                    area,
+                    (x, y, bw, bh),
+                    (sh, sw) if given else None,
+                )
+            )
+            i += 1
+        border = None
+        if has_runs:
+            border = []
+            for _ in range(count):
+                border.append([(run_ends[e + j], run_len[e + j]) for j in range(run_n[r])])
+                e += run_n[r]
+                r += 1
+        out.append(
+            FrameResult(
+                instances,
+                metrics[k],
+                unknown[u : u + n_unknown],
+                (h, w),
+                bool(corrupt),
+                border,
+                bool(deferred),
+            )
+        )
+        u += n_unknown
     return out
 
 
@@ -258,11 +356,29 @@ def unknown_values(
             hist = cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel()
         else:
             raise ValueError("unknown_values: give the labels or their runs")
-        values = np.flatnonzero(hist >= (max(config.min_area_px, 1) if lossy else 1))
-        if lossy:
-            values = values[values > VIDEO_TOLERANCE]
-        return np.asarray(tracking.unknown_values(values.astype(np.uint8)[None, :], config))
+        enough = hist >= (max(config.min_area_px, 1) if lossy else 1)
+        return np.flatnonzero(enough & _unknown_u8(config, lossy)).astype(np.int64)
     return np.asarray(tracking.unknown_values(labels, config))
+
+
+def _unknown_u8(config: Config, lossy: bool) -> np.ndarray:
+    """(256,) bool: the 8-bit values ``tracking.unknown_values`` calls unknown (in a
+    mask video, none up to :data:`~mistool.sequence.VIDEO_TOLERANCE`); kept for the last
+    config asked (a batch's frames share theirs)."""
+    global _UNKNOWN_U8
+    have = _UNKNOWN_U8  # (one read: another thread may replace it)
+    if have[0] is config and have[1] == lossy:
+        return have[2]
+    every = np.arange(256, dtype=np.uint8)[None, :]
+    lut = np.zeros(256, np.bool_)
+    lut[np.asarray(tracking.unknown_values(every, config))] = True
+    if lossy:
+        lut[: VIDEO_TOLERANCE + 1] = False
+    _UNKNOWN_U8 = (config, lossy, lut)
+    return lut
+
+
+_UNKNOWN_U8: tuple[Any, bool, Any] = (None, False, None)
 
 
 def observe_labels(
@@ -332,14 +448,17 @@ def _load(item: Path | np.ndarray, config: Config) -> np.ndarray | LabelRuns:
     (:func:`mistool.pngdecode.decode_png_runs`: the image itself is never written)."""
     if isinstance(item, np.ndarray):
         return item
-    gate = _GATES.setdefault(item.parent, FastPathGate())
-    if not config.colour_masks and gate.open and item.parent not in _NOT_GREY8:
+    folder = item.parent
+    gate = _GATES.get(folder)
+    if gate is None:
+        gate = _GATES[folder] = FastPathGate()
+    if not config.colour_masks and gate.open and folder not in _NOT_GREY8:
         try:
             data = item.read_bytes()
         except OSError as exc:  # (read_label_image's error)
             raise InputPathError(f"{item}: cannot read: {exc.strerror or exc}") from None
         if not grey8(data):  # (its folder's other files are read as they are)
-            _NOT_GREY8.add(item.parent)
+            _NOT_GREY8.add(folder)
         else:
             check_pixels(header_size(data), str(item), config.max_pixels)
             got = decode_png_runs(data, config.max_pixels)
@@ -373,7 +492,7 @@ def _video_span(span: VideoSpan) -> list[tuple[np.ndarray, bool]]:
 
 
 def _observe_span(batch: Batch, span: VideoSpan, metric: bool) -> list[FrameResult]:
-    out = []
+    out = FrameResults()
     for labels, corrupt in _video_span(span):
         result = observe_labels(labels, batch.config, metric, batch.lossy, batch.defer_below)
         result.corrupt = corrupt
@@ -391,7 +510,7 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
     metric = metric_pose(batch.metric, batch.config)
     if batch.items and isinstance(batch.items[0], VideoSpan):
         return _observe_span(batch, batch.items[0], metric)
-    out = []
+    out = FrameResults()
     for name, item in zip(batch.names, batch.items, strict=True):
         try:
             assert not isinstance(item, VideoSpan)

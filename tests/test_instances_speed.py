@@ -467,7 +467,7 @@ def test_the_gap_estimate_is_within_its_bound_of_the_measured_gap(seed):
     assert abs(got - want) <= 1e-3 < GAP_ESTIMATE_PX
 
 
-# --- the frame results' transport (mistool.parallel.pack_instances) -------------------------
+# --- the frame results' transport (mistool.parallel.pack_frames) ----------------------------
 
 
 def _result_key(r: object) -> tuple:
@@ -484,27 +484,42 @@ def _result_key(r: object) -> tuple:
 
 
 @settings(max_examples=150, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.booleans(), st.booleans())
-def test_a_frame_result_unpickles_to_the_same_values(seed, own, deferred):
-    """What a worker sends (masks as bits, corners stacked, numbers flat) unpickles to
-    the same instances: every value, dtype, shape and mask; masks C-contiguous bool."""
+@given(st.integers(0, 2**32 - 1), st.booleans(), st.integers(1, 4))
+def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames):
+    """What a worker sends (a batch's numbers in flat tables, its masks as bits, each
+    frame's from a byte boundary) unpickles to the same results, frame by frame: every
+    instance, value, dtype, shape and mask (masks C-contiguous bool), the unknown
+    values, border runs, flags; one result pickled alone too."""
     import pickle
 
-    from mistool.parallel import FrameResult, observe_labels
+    from mistool.parallel import FrameResult, FrameResults, observe_labels
 
     rng = np.random.default_rng(seed)
     config = OWN if own else MERGED
     values = [10, 11, 20, 30, 40, 50, 60, 99] if own else [10, 10, 20, 30, 99]
-    img = _label_image(rng, np.uint8, values)
-    result = observe_labels(img, config, False)
-    result.deferred = deferred
-    result.corrupt = bool(rng.integers(0, 2))
-    got = pickle.loads(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
-    assert isinstance(got, FrameResult)
-    assert _result_key(got) == _result_key(result)
-    for inst in got.instances:
-        for p in inst.parts.values():
-            assert p.mask.dtype == np.bool_ and p.mask.flags.c_contiguous
-            assert p.corners.dtype == np.float64 and p.corners.shape == (4, 2)
+    results = FrameResults()
+    for _ in range(frames):
+        img = _label_image(rng, np.uint8, values)
+        result = observe_labels(img, config, False)
+        result.deferred = bool(rng.integers(0, 2))
+        result.corrupt = bool(rng.integers(0, 2))
+        if rng.integers(0, 4) == 0:
+            result.metrics = [{"shaft": {"x": float(rng.random())}}] * len(result.instances)
+        results.append(result)
+    if rng.integers(0, 3) == 0:
+        results.insert(
+            int(rng.integers(0, frames)), FrameResult([], [], np.zeros(0, np.int64), (5, 7))
+        )
+    got = pickle.loads(pickle.dumps(results, protocol=pickle.HIGHEST_PROTOCOL))
+    assert type(got) is list and len(got) == len(results)
+    for a, b in zip(got, results, strict=True):
+        assert isinstance(a, FrameResult)
+        assert _result_key(a) == _result_key(b)
+        for inst in a.instances:
+            for p in inst.parts.values():
+                assert p.mask.dtype == np.bool_ and p.mask.flags.c_contiguous
+                assert p.corners.dtype == np.float64 and p.corners.shape == (4, 2)
+    one = pickle.loads(pickle.dumps(results[-1], protocol=pickle.HIGHEST_PROTOCOL))
+    assert isinstance(one, FrameResult) and _result_key(one) == _result_key(results[-1])
     empty = FrameResult([], [], np.zeros(0, np.int64), (5, 7))
     assert _result_key(pickle.loads(pickle.dumps(empty))) == _result_key(empty)

@@ -657,9 +657,9 @@ def _frame_key(r: parallel.FrameResult) -> tuple:
     """Everything in a frame's result, numbers as bits (``pickle`` of the packed form)."""
     import pickle
 
-    packed = parallel.pack_instances(r.instances)
+    packed = parallel.pack_frames([r])
     return (
-        pickle.dumps(packed),
+        pickle.dumps(packed[:8]),
         repr(r.metrics),
         r.unknown.tolist(),
         r.shape,
@@ -714,3 +714,39 @@ def test_an_8_bit_grey_png_is_read_straight_to_runs_with_the_same_results(
     (grey / "cut.png").write_bytes(blob[: len(blob) // 2])
     with pytest.raises(MaskFormatError, match=r"cut\.png: cannot decode"):
         parallel._load(grey / "cut.png", cfg)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_unknown_values_of_8_bit_frames_are_the_trackings(seed: int) -> None:
+    """The values a frame has that the config does not know, from its runs or its
+    8-bit histogram through a per-config table of the 256 values: those
+    ``tracking.unknown_values`` gives (mask videos: values covering at least
+    ``min_area_px`` pixels, none up to ``VIDEO_TOLERANCE``), whatever the config."""
+    from mistool import tracking
+    from mistool.sequence import VIDEO_TOLERANCE
+    from mistool.tracking.instances import scan_labels
+
+    rng = np.random.default_rng(seed)
+    configs = [
+        Config(),
+        Config(labels="endovis17", min_area_px=3),
+        Config(instruments=(InstrumentSpec("a", {"shaft": (10, 12), "clasper": (200, 255)}),)),
+    ]
+    for cfg in configs:
+        for _ in range(4):
+            img = np.zeros((30, 50), np.uint8)
+            for v in rng.integers(0, 256, int(rng.integers(0, 8))):
+                y, x = rng.integers(0, 30), rng.integers(0, 50)
+                img[y : y + int(rng.integers(1, 4)), x : x + int(rng.integers(1, 6))] = v
+            for lossy in (False, True):
+                hist = np.bincount(img.ravel(), minlength=256)
+                present = np.flatnonzero(hist >= (max(cfg.min_area_px, 1) if lossy else 1))
+                if lossy:
+                    present = present[present > VIDEO_TOLERANCE]
+                want = tracking.unknown_values(present.astype(np.uint8)[None, :], cfg)
+                for got in (
+                    parallel.unknown_values(img, cfg, lossy),
+                    parallel.unknown_values(img, cfg, lossy, runs=scan_labels(img)),
+                    parallel.unknown_values(None, cfg, lossy, runs=scan_labels(img)),
+                ):
+                    assert got.dtype == np.int64 and got.tolist() == want.tolist()
