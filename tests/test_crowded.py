@@ -23,7 +23,9 @@ from mistool.tracking.split import (
     border_entries,
     border_runs,
     fit_split,
+    head_stop,
     reference_boxes,
+    split_on_entries,
 )
 
 MERGED = config_from_dict({"labels": "endovis17", "fps": 25.0})
@@ -558,3 +560,73 @@ def test_a_tool_back_through_where_it_left_gets_its_name_back():
         f += 1
     _, names = tracker.resolve(f + 46, observe_frame(_from_right(600), MERGED))
     assert names == ["1"]
+
+
+def _head_over_shaft() -> np.ndarray:
+    """A from the top border: shaft 100 px deep, wrist, jaws resting on B's shaft; B
+    from the right border under it, its wrist and jaws to the left: one blob."""
+    return _paint(
+        [
+            ((400, 0, 460, 100), 10),  # A's shaft
+            ((395, 100, 465, 140), 20),  # A's wrist
+            ((415, 140, 445, 170), 30),  # A's jaws, touching B's shaft
+            ((300, 170, 720, 230), 10),  # B's shaft
+            ((260, 175, 300, 225), 20),  # B's wrist
+            ((220, 185, 260, 215), 30),  # B's jaws
+        ]
+    )
+
+
+def test_a_shaft_entering_ends_at_its_head_in_a_split_on_entries():
+    """Two tools touching since they entered, split on their entries: A's half-line from
+    the top runs on through its wrist and jaws (70 px, under the gap that ends a shaft)
+    into B's shaft and took the B pixels nearer to it than to B's line. It now ends
+    where A's head lies across it, and B keeps its whole shaft (held-out seed 26 frame
+    90, seed 11 frames 46-66: the other tool's shaft or head given the entering one)."""
+    (inst,) = observe_frame(_head_over_shaft(), MERGED)
+    entries = border_entries(inst)
+    assert len(entries) == 2
+    pieces = split_on_entries(inst, entries, 20)
+    assert pieces is not None
+    a, b = sorted(pieces, key=lambda i: i.parts["shaft"].box.cy)
+    assert a.parts["shaft"].area_px == 60 * 100
+    assert b.parts["shaft"].area_px == 420 * 60
+    assert a.parts["wrist"].area_px == 70 * 40 and b.parts["wrist"].area_px == 40 * 50
+
+
+def _lane_points(img: np.ndarray, values: tuple[int, ...]) -> np.ndarray:
+    ys, xs = np.nonzero(np.isin(img, values))
+    return np.stack([xs, ys], 1).astype(np.float64)
+
+
+@pytest.mark.parametrize(
+    ("rects", "expected"),
+    [
+        # its own wrist and jaws at its end: the stop is there (within a quarter width)
+        ([((300, 200, 380, 260), 20), ((380, 215, 420, 245), 30)], 300.0),
+        # another tool's jaws lying across it, the shaft going on beyond: no stop
+        ([((300, 180, 360, 280), 30)], None),
+        # such jaws, then its own wrist half a width beyond: the stop is at its wrist
+        ([((250, 180, 310, 280), 30), ((340, 200, 400, 260), 20)], 340.0),
+    ],
+)
+def test_head_stop_is_the_head_at_the_shafts_end(rects, expected):
+    """B's shaft from the left border (60 px wide, 600 px long unless its head ends it;
+    heads painted over it)."""
+    img = _paint([((0, 200, 600, 260), 10)])
+    for (x0, y0, x1, y1), v in rects:
+        if v == 20 and expected is not None:  # its own head ends the shaft
+            img[200:260, x0:600] = 0
+        img[y0:y1, x0:x1] = v
+    got = head_stop(
+        _lane_points(img, (20, 30)),
+        _lane_points(img, (10,)),
+        np.array([0.0, 229.5]),
+        np.array([1.0, 0.0]),
+        60.0,
+        20,
+    )
+    if expected is None:
+        assert got is None
+    else:
+        assert got is not None and expected - 15.0 <= got <= expected

@@ -291,20 +291,108 @@ def reference_boxes(
     return boxes
 
 
+#: Where a shaft entering the view ends at its head (:func:`head_stop`): looked for
+#: beyond this many shaft widths from the border ...
+HEAD_STOP_FROM_WIDTHS = 1.0
+#: ... in steps of a quarter width, over a window of one width along the half-line,
+#: within half a width of it: the first window holding at least ``min_area_px`` head
+#: pixels (wrist, jaws) and this many times as many as shaft pixels ...
+HEAD_STOP_RATIO = 2.0
+#: ... unless the shaft goes on beyond it (its lane at least half filled with shaft
+#: pixels for this many widths, from within as many widths past the window: another
+#: tool's head lying across it) ...
+HEAD_STOP_ON_WIDTHS = 2.0
+#: ... or on to another such window within this many widths, with at least half a
+#: width of shaft between (the first head is another tool's, lying across this shaft
+#: just short of its own).
+HEAD_STOP_NEXT_WIDTHS = 3.0
+
+
+def head_stop(
+    heads: np.ndarray,
+    shaft: np.ndarray,
+    p: np.ndarray,
+    d: np.ndarray,
+    width: float,
+    min_area_px: int,
+) -> float | None:
+    """How far (px) from ``p`` along ``d`` a shaft entering the view there, ``width`` px
+    wide, ends at a head, or None: the first window of one width along the half-line
+    where head pixels outnumber its shaft pixels (see :data:`HEAD_STOP_RATIO` and the
+    constants after it).
+
+    Args:
+        heads: (N, 2) px, the blob's head pixels (every part but the shaft).
+        shaft: (M, 2) px, the blob's shaft pixels.
+        p: (2,) px, where the shaft enters the view.
+        d: (2,) unit vector, its inward direction.
+        width: its width, px.
+        min_area_px: a head has at least this many pixels.
+    """
+    step = max(0.25 * width, 1.0)
+    start = HEAD_STOP_FROM_WIDTHS * width
+    least = max(min_area_px, 1)
+
+    def lane_bins(q: np.ndarray) -> np.ndarray:  # (bin index along,) of q in the lane
+        rel = q - p
+        along = rel @ d
+        across = np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0])
+        return ((along[(across <= 0.5 * width) & (along > start)] - start) // step).astype(np.int64)
+
+    hi = lane_bins(heads)
+    if len(hi) < least:
+        return None
+    si = lane_bins(shaft)
+    n = int(max(hi.max(), si.max() if len(si) else 0)) + 5
+    hb = np.bincount(hi, minlength=n)
+    sb = np.bincount(si, minlength=n)
+    window = np.ones(4, np.int64)  # four quarter-width bins: one width
+    hw = np.convolve(hb, window)[3:]
+    sw = np.convolve(sb, window)[3:]
+    walls = np.flatnonzero((hw >= HEAD_STOP_RATIO * sw) & (hw >= least) & (hb > 0)).tolist()
+    # how many bins in a row from each on are at least half filled with shaft pixels
+    filled = sb >= 0.5 * step * width
+    run = np.zeros(n + 1, np.int64)
+    for j in range(n - 1, -1, -1):
+        run[j] = run[j + 1] + 1 if filled[j] else 0
+    on = int(round(4 * HEAD_STOP_ON_WIDTHS))
+    for k, i in enumerate(walls):
+        if (run[i + 1 : i + 1 + on] >= on).any():
+            continue  # the shaft goes on beyond: another tool's head across it
+        nxt = [j for j in walls[k + 1 :] if i + 4 < j <= i + 4 + 4 * HEAD_STOP_NEXT_WIDTHS]
+        if nxt and (run[i + 1 : nxt[0]] >= 2).any():
+            continue  # on to its own head, close beyond
+        return start + i * step
+    return None
+
+
+def _head_pixels(inst: InstanceObservation) -> np.ndarray | None:
+    """(N, 2) px of the instance's head pixels (every part but the shaft), or None."""
+    parts = [o for name, o in inst.parts.items() if name != "shaft"]
+    return np.concatenate([_pixels(o) for o in parts]) if parts else None
+
+
 def split_on_entries(
     inst: InstanceObservation, entries: list[tuple[np.ndarray, np.ndarray, float]], min_area_px: int
 ) -> list[InstanceObservation] | None:
     """Split an instance between the shafts entering at ``entries`` (:func:`border_entries`):
-    half-lines from the border, nothing known of the instruments' heads."""
+    half-lines from the border. With two entries, each half-line ends where a head lies
+    across it (:func:`head_stop`): a shaft ends at its head, and the pixels beyond (the
+    other tool's shaft passing there) are not its."""
     x, y, w, h = inst.bbox_xywh
     reach = float(np.hypot(w, h))
+    heads = _head_pixels(inst) if len(entries) == 2 else None
+    shaft = _pixels(inst.parts["shaft"]) if heads is not None else None
     expected = []
     axes = []
     for p, d, width in entries:
-        c = p + 0.5 * reach * d
+        length = reach
+        if heads is not None and shaft is not None:
+            length = min(reach, head_stop(heads, shaft, p, d, width, min_area_px) or reach)
+        c = p + 0.5 * length * d
         angle = math.degrees(math.atan2(d[1], d[0])) % 180.0
-        expected.append({"shaft": RotatedBox(float(c[0]), float(c[1]), reach, width, angle)})
-        axes.append(Axis(p + reach * d, d, math.inf))
+        expected.append({"shaft": RotatedBox(float(c[0]), float(c[1]), length, width, angle)})
+        axes.append(Axis(p + length * d, d, math.inf))
     got = split_scored(inst, expected, min_area_px, axes, contiguous=True)
     return None if got is None else got[1]
 
