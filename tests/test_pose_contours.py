@@ -1,8 +1,11 @@
-"""The pose's compiled contour tracing (``mistool.kernels.contours``) against OpenCV, and
-the shaft's one-call path (``measure._shaft_in_one_call``) against the steps it joins.
+"""The pose's compiled OpenCV steps against OpenCV: the contour tracing
+(``mistool.kernels.contours``), the convex hull and polygon fill
+(``mistool.kernels.polygon``) and the quality IoU built on them; and the shaft's one-call
+path (``measure._shaft_in_one_call``) against the steps it joins.
 
-Both bit for bit: the contour points are integers, and the one-call path runs the same
-kernels on the same points (only the Python between them is gone)."""
+All bit for bit: contour points, hull indices and filled pixels are integers, and the
+one-call path runs the same kernels on the same points (only the Python between them is
+gone)."""
 
 from __future__ import annotations
 
@@ -10,12 +13,14 @@ import cv2
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_pose import unit
 from test_pose_kernels import SHAPE, scene
 
 from mistool.kernels import pose as kp
 from mistool.kernels.contours import outer_contour
+from mistool.kernels.polygon import convex_hull, fill_convex
 from mistool.pose import measure as measure_mod
-from mistool.pose.quality import Rims
+from mistool.pose.quality import Rims, rims_iou
 from mistool.pose.silhouette import as_mask, outline_points
 
 
@@ -155,3 +160,114 @@ def test_the_one_call_path_is_the_common_one() -> None:
         got = measure_mod._shaft_in_one_call(obs.parts, shaft, SHAPE, K, 4.0, res, rims)
         answered += got is not None
     assert tried >= 6 and answered >= 0.6 * tried, (answered, tried)
+
+
+@st.composite
+def point_sets(draw: st.DrawFn) -> np.ndarray:
+    """float32 points: a cloud, two rims (a cylinder's image: two ellipses, some nearly
+    flat), integer points with repeats, or points on a line (float rounding decides)."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    kind = draw(st.sampled_from(["cloud", "rims", "grid", "line"]))
+    n = int(rng.integers(1, 49))
+    if kind == "cloud":
+        pts = rng.normal(0, 1, (n, 2)) * rng.uniform(0.5, 80) + rng.uniform(-20, 220, 2)
+    elif kind == "rims":
+        t = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+        c, r = rng.uniform(0, 200, (2, 2)), rng.uniform(0.0, 30.0, (2, 2))
+        r[:, 1] *= rng.choice([1.0, 1e-3, 1e-6])  # a rim seen almost edge-on
+        rot = rng.uniform(0, np.pi)
+        rims = []
+        for k in range(2):
+            x, y = r[k, 0] * np.cos(t), r[k, 1] * np.sin(t)
+            rims.append(
+                c[k]
+                + np.stack(
+                    [x * np.cos(rot) - y * np.sin(rot), x * np.sin(rot) + y * np.cos(rot)], 1
+                )
+            )
+        pts = np.concatenate(rims)
+    elif kind == "grid":
+        pts = rng.integers(0, 6, (n, 2)).astype(float)
+    else:
+        pts = rng.uniform(0, 1, (n, 1)) * rng.normal(size=2) * 50 + 100
+    return np.ascontiguousarray(pts, dtype=np.float32)
+
+
+@settings(max_examples=800, deadline=None)
+@given(point_sets())
+def test_convex_hull_equals_opencv_where_it_answers(pts: np.ndarray) -> None:
+    """OpenCV's indices in its order, or -1 (ask OpenCV) only where float rounding could
+    decide: equal points or a turn within 1e-6 of straight."""
+    ref = cv2.convexHull(pts, returnPoints=False).reshape(-1)
+    hull = np.empty(len(pts), np.int32)
+    k = convex_hull(pts, hull)
+    if k < 0:  # OpenCV answers (quality.rims_iou calls it then)
+        return
+    assert np.array_equal(hull[:k], ref)
+
+
+def test_convex_hull_answers_for_points_in_general_position() -> None:
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        pts = (rng.normal(0, 30, (48, 2)) + 100).astype(np.float32)
+        hull = np.empty(48, np.int32)
+        k = convex_hull(pts, hull)
+        assert k > 0 and np.array_equal(hull[:k], cv2.convexHull(pts, returnPoints=False).ravel())
+
+
+@settings(max_examples=800, deadline=None)
+@given(point_sets(), st.integers(1, 90), st.integers(1, 90), st.integers(0, 2**32 - 1))
+def test_fill_convex_equals_opencv(pts: np.ndarray, h: int, w: int, seed: int) -> None:
+    """``cv2.fillConvexPoly(..., 1, LINE_8, shift=4)`` of a hull's points x16, also where
+    the polygon leaves the image on any side."""
+    off = np.random.default_rng(seed).uniform(-40, 40, 2)
+    shifted = np.rint((pts - off) * 16.0).astype(np.int32)
+    order = cv2.convexHull(pts, returnPoints=False).reshape(-1).astype(np.int32)
+    ref = np.zeros((h, w), np.uint8)
+    cv2.fillConvexPoly(ref, shifted[order], 1, lineType=cv2.LINE_8, shift=4)
+    got = np.zeros((h, w), np.uint8)
+    fill_convex(got, shifted, order, len(order), 4)
+    assert np.array_equal(got, ref)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_the_quality_iou_equals_opencvs(seed: int, edge_on: bool) -> None:
+    """``quality.rims_iou`` (one kernel call, or OpenCV where the hull is unsure) gives the
+    IoU of OpenCV's hull and fill: cylinders at random poses, some seen edge-on."""
+    rng = np.random.default_rng(seed)
+    K = np.array([[600.0, 0, 359.5], [0, 600.0, 287.5], [0, 0, 1]])
+    p_a = np.array([rng.uniform(-40, 40), rng.uniform(-30, 30), rng.uniform(40, 150)])
+    d = unit(rng.normal(size=3))
+    if edge_on:  # the axis across the viewing ray: the rims project to near segments
+        d = unit(np.cross(p_a, rng.normal(size=3)))
+    p_b = p_a + rng.uniform(2, 60) * d
+    mask = rng.random((int(rng.integers(1, 80)), int(rng.integers(1, 80)))) < 0.6
+    offset = (int(rng.integers(250, 450)), int(rng.integers(200, 350)))
+    rims = Rims()
+    rims.canvas[5] = kp.cylinder_outline(
+        p_a,
+        p_b,
+        4.0,
+        2.0,
+        K,
+        1.0,
+        offset[0],
+        offset[1],
+        *mask.shape,
+        *SHAPE,
+        40000,
+        rims.pts,
+        rims.shifted,
+        rims.canvas,
+    )
+    got = rims_iou(rims, mask, offset)
+    x0, y0, step, rows, cols, found = rims.canvas.tolist()
+    if found < 2:
+        assert np.isnan(got)
+        return
+    rend = np.zeros((rows, cols), np.uint8)
+    hull = cv2.convexHull(rims.pts, returnPoints=False).reshape(-1)
+    cv2.fillConvexPoly(rend, rims.shifted[hull], 1, lineType=cv2.LINE_8, shift=4)
+    ref = kp.iou_count(rend, mask, offset[0], offset[1], x0, y0, step)
+    assert got == ref or (np.isnan(got) and np.isnan(ref))

@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 from test_pose import observe, part_obs, unit
 
 from mistool.config import Camera
+from mistool.kernels import load
 from mistool.kernels import pose as kp
 from mistool.pose import measure as measure_mod
 from mistool.pose import measure_instance
@@ -540,7 +541,10 @@ def test_cylinder_outline_and_iou_as_before(seed: int, axis_like: bool) -> None:
 
 @pytest.mark.parametrize("name", ["shaft_pose", "fit_line", "jaw_ends", "tip_pose"])
 def test_an_argument_of_another_dtype_is_a_type_error(name: str) -> None:
-    """The kernels are closed: a float32 array where float64 is declared is an error."""
+    """The kernels are closed: a float32 array where float64 is declared is an error.
+    (Loaded first: a kernel loads at its first call, and this worker may not have called
+    it yet.)"""
+    load(kp)
     fn = getattr(kp, name)
     assert fn.signatures and not fn._can_compile
     with pytest.raises(TypeError):

@@ -14,8 +14,11 @@ here it is a few compiled passes:
   stretch, the propagated uncertainties, the proximal end and the quaternion.
 - :func:`tip_pose` (:func:`jaw_ends` + :func:`tip_solve`): the clasper's jaw ends and the
   tip in 3D.
-- :func:`cylinder_outline` and :func:`iou_count`: the quality IoU around OpenCV's convex
-  hull and polygon fill (kept: exact and cheap).
+- :func:`shaft_from_masks`: the shaft from its masks to its row in one call (its outer
+  contour traced as OpenCV traces it, :mod:`mistool.kernels.contours`, then the two
+  kernels above).
+- :func:`cylinder_outline`, :func:`rims_iou` and :func:`iou_count`: the quality IoU,
+  OpenCV's convex hull and polygon fill reproduced (:mod:`mistool.kernels.polygon`).
 
 Each is the former numpy code's steps in the same order, written as plain loops over
 floats. Sums run left to right and 3-vector products as ``x0 * y0 + x1 * y1 + x2 * y2``
@@ -37,6 +40,7 @@ import numpy as np
 
 from mistool.kernels import helper, kernel
 from mistool.kernels.contours import outer_contour
+from mistool.kernels.polygon import convex_hull, fill_convex
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -69,6 +73,7 @@ __all__ = [
     "fit_line",
     "iou_count",
     "jaw_ends",
+    "rims_iou",
     "shaft_boundary",
     "shaft_from_masks",
     "shaft_pose",
@@ -1763,12 +1768,14 @@ def _jaw_axis(
             dxm -= 1
         while (dxm + 1) * (dxm + 1) <= rem:
             dxm += 1
+        base = y * w
         for x in range(max(cx - dxm, x0), min(cx + dxm + 1, x1)):
-            if flat[y * w + x]:
-                xs[cnt], ys[cnt] = x, y
-                cnt += 1
-                sx += x
-                sy += y
+            # written always, kept when the pixel is set: no branch on the mask
+            v = np.int64(flat[base + x])
+            xs[cnt], ys[cnt] = x, y
+            cnt += v
+            sx += x * v
+            sy += y * v
     if cnt < 3:
         return False
     mx, my = (sx + cnt * ox) / cnt, (sy + cnt * oy) / cnt
@@ -2100,32 +2107,62 @@ def iou_count(
 ) -> float:
     """IoU of a filled canvas (``rend``: 0 or 1, its pixel ``(i, j)`` at the image's
     ``(x0 + st j, y0 + st i)``) with a mask crop at ``(ox, oy)`` sampled on the same
-    pixels; NaN when both are empty."""
+    pixels; NaN when both are empty. (Flat arrays and unsigned indices: no wrap-around
+    checks, so the byte sums become vector code.)"""
     hc, wc = rend.shape
     mh, mw = mask.shape
+    rflat = rend.ravel()
     n_rend = 0
-    for i in range(hc):
-        row = 0  # a byte sum per row: vector code
-        for j in range(wc):
-            row += rend[i, j]
-        n_rend += row
+    for i in range(np.uint64(hc * wc)):
+        n_rend += rflat[i]
     ia, ja = max(0, -(-(oy - y0) // st)), max(0, -(-(ox - x0) // st))
     ib, jb = min(hc, -(-(oy + mh - y0) // st)), min(wc, -(-(ox + mw - x0) // st))
-    m8 = mask.view(np.uint8)
+    m8 = mask.view(np.uint8).ravel()
     inter = n_obs = 0
     for i in range(ia, ib):  # the mask's samples within the canvas
-        mrow = m8[y0 + st * i - oy, x0 + st * ja - ox :]
-        rrow = rend[i, ja:jb]
+        m0 = np.uint64((y0 + st * i - oy) * mw + x0 + st * ja - ox)
+        r0 = np.uint64(i * wc + ja)
         row_obs = row_inter = 0
         if st == 1:
-            for j in range(jb - ja):
-                row_obs += mrow[j]
-                row_inter += mrow[j] & rrow[j]
+            for j in range(np.uint64(jb - ja)):
+                row_obs += m8[m0 + j]
+                row_inter += m8[m0 + j] & rflat[r0 + j]
         else:
-            for j in range(jb - ja):
-                row_obs += mrow[2 * j]
-                row_inter += mrow[2 * j] & rrow[j]
+            for j in range(np.uint64(jb - ja)):
+                row_obs += m8[m0 + 2 * j]
+                row_inter += m8[m0 + 2 * j] & rflat[r0 + j]
         n_obs += row_obs
         inter += row_inter
     union = n_rend + n_obs - inter
     return inter / union if union else math.nan
+
+
+@kernel(
+    "boolean(float32[:, ::1], int32[:, ::1], int64[::1], boolean[:, ::1], int64, int64,"
+    " float64[::1])"
+)
+def rims_iou(
+    pts: np.ndarray,
+    shifted: np.ndarray,
+    canvas: np.ndarray,
+    mask: np.ndarray,
+    ox: int,
+    oy: int,
+    iou: np.ndarray,
+) -> bool:
+    """The quality IoU of a cylinder's image (:func:`cylinder_outline`'s ``pts, shifted,
+    canvas``) with a mask crop at ``(ox, oy)`` into ``iou[0]`` (NaN without a canvas):
+    ``quality.rims_iou``'s OpenCV hull and fill (:mod:`mistool.kernels.polygon`), then
+    :func:`iou_count`. False (nothing written) where the hull would rest on float
+    rounding (:func:`mistool.kernels.polygon.convex_hull`): OpenCV answers then."""
+    if canvas[5] < 2:
+        iou[0] = math.nan
+        return True
+    hull = np.empty(len(pts), np.int32)
+    k = convex_hull(pts, hull)
+    if k < 0:
+        return False
+    rend = np.zeros((canvas[3], canvas[4]), np.uint8)
+    fill_convex(rend, shifted, hull, k, 4)
+    iou[0] = iou_count(rend, mask, ox, oy, canvas[0], canvas[1], canvas[2])
+    return True

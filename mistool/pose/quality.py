@@ -2,8 +2,9 @@
 
 Each part is modelled as a (possibly tapered) capped cylinder between two points; a
 cylinder is convex, so its image is the convex hull of the projections of its two rim
-circles. The hull is filled with OpenCV (sub-pixel, 4 fractional bits) in a crop around
-the part and compared with the part's mask: intersection over union, in [0, 1].
+circles. The hull is filled as OpenCV fills it (sub-pixel, 4 fractional bits; the hull and
+the fill reproduced in a kernel, :mod:`mistool.kernels.polygon`) in a crop around the part
+and compared with the part's mask: intersection over union, in [0, 1].
 
 The shaft model is exact (a cylinder of the known diameter), so a correct pose scores
 close to 1 (minus boundary corruption). The clasper's jaws are modelled by a cone from
@@ -55,7 +56,14 @@ class Rims:
 def rims_iou(rims: Rims, mask: np.ndarray, offset: tuple[int, int]) -> float:
     """IoU of a cylinder's image (:class:`Rims`, undistorted camera) with a part's mask
     crop (bool, C-contiguous) at ``offset``: OpenCV's convex hull of the rims filled on the
-    canvas, counted by :func:`mistool.kernels.pose.iou_count`; NaN without a canvas."""
+    canvas, counted by :func:`mistool.kernels.pose.iou_count`; NaN without a canvas.
+
+    The hull and the fill are OpenCV's reproduced in one kernel call
+    (:func:`mistool.kernels.pose.rims_iou`); OpenCV itself where that hull would rest on
+    float rounding (rims seen almost edge-on, equal points)."""
+    iou = np.empty(1)
+    if kernels().rims_iou(rims.pts, rims.shifted, rims.canvas, mask, offset[0], offset[1], iou):
+        return float(iou[0])
     x0, y0, st, rows, cols, found = rims.canvas.tolist()
     if found < 2:
         return math.nan
