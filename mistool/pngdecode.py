@@ -3,8 +3,11 @@
 :func:`decode_png` decodes non-interlaced 8/16-bit greyscale and 8-bit palette PNGs,
 whatever row filters their encoder chose (None, Sub, Up, Average, Paeth), several times
 faster than ``cv2.imread`` on label masks (``scripts/bench_decode.py``): zlib-ng inflates
-(into a buffer kept from frame to frame) and one compiled pass undoes every row's filter
-(:func:`mistool.kernels.png.unfilter_rows`).
+(into a buffer kept from frame to frame; its own ``zng_inflate`` called through ctypes
+when the ``zlib_ng`` module exports zlib-ng 2.x's API, else ``decompressobj``) and one
+compiled pass undoes every row's filter (:func:`mistool.kernels.png.unfilter_rows`).
+:func:`decode_png_runs` gives an 8-bit grey file's runs of equal values instead of its
+pixels (what the per-frame work reads), unfiltering only the rows that are not zero.
 
 **Strict.** It returns None (the caller then decodes with OpenCV, which reports a bad
 file) for anything it does not fully check: every chunk's CRC must be right, chunk types
