@@ -9,6 +9,8 @@ gone)."""
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 from hypothesis import given, settings
@@ -22,6 +24,9 @@ from mistool.kernels.polygon import convex_hull, fill_convex
 from mistool.pose import measure as measure_mod
 from mistool.pose.quality import Rims, rims_iou
 from mistool.pose.silhouette import as_mask, outline_points
+
+#: The fixed scenes the loops below share (each is a few ray-cast renders).
+_fixed_scene = functools.lru_cache(maxsize=None)(scene)
 
 
 def _opencv(mask: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -137,7 +142,13 @@ def test_the_shaft_in_one_call_equals_its_steps(seed: int) -> None:
         ref_rims.shifted,
         ref_rims.canvas,
     )
-    assert np.array_equal(res, ref, equal_nan=True)
+    q = kp.OUT["quality"]  # the one call also gives the quality, shaft_pose does not
+    assert np.array_equal(res[:q], ref[:q], equal_nan=True)
+    if np.isnan(ref[kp.OUT["quality_a"]]):
+        assert np.isnan(res[q])
+    elif not res[kp.OUT["quality_opencv"]]:
+        want = rims_iou(ref_rims, sp.mask, sp.offset)
+        assert res[q] == want or (np.isnan(res[q]) and np.isnan(want))
     assert np.array_equal(rims.canvas, ref_rims.canvas)
     if rims.canvas[5]:
         assert np.array_equal(rims.pts, ref_rims.pts)
@@ -150,7 +161,7 @@ def test_the_one_call_path_is_the_common_one() -> None:
     would prove little)."""
     answered = tried = 0
     for seed in range(30):
-        obs, camera, _ = scene(seed)
+        obs, camera, _ = _fixed_scene(seed)
         shaft = obs.parts.get("shaft")
         if shaft is None or camera.distorted:
             continue
@@ -271,3 +282,55 @@ def test_the_quality_iou_equals_opencvs(seed: int, edge_on: bool) -> None:
     cv2.fillConvexPoly(rend, rims.shifted[hull], 1, lineType=cv2.LINE_8, shift=4)
     ref = kp.iou_count(rend, mask, offset[0], offset[1], x0, y0, step)
     assert got == ref or (np.isnan(got) and np.isnan(ref))
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_clasper_in_one_call_equals_its_steps(seed: int) -> None:
+    """``_tip_in_one_call`` (outline, jaw width, border flag, ``tip_pose`` and the
+    quality in one kernel call) gives what ``_tip_in_steps`` gives, cell for cell; a
+    clasper in several pieces is left to the steps."""
+    obs, camera, length = scene(seed)
+    parts = obs.parts
+    clasper = parts.get("clasper")
+    if clasper is None or camera.distorted:
+        return
+    K = np.ascontiguousarray(camera.K, dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    joint = np.array([rng.uniform(-30, 30), rng.uniform(-20, 20), rng.uniform(40, 150)])
+    a = unit(rng.normal(size=3))
+    mask = as_mask(clasper.mask)
+    length_mm = np.nan if length is None else float(length)
+    tip1, tip2 = np.full(kp.TIP["size"], np.nan), np.full(kp.TIP["size"], np.nan)
+    got1, q1 = measure_mod._tip_in_one_call(clasper, mask, joint, a, K, SHAPE, length_mm, 4.0, tip1)
+    if got1 == kp.CLASPER_ASK_PYTHON:
+        assert len(_opencv(mask)) > 1 and np.isnan(tip1).all()
+        return
+    got2, q2 = measure_mod._tip_in_steps(
+        clasper, mask, joint, a, K, SHAPE, length_mm, 4.0, camera, False, tip2
+    )
+    assert got1 == got2
+    assert np.array_equal(tip1, tip2, equal_nan=True)
+    assert q1 == q2 or (np.isnan(q1) and np.isnan(q2))
+
+
+def test_the_shafts_quality_in_one_call_is_rims_iou() -> None:
+    """The shaft's quality written by the one call is ``quality.rims_iou`` of its
+    cylinder's image (a few undistorted scenes with a measured shaft)."""
+    checked = 0
+    for seed in range(30):
+        obs, camera, _ = _fixed_scene(seed)
+        shaft = obs.parts.get("shaft")
+        if shaft is None or camera.distorted:
+            continue
+        K = np.ascontiguousarray(camera.K, dtype=np.float64)
+        res, rims = np.empty(kp.OUT["size"]), Rims()
+        got = measure_mod._shaft_in_one_call(obs.parts, shaft, SHAPE, K, 4.0, res, rims)
+        if got is None or isinstance(got, str) or np.isnan(res[kp.OUT["quality_a"]]):
+            continue
+        assert not res[kp.OUT["quality_opencv"]]
+        want = rims_iou(rims, got.mask, got.offset)
+        q = res[kp.OUT["quality"]]
+        assert q == want or (np.isnan(q) and np.isnan(want))
+        checked += 1
+    assert checked >= 4, checked

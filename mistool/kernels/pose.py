@@ -60,6 +60,8 @@ def _inlined(signature: str) -> Callable[[F], F]:
 
 
 __all__ = [
+    "CLASPER_ASK_PYTHON",
+    "CLASPER_EMPTY",
     "FIT_LEN",
     "GEO_OTHERS",
     "OUT",
@@ -69,6 +71,7 @@ __all__ = [
     "SHAFT_NOT_VISIBLE",
     "TIP",
     "WHY",
+    "clasper_from_mask",
     "cylinder_outline",
     "fit_line",
     "iou_count",
@@ -150,7 +153,9 @@ OUT: dict[str, int] = {
     "why_all": 38,  # WHY index for every part's row (0: none)
     "why_shaft": 39,  # WHY index for the shaft's row only (0: none)
     "clasper": 40,  # 1: go on to the clasper (the joint is known)
-    "size": 41,
+    "quality": 41,  # shaft_from_masks: the shaft's quality (NaN: none, or ask OpenCV)
+    "quality_opencv": 42,  # shaft_from_masks: 1 when OpenCV must give the quality
+    "size": 43,
 }
 _O_DISTAL, _O_L1, _O_L2, _O_UV, _O_SUV, _O_SIG, _O_END, _O_AXIS, _O_START, _O_QUAT = (
     0,
@@ -165,6 +170,7 @@ _O_DISTAL, _O_L1, _O_L2, _O_UV, _O_SUV, _O_SIG, _O_END, _O_AXIS, _O_START, _O_QU
     22,
 )
 _O_JOINT, _O_A, _O_QA, _O_QB, _O_WHY_ALL, _O_WHY_SHAFT, _O_CLASPER = 26, 29, 32, 35, 38, 39, 40
+_O_QUALITY, _O_QUALITY_OPENCV = 41, 42
 
 #: :func:`tip_pose`'s output: name -> first index.
 TIP: dict[str, int] = {"px": 0, "tip": 2, "axis": 5, "quat": 8, "size": 12}
@@ -1547,7 +1553,7 @@ def shaft_pose(
             (:func:`cylinder_outline`; ``canvas[5]`` its result, 0 without a cylinder).
     """
     out[:] = math.nan
-    out[_O_WHY_ALL] = out[_O_WHY_SHAFT] = out[_O_CLASPER] = 0.0
+    out[_O_WHY_ALL] = out[_O_WHY_SHAFT] = out[_O_CLASPER] = out[_O_QUALITY_OPENCV] = 0.0
     canvas[5] = 0
     fr = np.empty(_F_LEN)
     s_pix = np.empty(len(pix))
@@ -1638,8 +1644,9 @@ def shaft_from_masks(
 ) -> int:
     """The shaft's pose from its mask, in one call, for an undistorted camera: its outer
     contour (:func:`mistool.kernels.contours.outer_contour`), its boundary points and
-    moments (:func:`shaft_boundary`), its centroid, then :func:`shaft_pose`; the steps of
-    ``measure._shaft_points`` on its common path.
+    moments (:func:`shaft_boundary`), its centroid, then :func:`shaft_pose` and the
+    quality (:func:`rims_iou`, into ``OUT["quality"]``, or ``OUT["quality_opencv"]`` set
+    where OpenCV must answer); the steps of ``measure._shaft_points`` on its common path.
 
     Args:
         shaft: the shaft crop; o1, o2: the other parts' crops (``(0, 0)`` for none) at
@@ -1676,6 +1683,12 @@ def shaft_from_masks(
     centre[0] = mom[1] / mom[0] + float(sx)
     centre[1] = mom[2] / mom[0] + float(sy)
     shaft_pose(pix, border, centre, mom, bg, other, K, radius, par, out, geo, rims, shifted, canvas)
+    if not math.isnan(out[_O_QA]):  # the quality (quality.rims_iou)
+        iou = np.empty(1)
+        if rims_iou(rims, shifted, canvas, shaft, sx, sy, iou):
+            out[_O_QUALITY] = iou[0]
+        else:
+            out[_O_QUALITY_OPENCV] = 1.0
     return SHAFT_MEASURED
 
 
@@ -2098,6 +2111,96 @@ def tip_pose(
             shifted,
             canvas,
         )
+    return got
+
+
+#: :func:`clasper_from_mask`'s answers besides :func:`tip_pose`'s (0, 1, 2).
+CLASPER_EMPTY, CLASPER_ASK_PYTHON = -2, -1
+
+
+@kernel(
+    "int64(boolean[:, ::1], int64, int64, float64[::1], float64[::1], float64[:, ::1], float64,"
+    " int64, int64, float64, float64[::1], float64[::1], float64, int64, float32[:, ::1],"
+    " int32[:, ::1], int64[::1], float64[::1])"
+)
+def clasper_from_mask(
+    mask: np.ndarray,
+    ox: int,
+    oy: int,
+    joint: np.ndarray,
+    a: np.ndarray,
+    K: np.ndarray,  # noqa: N803
+    length: float,
+    height: int,
+    width_image: int,
+    cap: float,
+    par: np.ndarray,
+    out: np.ndarray,
+    radius: float,
+    max_pixels: int,
+    rims: np.ndarray,
+    shifted: np.ndarray,
+    canvas: np.ndarray,
+    quality: np.ndarray,
+) -> int:
+    """The clasper's tip from its mask, in one call, for an undistorted camera
+    (``measure._clasper_rows`` on its common path): its outer contour
+    (:func:`mistool.kernels.contours.outer_contour`), the jaw width in the image and
+    whether the crop touches the image border, :func:`tip_pose`, then the quality
+    (:func:`rims_iou`).
+
+    Args:
+        mask: the clasper crop at ``(ox, oy)``; joint, a: J and the shaft's distal axis.
+        K, length, height, width_image, cap, par, out, radius, max_pixels, rims, shifted,
+            canvas: as :func:`tip_pose` (``length`` NaN when unknown).
+        quality: (2,) receives the quality (NaN without one) and 1.0 where OpenCV must
+            give it (the hull rests on float rounding), else 0.0.
+
+    Returns:
+        :func:`tip_pose`'s answer; :data:`CLASPER_EMPTY` for a crop without pixels;
+        :data:`CLASPER_ASK_PYTHON` (nothing written) for a crop of several pieces.
+    """
+    h, w = mask.shape
+    buf = np.empty((4 * (h + w) + 16, 2), np.int32)
+    n = outer_contour(mask, buf)
+    if n == -2:  # a long border: the bound that always holds
+        buf = np.empty((4 * h * w + 4, 2), np.int32)
+        n = outer_contour(mask, buf)
+    if n == 0:
+        return CLASPER_EMPTY
+    if n < 0:
+        return CLASPER_ASK_PYTHON
+    width = max(K[0, 0] * 0.25 * (2.0 * radius) / max(joint[2], 1.0), 2.0)
+    at_border = min(ox, oy) <= 0 or ox + w - 1 >= width_image - 1 or oy + h - 1 >= height - 1
+    quality[0], quality[1] = math.nan, 0.0
+    got = tip_pose(
+        buf[:n],
+        mask,
+        ox,
+        oy,
+        joint,
+        a,
+        K,
+        width,
+        length,
+        at_border,
+        height,
+        width_image,
+        cap,
+        par,
+        out,
+        radius,
+        max_pixels,
+        rims,
+        shifted,
+        canvas,
+    )
+    if got == 2:
+        iou = np.empty(1)
+        if rims_iou(rims, shifted, canvas, mask, ox, oy, iou):
+            quality[0] = iou[0]
+        else:
+            quality[1] = 1.0
     return got
 
 

@@ -534,7 +534,10 @@ def measure_instance(
             *ends, radius, radius, K, sp.mask, sp.offset, image_shape, camera
         )
     elif not math.isnan(res[qa]):
-        row["quality"] = rims_iou(rims, sp.mask, sp.offset)
+        if isinstance(sp, _ShaftMask) and not res[OUT["quality_opencv"]]:
+            row["quality"] = float(res[OUT["quality"]])  # given by the one call
+        else:
+            row["quality"] = rims_iou(rims, sp.mask, sp.offset)
     why_shaft, why_all = int(res[OUT["why_shaft"]]), int(res[OUT["why_all"]])
     if why_shaft:
         _why(out, kp.WHY[why_shaft], ("shaft",))
@@ -589,26 +592,22 @@ def _clasper_rows(
     """Fill the clasper's row (tip, clasper axis, quality) and the wrist's (its axis);
     ``distorted``: ``camera.distorted``."""
     clasper = parts.get("clasper")
-    tip = np.full(kernels().TIP["size"], math.nan)
-    mask = as_mask(clasper.mask) if clasper is not None else None
-    outline = None if mask is None else _longest_outline(mask)
-    if clasper is not None and mask is not None and outline is not None:  # with pixels
-        rims = Rims()
-        got = _tip(
-            clasper,
-            mask,
-            outline,
-            joint,
-            a,
-            K,
-            image_shape,
-            clasper_length_mm,
-            radius,
-            camera,
-            distorted,
-            tip,
-            rims,
-        )
+    kp = kernels()
+    tip = np.full(kp.TIP["size"], math.nan)
+    got, quality = kp.CLASPER_EMPTY, math.nan
+    if clasper is not None:
+        mask = as_mask(clasper.mask)
+        length_mm = math.nan if clasper_length_mm is None else float(clasper_length_mm)
+        got = kp.CLASPER_ASK_PYTHON
+        if not distorted:
+            got, quality = _tip_in_one_call(
+                clasper, mask, joint, a, K, image_shape, length_mm, radius, tip
+            )
+        if got == kp.CLASPER_ASK_PYTHON:
+            got, quality = _tip_in_steps(
+                clasper, mask, joint, a, K, image_shape, length_mm, radius, camera, distorted, tip
+            )
+    if got >= 0:  # a clasper with pixels
         crow = out["clasper"]
         if got:
             crow["aux_u_px"], crow["aux_v_px"] = tip[0], tip[1]
@@ -616,20 +615,7 @@ def _clasper_rows(
             crow.update(zip(_CLASPER_CELLS, tip[2:8].tolist(), strict=True))
             crow.update(zip(_QUAT_CELLS, tip[8:12].tolist(), strict=True))
             crow.update(zip(_START_CELLS, joint.tolist(), strict=True))
-            if distorted:
-                ends = joint, tip[2:5]
-                crow["quality"] = cylinder_iou(
-                    *ends,
-                    0.5 * radius,
-                    0.25 * radius,
-                    K,
-                    clasper.mask,
-                    clasper.offset,
-                    image_shape,
-                    camera,
-                )
-            else:
-                crow["quality"] = rims_iou(rims, mask, clasper.offset)
+            crow["quality"] = quality
         else:
             _why(out, "tip not found", ("clasper", "wrist"))
     else:
@@ -640,6 +626,104 @@ def _clasper_rows(
             wrow.update(zip(_CLASPER_CELLS[3:], tip[5:8].tolist(), strict=True))
             wrow.update(zip(_QUAT_CELLS, tip[8:12].tolist(), strict=True))
         wrow.update(zip(_START_CELLS, joint.tolist(), strict=True))
+
+
+def _tip_in_one_call(
+    clasper: PartObservation,
+    mask: np.ndarray,
+    joint: np.ndarray,
+    a: np.ndarray,
+    K: np.ndarray,  # noqa: N803
+    image_shape: tuple[int, int],
+    length_mm: float,
+    radius: float,
+    tip: np.ndarray,
+) -> tuple[int, float]:
+    """The clasper's tip and quality in one kernel call for an undistorted camera
+    (:func:`mistool.kernels.pose.clasper_from_mask`: its outline, :func:`_tip`'s kernel,
+    the quality): ``(got, quality)``, ``got`` as :func:`_tip` or the kernel's
+    ``CLASPER_EMPTY`` / ``CLASPER_ASK_PYTHON`` (a crop of several pieces: nothing done)."""
+    kp = kernels()
+    ox, oy = int(clasper.offset[0]), int(clasper.offset[1])
+    H, W = image_shape
+    rims, quality = Rims(), np.empty(2)
+    got = int(
+        kp.clasper_from_mask(
+            mask,
+            ox,
+            oy,
+            joint,
+            a,
+            K,
+            length_mm,
+            int(H),
+            int(W),
+            float(_TIP_CAP),
+            _params(),
+            tip,
+            radius,
+            _QUALITY_MAX_PIXELS,
+            rims.pts,
+            rims.shifted,
+            rims.canvas,
+            quality,
+        )
+    )
+    if got == 2 and quality[1]:  # the hull rests on float rounding: OpenCV's
+        return got, rims_iou(rims, mask, (ox, oy))
+    return got, float(quality[0])
+
+
+def _tip_in_steps(
+    clasper: PartObservation,
+    mask: np.ndarray,
+    joint: np.ndarray,
+    a: np.ndarray,
+    K: np.ndarray,  # noqa: N803
+    image_shape: tuple[int, int],
+    length_mm: float,
+    radius: float,
+    camera: Camera,
+    distorted: bool,
+    tip: np.ndarray,
+) -> tuple[int, float]:
+    """:func:`_tip` on the clasper's longest outline (:func:`_longest_outline`), then the
+    quality: every path (a distorted lens, a crop of several pieces); ``(got, quality)``
+    as :func:`_tip_in_one_call`."""
+    outline = _longest_outline(mask)
+    if outline is None:
+        return kernels().CLASPER_EMPTY, math.nan
+    rims = Rims()
+    got = _tip(
+        clasper,
+        mask,
+        outline,
+        joint,
+        a,
+        K,
+        image_shape,
+        length_mm,
+        radius,
+        camera,
+        distorted,
+        tip,
+        rims,
+    )
+    if got != 2:
+        return got, math.nan
+    if distorted:
+        ends = joint, tip[2:5]
+        return got, cylinder_iou(
+            *ends,
+            0.5 * radius,
+            0.25 * radius,
+            K,
+            clasper.mask,
+            clasper.offset,
+            image_shape,
+            camera,
+        )
+    return got, rims_iou(rims, mask, clasper.offset)
 
 
 def _longest_outline(mask: np.ndarray) -> np.ndarray | None:
@@ -671,7 +755,7 @@ def _tip(
     a: np.ndarray,
     K: np.ndarray,
     image_shape: tuple[int, int],
-    length: float | None,
+    length_mm: float,
     radius: float,
     camera: Camera,
     distorted: bool,
@@ -707,7 +791,6 @@ def _tip(
     width_px = max(K[0, 0] * 0.25 * (2.0 * radius) / max(float(joint[2]), 1.0), 2.0)
     box = _crop_bounds(mask, clasper.offset)
     at_border = min(box[:2]) <= 0 or box[2] >= W - 1 or box[3] >= H - 1
-    length_mm = math.nan if length is None else float(length)
     par, cap = _params(), float(_TIP_CAP)
     if not distorted:
         return int(
