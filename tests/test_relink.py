@@ -20,6 +20,7 @@ from mistool.tracking.relink import (
     HEAD_SWAP_KEEP_MARGIN,
     HEAD_SWAP_MARGIN,
     HEAD_SWAP_MIN_FRAMES,
+    JUMP_PX,
     LINK_GATE,
     attachment_cost,
     box_gap,
@@ -219,6 +220,38 @@ def test_a_name_given_back_to_the_wrong_tool_is_relinked():
         if f >= 80 and x < 400
     }
     assert b == b_late and b != {_names(out, 10)["shaft"]}
+
+
+def test_a_name_handed_to_a_tool_entering_elsewhere_is_cut_where_it_jumps():
+    """Fresh seed 56 (72.9%): the identity step handed tool A's name "2" to tool B
+    entering at the top border (300 px away) in the very frame A went on as "3"; the
+    name runs on without a gap, so the tracklets met nowhere and the metric matched B
+    to "3" (A's, then B's). Cut where the name jumps, A's frames are linked on into "3"
+    and B keeps "2" from its first frame."""
+    rows = []
+    for f in range(30):
+        rows += _tool_from_right(f, "2" if f < 10 else "3", 560.0 - 2 * f, 300.0)
+    for f in range(10, 30):  # B, from the top border, under A's old name
+        rows += [_row(f, "2", "shaft", 200.0, 40.0, 80.0, 40.0, 90.0)]
+    out = relink(_table(rows), 25.0)
+    a = {str(i) for i, x in zip(out["instrument"], out["cx_px"], strict=True) if x != 200.0}
+    b = {str(i) for i, x in zip(out["instrument"], out["cx_px"], strict=True) if x == 200.0}
+    assert len(a) == 1 and len(b) == 1 and a != b
+    assert out.num_rows == len(rows)
+
+
+def test_a_tool_moving_on_does_not_jump():
+    """A name's boxes within :data:`JUMP_PX` of its boxes in the frame before (a tool
+    moving, its head coming and going; jaws alone moving fast) are one tracklet: nothing
+    is relinked."""
+    rows = []
+    for f in range(30):
+        tool = _tool_from_right(f, "1", 400.0 - 10 * f, 300.0)
+        rows += tool if f % 4 else tool[:1]  # the head unseen every fourth frame
+    step = 40.0 + 0.9 * JUMP_PX  # jaws 40 px long: their boxes 0.9 JUMP_PX apart
+    rows += [_row(f, "2", "clasper", 650.0 - step * f, 40.0, 40.0, 16.0) for f in range(8)]
+    table = _table(rows)
+    assert relink(table, 25.0) is table
 
 
 def _heads_meeting(

@@ -17,11 +17,14 @@ are plain to see, and undone here (:func:`relink`, called by :func:`mistool.api.
 - **Broken lives.** A tool that leaves the view and comes back farther from where it left
   than the online search reaches gets a new name; a name given back to the wrong tool
   after a gap follows that tool. Each name is cut into tracklets, its runs of consecutive
-  frames; then one gated assignment (:func:`sparse_gated_assignment`) links
-  tracklet ends to later tracklet starts by where the tool's shaft enters the view (it
-  pivots about its trocar) and the time between them (:func:`link_cost`). Links the
-  identity step made (one name across a gap) cost less and are kept unless the assignment
-  finds a better one. Each chain of linked tracklets is one instrument.
+  frames, also where it jumps (none of its boxes within :data:`JUMP_PX` of its boxes in
+  the frame before: the name handed to a tool entering elsewhere in the very frame its
+  own tool went on under another name); then one gated assignment
+  (:func:`sparse_gated_assignment`) links tracklet ends to later tracklet starts by where
+  the tool's shaft enters the view (it pivots about its trocar) and the time between them
+  (:func:`link_cost`). Links the identity step made (one name across a gap) cost less and
+  are kept unless the assignment finds a better one. Each chain of linked tracklets is one
+  instrument.
 
 - **Swapped heads.** Where the heads of two tools meet (jaws grasping, under an occluder),
   a split or hand-over may give each tool the other's wrist or jaws, and the identity
@@ -55,6 +58,7 @@ from mistool.model import TrackTable
 __all__ = [
     "FRAGMENT_MAX_FRAMES",
     "FRAGMENT_REACH_PX",
+    "JUMP_PX",
     "LINK_GATE",
     "LINK_MAX_GAP_S",
     "box_gap",
@@ -154,18 +158,60 @@ class _Rows:
 
 
 def _tracklets(rows: _Rows) -> list[_Tracklet]:
-    """Every name cut into its runs of consecutive frames, in order of first frame."""
+    """Every name cut into its runs of consecutive frames, and where it jumps
+    (:func:`_jumps`), in order of first frame."""
     out: list[_Tracklet] = []
     order = np.lexsort((rows.frame, rows.name))
-    names = rows.name[order]
-    bounds = np.flatnonzero(names[1:] != names[:-1]) + 1
-    for idx in np.split(order, bounds):
-        frames = rows.frame[idx]
-        cut = np.flatnonzero(np.diff(frames) > 1) + 1
-        for run in np.split(np.arange(len(idx)), cut):
-            sel = idx[run]
-            out.append(_Tracklet(str(rows.name[sel[0]]), sel, np.unique(rows.frame[sel])))
+    names, frames = rows.name[order], rows.frame[order]
+    new = np.ones(len(order), dtype=bool)
+    new[1:] = (names[1:] != names[:-1]) | (frames[1:] - frames[:-1] > 1)
+    new[1:] |= _jumps(rows, order)
+    for sel in np.split(order, np.flatnonzero(new)[1:]):
+        out.append(_Tracklet(str(rows.name[sel[0]]), sel, np.unique(rows.frame[sel])))
     out.sort(key=lambda t: (t.first, t.name))
+    return out
+
+
+#: A name jumps where none of its part boxes in a frame lies within this many pixels of
+#: one of its boxes in the frame before (a tool moves a few pixels a frame; the identity
+#: step's name handed to another tool does not).
+JUMP_PX = 40.0
+
+
+def _jumps(rows: _Rows, order: np.ndarray) -> np.ndarray:
+    """Per row of ``order`` (rows sorted by name, then frame) after the first: whether it
+    is the first row of a name's frame whose part boxes (their axis-aligned bounds) all lie
+    more than :data:`JUMP_PX` from each of the name's boxes in the frame before."""
+    n = len(order)
+    out = np.zeros(max(n - 1, 0), dtype=bool)
+    if n < 2:
+        return out
+    names, frames = rows.name[order], rows.frame[order]
+    c = rows.corners[order]
+    lo = np.minimum(np.minimum(c[:, 0], c[:, 1]), np.minimum(c[:, 2], c[:, 3]))
+    hi = np.maximum(np.maximum(c[:, 0], c[:, 1]), np.maximum(c[:, 2], c[:, 3]))
+    start = np.ones(n, dtype=bool)
+    start[1:] = (names[1:] != names[:-1]) | (frames[1:] != frames[:-1])
+    group = np.cumsum(start) - 1
+    first = np.flatnonzero(start)
+    slot = np.arange(n) - first[group]
+    # consecutive groups: the same name, the next frame
+    a_first, b_first = first[:-1], first[1:]
+    follows = (names[b_first] == names[a_first]) & (frames[b_first] == frames[a_first] + 1)
+    g = np.flatnonzero(follows)
+    if len(g) == 0:
+        return out
+    # per group and part slot, the box's bounds (NaN: no such slot): x0, y0, x1, y1
+    bounds = np.full((4, len(first), int(slot.max()) + 1), np.nan)
+    for k, v in enumerate((lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1])):
+        bounds[k, group, slot] = v
+    a, b = bounds[:, g, :, None], bounds[:, g + 1, None, :]
+    gx = np.maximum(np.maximum(a[0] - b[2], b[0] - a[2]), 0.0)
+    gy = np.maximum(np.maximum(a[1] - b[3], b[1] - a[3]), 0.0)
+    gap2 = (gx * gx + gy * gy).reshape(len(g), -1)  # NaN: no such part in that frame
+    near = (gap2 <= JUMP_PX * JUMP_PX).any(axis=1)
+    jump = ~near & np.isfinite(gap2).any(axis=1)
+    out[first[g[jump] + 1] - 1] = True
     return out
 
 
