@@ -20,7 +20,8 @@ if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ]; then
     echo "set-up failed: pip install -e \".$1\" (log above, also in $LOG)" >&2
     exit 1
   fi
-  # numba's cache of the compiled kernels (mistool/kernels), filled once: a few seconds
-  "$VPY" -m mistool.kernels >/dev/null
   echo "$WANT" > "$STAMP"
 fi
+# numba's cache of the compiled kernels (mistool/kernels): compiled once (about a minute),
+# again only after a kernel source changed (its stamp); otherwise a Python start
+"$VPY" -m mistool.kernels --if-stale >/dev/null

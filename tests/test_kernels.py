@@ -7,6 +7,7 @@ import importlib
 import pkgutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -121,3 +122,50 @@ def test_threads_calling_a_kernel_first_at_once_all_get_its_result() -> None:
         [sys.executable, "-c", _THREADS], capture_output=True, text=True, check=True
     )
     assert out.stdout.strip() == "[] {'[[5, 11], [6, 12]]'} 1"
+
+
+def test_the_cache_is_dropped_when_any_kernel_source_changed(tmp_path: Path) -> None:
+    """numba renews a kernel's cache when its own file changes, not when a module it
+    calls into does (pose calls contours): every kernel's cached code goes when any
+    kernel source changed, and stays while none did."""
+    from mistool.kernels import renew_stale_cache
+
+    cached = [tmp_path / "pose.shaft_from_masks-10.py311.nbi", tmp_path / "pose.x-1.py311.1.nbc"]
+    other = tmp_path / "notes.txt"
+    for p in (*cached, other):
+        p.write_bytes(b"x")
+    assert renew_stale_cache(tmp_path, "digest-a")  # no stamp yet: dropped, stamped
+    assert not any(p.exists() for p in cached) and other.exists()
+    for p in cached:
+        p.write_bytes(b"x")  # compiled again from these sources
+    assert not renew_stale_cache(tmp_path, "digest-a")
+    assert all(p.exists() for p in cached)
+    assert renew_stale_cache(tmp_path, "digest-b")  # a kernel source changed
+    assert not any(p.exists() for p in cached)
+    assert (tmp_path / "mistool-kernels.stamp").read_text() == "digest-b"
+
+
+def test_the_cache_stamp_follows_every_kernel_source() -> None:
+    from mistool import kernels
+
+    folder = kernels._cache_folder()
+    assert folder is not None
+    kernels.warm()
+    assert (folder / "mistool-kernels.stamp").read_text() == kernels._sources_digest()
+
+
+def test_the_warm_up_if_stale_skips_a_fresh_cache() -> None:
+    """``python -m mistool.kernels --if-stale`` (run by scripts/_env.sh before every
+    serve and test) compiles nothing and does not import numba when the cache's stamp
+    matches the sources."""
+    from mistool import kernels
+
+    kernels.warm()  # the stamp now matches (written when the cache was renewed)
+    assert kernels.cache_is_fresh()
+    code = (
+        "import runpy, sys; sys.argv = ['x', '--if-stale']\n"
+        "try:\n    runpy.run_module('mistool.kernels', run_name='__main__')\n"
+        "except SystemExit as e:\n    print('exit', e.code, 'numba' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "exit 0 False"

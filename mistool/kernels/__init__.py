@@ -28,16 +28,21 @@ kernel compiles it (about a second per kernel), once.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import importlib
+import os
 import pkgutil
+import tempfile
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from types import ModuleType
 from typing import Any, TypeVar, cast
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-__all__ = ["helper", "kernel", "load", "warm"]
+__all__ = ["cache_is_fresh", "helper", "kernel", "load", "renew_stale_cache", "warm"]
 
 _LOADING = threading.RLock()
 
@@ -57,6 +62,7 @@ def kernel(*signatures: str) -> Callable[[F], F]:
     def wrap(fn: F) -> F:
         from numba import njit
 
+        _renew_stale_cache_once()
         compiled: Any = njit(cache=True, nogil=True, error_model="numpy")(fn)
         unmatched = compiled._compile_for_args  # numba's path for a call no overload fits
 
@@ -100,9 +106,86 @@ def helper(fn: F) -> F:
     ~5-15 ms of numba's linking). Calling it from Python would compile it then: don't."""
     from numba import njit
 
+    _renew_stale_cache_once()
     compiled = njit(cache=True, nogil=True, error_model="numpy")(fn)
     setattr(compiled, "mistool_helper", True)  # noqa: B010 - numba types the dispatcher
     return cast(F, compiled)
+
+
+_STAMP = "mistool-kernels.stamp"
+_renewed = False
+
+
+def _renew_stale_cache_once() -> None:
+    global _renewed
+    with _LOADING:
+        if not _renewed:
+            _renewed = True
+            folder = _cache_folder()
+            if folder is not None:
+                renew_stale_cache(folder, _sources_digest())
+
+
+def _sources_digest() -> str:
+    """A digest of every kernel module's source."""
+    h = hashlib.sha1(usedforsecurity=False)
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
+
+
+def _cache_folder() -> Path | None:
+    """Where numba keeps this package's kernels' machine code: the folder of the first
+    of its cache locators that takes a function of this package, as numba chooses."""
+    from numba.core.caching import FunctionCache
+
+    locators: list[Any] = list(FunctionCache._impl_class._locator_classes)
+    for locator in locators:
+        with contextlib.suppress(Exception):  # a locator that does not apply here
+            found = locator.from_function(_sources_digest, __file__)
+            if found is not None:
+                return Path(found.get_cache_path())
+    return None
+
+
+def cache_is_fresh() -> bool:
+    """Whether the package's own cache folder (``__pycache__`` beside the kernels, where
+    numba caches when it can write there) holds kernels made from these sources; False
+    when unsure. Does not import numba."""
+    stamp = Path(__file__).parent / "__pycache__" / _STAMP
+    try:
+        return stamp.read_text() == _sources_digest()
+    except OSError:
+        return False
+
+
+def renew_stale_cache(folder: Path, digest: str) -> bool:
+    """Drop numba's cached machine code in ``folder`` unless it was made from these
+    very kernel sources (``digest``); whether it was dropped.
+
+    numba renews a kernel's cache when the kernel's own file changes, but a kernel calls
+    helpers and kernels of other modules (``pose`` calls ``contours`` and ``polygon``),
+    whose machine code is linked into the caller's and cached with it: after an edit or
+    an upgrade of those modules alone the caller would go on running their old code.
+    So the cache of every kernel is dropped when any kernel module changed (at most once
+    per change: the next process recompiles what it calls, ``python -m mistool.kernels``
+    everything)."""
+    stamp = folder / _STAMP
+    try:
+        if stamp.read_text() == digest:
+            return False
+    except OSError:
+        pass
+    for cached in [*folder.glob("*.nbi"), *folder.glob("*.nbc")]:
+        with contextlib.suppress(OSError):
+            cached.unlink()
+    with contextlib.suppress(OSError):  # not writable: numba then caches elsewhere
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".stamp-")
+        with os.fdopen(fd, "w") as f:
+            f.write(digest)
+        os.replace(tmp, stamp)
+    return True
 
 
 def warm() -> list[str]:
