@@ -14,14 +14,11 @@ background (OpenCV pads the image with a zero frame). A crop with several compon
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
-from llvmlite import ir  # type: ignore[import-untyped]
-from numba import types
-from numba.core.extending import intrinsic
 
 from mistool.kernels import helper, kernel
+from mistool.kernels.boxes import ctz as _ctz
+from mistool.kernels.boxes import load8 as _load8
 
 __all__ = ["outer_contour"]
 
@@ -47,35 +44,6 @@ def _next_table() -> np.ndarray:
 _NEXT = _next_table()
 
 
-def _load8_typed(typingctx: object, arr: types.Array, i: types.Integer) -> tuple[object, object]:
-    """The 8 bytes of a C-contiguous uint8 array from flat index ``i``, as one
-    little-endian uint64 (an unaligned load; the caller keeps ``i + 8`` within it; the
-    same as :mod:`mistool.kernels.boxes`' ``load8``)."""
-    sig = types.uint64(arr, types.int64)
-
-    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), ir.IntType(64).as_pointer())
-        return builder.load(ptr, align=1)
-
-    return sig, codegen
-
-
-def _ctz_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
-    """Trailing zero bits of a non-zero uint64."""
-    sig = types.uint64(types.uint64)
-
-    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
-        t = ir.IntType(64)
-        fnty = ir.FunctionType(t, [t, ir.IntType(1)])
-        fn = builder.module.declare_intrinsic("llvm.cttz", [t], fnty)
-        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 1)])
-
-    return sig, codegen
-
-
-_load8: Any = intrinsic(_load8_typed)
-_ctz: Any = intrinsic(_ctz_typed)
 _LOW7 = np.uint64(0x7F7F7F7F7F7F7F7F)
 _HIGH = np.uint64(0x8080808080808080)
 
