@@ -21,6 +21,9 @@ once into ``--data`` and reused):
   metric pose (of the instances the identity step returns: a blob it splits is never
   measured), rows, refinement (paper motion + metric refinement), CSV writing, in CPU
   ms per frame; the parent's sequential share is identity + rows + refinement + CSV;
+- with ``--long N``: each case's sequence played forwards, backwards, forwards ... to N
+  frames (copied once into ``--data``) in place of the sequence itself: an hour-long
+  procedure's throughput, where the worker pool's start weighs nothing;
 - with ``--process-cpu``: every process's CPU per frame (workers from ``/proc``, the
   caller) of ``mistool.track`` on a reused ``LocalPool(N)``, each case;
 - with ``--video``: the crossing case as an mp4v mask video (decoded by the workers):
@@ -67,6 +70,25 @@ def synth(folder: Path, frames: int, instruments: int, seed: int) -> Path:
 
     if not (folder / "synth.json").is_file():
         synthesize(folder, frames=frames, instruments=instruments, seed=seed, force=True)
+    return folder
+
+
+def ping_pong(source: Path, frames: int) -> Path:
+    """A copy of ``source``'s mask PNGs played forwards, backwards, forwards ... to
+    ``frames`` frames (an hour-long procedure stands in; the motion stays continuous at
+    every turn), in ``source``'s parent (made once, reused). Each frame is its own file,
+    copied, so decoding it reads it as a distinct file does."""
+    folder = source.parent / f"{source.name}_pingpong_{frames}"
+    done = folder / "complete"
+    if done.is_file():
+        return folder
+    files = sorted(source.glob("*.png"))
+    order = files + files[-2:0:-1]
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(source / "mistool.toml", folder / "mistool.toml")
+    for k in range(frames):
+        shutil.copyfile(order[k % len(order)], folder / f"{k:06d}.png")
+    done.write_text(f"{frames} frames of {source} played forwards and backwards\n")
     return folder
 
 
@@ -379,6 +401,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
     parser.add_argument("--stages", action="store_true", help="also time each stage")
     parser.add_argument(
+        "--long",
+        type=int,
+        metavar="N",
+        help="instead, each case's sequence played forwards and backwards to N frames",
+    )
+    parser.add_argument(
         "--fresh", action="store_true", help="also each metric run in a new interpreter"
     )
     parser.add_argument("--dataset-sequences", type=int, default=4)
@@ -421,15 +449,18 @@ def main(argv: list[str] | None = None) -> int:
         tmp = Path(tmp_s)
         for name in args.cases:
             seq = synth(args.data / f"{name}_{args.frames}", args.frames, CASES[name], seed=3)
+            frames = args.frames
+            if args.long:
+                seq, frames = ping_pong(seq, args.long), args.long
             med = bench_case(name, seq, tmp, workers, args.runs, args.fresh)
             print_case(
                 f"{name} ({CASES[name]} instrument(s), merged labels)",
-                args.frames,
+                frames,
                 med,
                 os.getloadavg(),
             )
             if args.process_cpu:
-                process_cpu(name, seq, args.frames, args.workers, args.runs)
+                process_cpu(name, seq, frames, args.workers, args.runs)
             if args.stages:
                 ms = stages(seq, tmp / "stages.csv")
                 parent = sum(ms[k] for k in ("identity", "rows", "refinement", "CSV"))
