@@ -23,9 +23,11 @@ from mistool.config import Camera, Config, config_from_dict
 from mistool.errors import InputPathError, MistoolError, TableError
 from mistool.model import TrackTable
 from mistool.viewer import ReplayViewer, build_replay, export_html, load_sequence
+from mistool.viewer.app import parts_markdown
 from mistool.viewer.overlay import FrameStore, OverlayRenderer
 from mistool.viewer.replay import (
     METRIC_UNITS_PER_MM,
+    NO_POSE,
     PAPER_UNITS_PER_PX,
     R_WORLD_CAMERA,
     Replay,
@@ -157,6 +159,47 @@ def test_without_camera_or_metric_values_paper_mode_is_the_default() -> None:
     assert list(replay.modes) == ["paper"] and replay.default_mode == "paper"
 
 
+NAN = math.nan
+
+
+@pytest.mark.parametrize(
+    ("pose_status", "clasper_end_x", "camera", "panel"),
+    [
+        # The table says why (mistool's own tables): its reason is shown.
+        (["ok", "ok"], 11.0, True, "shaft ✓ · clasper ✓"),
+        (["ok", "tip not found"], NAN, True, "shaft ✓ · clasper: _tip not found_"),
+        # The column is there but empty (a ground-truth table, another tool's table):
+        # the metric pose decides, as without the column.
+        (["", ""], 11.0, True, "shaft ✓ · clasper ✓"),
+        (["", ""], NAN, True, f"shaft ✓ · clasper: _{NO_POSE}_"),
+        ([NAN, None], 11.0, True, "shaft ✓ · clasper ✓"),
+        (None, 11.0, True, "shaft ✓ · clasper ✓"),
+        (None, NAN, True, f"shaft ✓ · clasper: _{NO_POSE}_"),
+        # Without a camera there is no metric pose at all, and the panel says why.
+        (["", ""], 11.0, False, "shaft: _no camera_ · clasper: _no camera_"),
+    ],
+)
+def test_parts_panel_tells_whether_each_part_has_a_metric_pose(
+    pose_status: list | None, clasper_end_x: float, camera: bool, panel: str
+) -> None:
+    table = _metric_table()
+    table = table[np.asarray(table["frame"]) == 0]
+    end_x = np.asarray(table["end_x_mm"], float).copy()
+    end_x[1] = clasper_end_x
+    table = table.with_columns(end_x_mm=end_x)
+    if pose_status is not None:
+        table = table.with_columns(pose_status=np.array(pose_status, dtype=object))
+    if not camera:
+        table = table.with_columns(paper_x_px=table["cx_px"], paper_y_px=table["cy_px"])
+    config = Config(camera=CAMERA if camera else None, shaft_diameter_mm=8.0)
+    replay = build_replay(table, config, image_wh=(720, 576))
+    text = parts_markdown(replay, 0)
+    assert f"**a**: {panel}  \n" in text, text
+    if camera:  # a part is "✓" exactly where its cylinder is drawn
+        shown = [s == "ok" for _, _, s, _ in replay.frame_status(0)]
+        assert shown == list(replay.modes["metric"].visible[0, 0])
+
+
 def test_paper_cylinders_follow_the_papers_scene() -> None:
     """Base at the paper's (x, y, z), length = box length, radius = half the box width,
     axis = +x turned by the yaw, clasper base on the shaft's end (the paper, Section 4)."""
@@ -253,6 +296,20 @@ def _busy_frame(replay) -> int:
     g = replay.modes[replay.default_mode]
     counts = g.visible.reshape(replay.num_frames, -1).sum(axis=1)
     return int(np.argmax(counts))
+
+
+def test_parts_panel_of_a_ground_truth_table_shows_its_poses(sequence) -> None:
+    """truth.csv has every metric pose and an empty ``pose_status`` column: the panel said
+    "no pose" beside the drawn cylinders."""
+    replay = sequence.replay
+    g = replay.modes["metric"]
+    for frame in range(replay.num_frames):
+        status = np.array([s for _, _, s, _ in replay.frame_status(frame)])
+        drawn = g.visible[frame].reshape(-1)
+        assert ((status == "ok") == drawn).all(), (frame, status, drawn)
+    k = _busy_frame(replay)
+    text = parts_markdown(replay, k)
+    assert NO_POSE not in text and text.count("shaft ✓") == len(replay.instruments), text
 
 
 def test_overlay_colours_each_instrument_part_and_draws_boxes(sequence) -> None:

@@ -152,6 +152,12 @@ def test_page_shows_the_replay_and_reacts(browser, viewer: ReplayViewer, tmp_pat
         frame = int(busy[len(busy) // 2])
         viewer.timeline.seek(frame)
         assert viewer.timeline.wait_shown(frame)
+        # The panel says each drawn part has its pose (truth.csv has them all, and an
+        # empty pose_status column: it said "no pose" beside the cylinders).
+        n = len(replay.instruments)
+        assert _wait(lambda: page.inner_text("body").count("clasper ✓") == n)
+        panel = page.inner_text("body")
+        assert panel.count("shaft ✓") == n and "no pose" not in panel, panel
         page.get_by_role("button", name="Endoscope").click()
         time.sleep(1.0)
         endo = _shot(page)

@@ -376,6 +376,30 @@ FEED_POLL_FIRST_S = 0.05
 PLOT_REFRESH_S = 2.0
 
 
+def parts_markdown(replay: Replay, frame: int) -> str:
+    """The "Parts in this frame" panel at ``frame`` (markdown): per instrument, each part
+    whose metric pose is shown (✓, with its quality) and, for the others, why not (the
+    table's ``pose_status``, :meth:`Replay.frame_status`)."""
+    rows: dict[str, list[str]] = {}
+    for inst, part, status, quality in replay.frame_status(frame):
+        if status == "ok":
+            text = f"{part} ✓" + (f" ({quality:.2f})" if np.isfinite(quality) else "")
+        else:
+            text = f"{part}: _{status}_"
+        rows.setdefault(inst, []).append(text)
+    if not rows:
+        return "_Not tracked yet._" if frame >= replay.tracked else "_No instrument._"
+    lines = []
+    for i, (inst, texts) in enumerate(rows.items()):
+        r, g, b = (int(c) for c in replay.colours[i])
+        swatch = f"<span style='color:rgb({r},{g},{b})'>■</span> **{inst}**"
+        if all(t.endswith(f"_{NOT_VISIBLE}_") for t in texts):
+            lines.append(f"{swatch}: _{NOT_VISIBLE}_")
+        else:
+            lines.append(f"{swatch}: " + " · ".join(texts))
+    return "  \n".join(lines) + "  \n<small>✓ 3D pose shown (quality: mask IoU)</small>"
+
+
 class ReplayViewer:
     """A running viewer: server, scene, overlay, timeline, plots."""
 
@@ -683,25 +707,7 @@ class ReplayViewer:
         )
 
     def _parts_markdown(self, frame: int) -> str:
-        """What each instrument part shows at ``frame``, and why one shows nothing."""
-        rows: dict[str, list[str]] = {}
-        for inst, part, status, quality in self.replay.frame_status(frame):
-            if status == "ok":
-                text = f"{part} ✓" + (f" ({quality:.2f})" if np.isfinite(quality) else "")
-            else:
-                text = f"{part}: _{status}_"
-            rows.setdefault(inst, []).append(text)
-        if not rows:
-            return "_Not tracked yet._" if frame >= self.replay.tracked else "_No instrument._"
-        lines = []
-        for i, (inst, texts) in enumerate(rows.items()):
-            r, g, b = (int(c) for c in self.replay.colours[i])
-            swatch = f"<span style='color:rgb({r},{g},{b})'>■</span> **{inst}**"
-            if all(t.endswith(f"_{NOT_VISIBLE}_") for t in texts):
-                lines.append(f"{swatch}: _{NOT_VISIBLE}_")
-            else:
-                lines.append(f"{swatch}: " + " · ".join(texts))
-        return "  \n".join(lines) + "  \n<small>✓ 3D pose shown (quality: mask IoU)</small>"
+        return parts_markdown(self.replay, frame)
 
     def _legend(self) -> str:
         rows = []

@@ -136,8 +136,8 @@ class ModeGeometry:
 
 #: Reason shown for a part with no row in a frame (the mask has none of it).
 NOT_VISIBLE = "not visible"
-#: Reason shown for a part with a row whose metric pose is empty, when the table has no
-#: ``pose_status`` column to say why.
+#: Reason shown for a part with a row whose metric pose is empty, when the table does not
+#: say why (no ``pose_status`` column, or an empty cell).
 NO_POSE = "no pose"
 #: Frames per window when a whole table is written into a replay.
 WRITE_WINDOW = 4096
@@ -323,8 +323,6 @@ class Replay:
         if all(c in table for c in corners_cols):
             corners = _dense(table, fi, ii, pi, shape, corners_cols).reshape(*shape, 4, 2)
         arrays["corners"] = corners.astype(np.float32)
-        statuses = list(self.statuses)
-        arrays["status"] = self._status(table, fi, ii, pi, shape, statuses)
         quality = np.full(shape, np.nan, dtype=np.float32)
         if "quality" in table:
             quality[fi, ii, pi] = np.asarray(table["quality"], dtype=np.float32)
@@ -344,6 +342,9 @@ class Replay:
                 arrays[f"{m}/{name}"] = getattr(g, name)
             arrays[f"series/{m}/position"] = position
             arrays[f"series/{m}/rotation"] = rotation
+        drawn = arrays["metric/visible"][fi, ii, pi] if "metric" in self._mode_names else None
+        statuses = list(self.statuses)
+        arrays["status"] = self._status(table, fi, ii, pi, shape, statuses, drawn)
         return ReplayPatch(lo, hi, instruments, arrays, tuple(statuses))
 
     def _status(
@@ -354,22 +355,26 @@ class Replay:
         pi: np.ndarray,
         shape: tuple[int, int, int],
         statuses: list[str],
+        drawn: np.ndarray | None,
     ) -> np.ndarray:
-        """Status codes: the ``pose_status`` column when the table has one, else "ok"
-        where the metric end is known and :data:`NO_POSE` where it is not."""
+        """Status codes: each row's ``pose_status`` when the table gives one; where it
+        gives none (no such column, or an empty cell: a ground-truth table, a table
+        written by another tool), "ok" where the row's metric pose is drawn (``drawn``:
+        (N,) bool, None without a metric mode) and else :data:`NO_POSE`, or "no camera"
+        without a camera."""
         out = np.zeros(shape, dtype=np.uint8)  # 0: no row, not visible
         if table.num_rows == 0:
             return out
-        if "pose_status" in table:
-            text = np.asarray(table["pose_status"]).astype(str)
-        else:
-            ends = np.column_stack([np.asarray(table[c], float) for c in _END_COLUMNS])
-            known = np.isfinite(ends).all(axis=1)
-            reason = NO_POSE if self.config.camera is not None else "no camera"
-            text = np.where(known, "ok", reason)
+        given = np.full(table.num_rows, "", dtype=str)
+        if "pose_status" in table:  # (a table's object column holds str(None), str(nan))
+            given = np.char.strip(np.asarray(table["pose_status"]).astype(str))
+        missing = np.isin(given, _NO_STATUS)
+        reason = NO_POSE if self.config.camera is not None else "no camera"
+        shown = drawn if drawn is not None else np.zeros(table.num_rows, dtype=bool)
+        text = np.where(missing, np.where(shown, "ok", reason), given)
         codes = np.empty(len(text), dtype=np.uint8)
         for value in np.unique(text):
-            name = str(value) or NO_POSE
+            name = str(value)
             if name not in statuses:
                 if len(statuses) >= 255:
                     name = NO_POSE if NO_POSE in statuses else statuses[-1]
@@ -455,6 +460,8 @@ class Replay:
 
 
 _END_COLUMNS = ("end_x_mm", "end_y_mm", "end_z_mm")
+#: ``pose_status`` cells that give no reason (empty; a missing value turned into text).
+_NO_STATUS = ("", "nan", "NaN", "None")
 
 
 def _codes(values: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
