@@ -169,3 +169,49 @@ def test_the_warm_up_if_stale_skips_a_fresh_cache() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "exit 0 False"
+
+
+def test_no_kernel_calls_itself() -> None:
+    """numba cannot cache a function that calls itself (numba issue 6061): its machine
+    code, loaded from the cache by a later process, has an unresolved symbol ("LLVM
+    ERROR: Symbol not found" or a segmentation fault). So no function in a kernel module
+    calls itself; a recursion is written with an explicit stack (``split._pairwise``)."""
+    import ast
+
+    calls_itself = []
+    for path in sorted(Path(mistool.kernels.__file__).parent.glob("*.py")):
+        for fn in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(fn, ast.FunctionDef):
+                continue
+            for node in ast.walk(fn):
+                if (
+                    isinstance(node, ast.Call)
+                    and isinstance(node.func, ast.Name)
+                    and node.func.id == fn.name
+                ):
+                    calls_itself.append(f"{path.name}:{node.lineno} {fn.name}")
+    assert calls_itself == []
+
+
+def test_a_kernel_compiled_first_in_one_process_loads_from_the_cache_in_the_next(
+    tmp_path: Path,
+) -> None:
+    """The pairwise sum (numpy's summation order) compiled on its own into a new cache,
+    then loaded from that cache by a second process, gives numpy's sum in both. (With
+    the sum written as a recursion, the second process crashed: a segmentation fault,
+    exit -11, from numba issue 6061; a process that compiled every kernel in module
+    order did not show it, but one compiling the crossing split's score first did, after
+    every cache renewal.)"""
+    import os
+
+    code = (
+        "import numpy as np\n"
+        "from mistool.kernels import split\n"
+        "v = np.random.default_rng(1).uniform(0, 30, 1000)\n"
+        "print(split.pairwise_sum(v, 1000) == float(np.add.reduce(v)))\n"
+    )
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    for run in ("compiles", "loads"):
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+        assert (run, out.returncode, out.stdout.strip()) == (run, 0, "True"), out.stderr[-2000:]
+    assert list((tmp_path / "cache").rglob("*.nbc"))  # the second run did load a cache

@@ -110,36 +110,76 @@ def dot_strided(x: np.ndarray, y: np.ndarray) -> float:
     return t1 + t2
 
 
-@kernel("float64(float64[::1], int64, int64)")
-def _pairwise(a: np.ndarray, lo: int, n: int) -> float:
+@helper
+def _pairwise_block(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's pairwise summation of ``a[lo : lo + n]`` for ``n <= 128`` (one block)."""
     if n < 8:
         res = -0.0
         for i in range(lo, lo + n):
             res += a[i]
         return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    stop = n - n % 8
+    while i < stop:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@helper
+def _pairwise(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's pairwise summation of ``a[lo : lo + n]``: blocks of at most 128 summed by
+    :func:`_pairwise_block`, a longer range split at half its length (rounded down to a
+    multiple of 8) and its halves' sums added. Written with an explicit stack, not as
+    the recursion it is: numba cannot cache a function that calls itself (its machine
+    code loaded from the cache then has an unresolved symbol: numba issue 6061, an
+    "LLVM ERROR: Symbol not found" or a segmentation fault, depending on the order in
+    which a process first compiled the kernels)."""
     if n <= 128:
-        r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-        r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-        i = 8
-        stop = n - n % 8
-        while i < stop:
-            r0 += a[lo + i]
-            r1 += a[lo + i + 1]
-            r2 += a[lo + i + 2]
-            r3 += a[lo + i + 3]
-            r4 += a[lo + i + 4]
-            r5 += a[lo + i + 5]
-            r6 += a[lo + i + 6]
-            r7 += a[lo + i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[lo + i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise(a, lo, n2) + _pairwise(a, lo + n2, n - n2)
+        return _pairwise_block(a, lo, n)
+    # each level halves the range: 64 levels hold any int64 length
+    los = np.empty(64, np.int64)
+    ns = np.empty(64, np.int64)
+    stage = np.empty(64, np.int64)  # 0: left half next, 1: right half next, 2: both done
+    left = np.empty(64, np.float64)  # the left half's sum, once known
+    los[0], ns[0], stage[0] = lo, n, 0
+    top = 0
+    ret = 0.0  # the sum of the range just finished
+    while True:
+        m = ns[top]
+        half = m // 2
+        half -= half % 8
+        if stage[top] == 0:
+            stage[top] = 1
+            child_lo, child_n = los[top], half
+        elif stage[top] == 1:
+            left[top] = ret
+            stage[top] = 2
+            child_lo, child_n = los[top] + half, m - half
+        else:
+            ret = left[top] + ret
+            if top == 0:
+                return ret
+            top -= 1
+            continue
+        if child_n <= 128:
+            ret = _pairwise_block(a, child_lo, child_n)
+        else:
+            top += 1
+            los[top], ns[top], stage[top] = child_lo, child_n, 0
 
 
 @kernel("float64(float64[::1], int64)")
