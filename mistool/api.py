@@ -198,7 +198,7 @@ class _MeasureGroup:
         """Submit the frames queued (if any)."""
         if not self._frames:
             return
-        work = [(p.result.instances, p.result.shape) for p in self._frames]
+        work = parallel.MeasureWork((p.result.instances, p.result.shape) for p in self._frames)
         future = self._pool.submit(parallel.measure_frames, work, self._config, self._metric)
         for k, p in enumerate(self._frames):
             p.metrics, p.slot = future, k

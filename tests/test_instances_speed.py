@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -483,6 +484,25 @@ def _result_key(r: object) -> tuple:
     )
 
 
+def _metric(rng: np.random.Generator) -> dict[str, dict[str, Any]] | None:
+    """An instance's metric pose as the pose gives it, or an odd one: None, a part
+    with a None or a text value, parts in either order, columns in any order."""
+    kind = int(rng.integers(0, 6))
+    if kind == 0:
+        return None
+    cols = ["end_x_mm", "axis_x", "quality", "aux_status", "qw"][: int(rng.integers(1, 6))]
+    if kind == 1:
+        cols = cols[::-1]
+    out: dict[str, dict[str, Any]] = {}
+    for part in ["shaft", "clasper"] if kind != 2 else ["clasper", "shaft"]:
+        out[part] = {c: float(rng.normal(0, 1e3)) for c in cols}
+    if kind == 3:
+        out["shaft"][cols[0]] = None
+    if kind == 4:
+        out["clasper"]["reason"] = "no camera"
+    return out
+
+
 @settings(max_examples=150, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.booleans(), st.integers(1, 4))
 def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames):
@@ -492,7 +512,13 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
     values, border runs, flags; one result pickled alone too."""
     import pickle
 
-    from mistool.parallel import FrameResult, FrameResults, observe_labels
+    from mistool.parallel import (
+        FrameResult,
+        FrameResults,
+        MeasureWork,
+        MetricFrames,
+        observe_labels,
+    )
 
     rng = np.random.default_rng(seed)
     config = OWN if own else MERGED
@@ -504,7 +530,7 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
         result.deferred = bool(rng.integers(0, 2))
         result.corrupt = bool(rng.integers(0, 2))
         if rng.integers(0, 4) == 0:
-            result.metrics = [{"shaft": {"x": float(rng.random())}}] * len(result.instances)
+            result.metrics = [_metric(rng) for _ in result.instances]
         results.append(result)
     if rng.integers(0, 3) == 0:
         results.insert(
@@ -523,3 +549,12 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
     assert isinstance(one, FrameResult) and _result_key(one) == _result_key(results[-1])
     empty = FrameResult([], [], np.zeros(0, np.int64), (5, 7))
     assert _result_key(pickle.loads(pickle.dumps(empty))) == _result_key(empty)
+    # the caller's measuring tasks (instances and shapes out, metric poses back) too
+    work = MeasureWork((r.instances, r.shape) for r in results)
+    back = pickle.loads(pickle.dumps(work, protocol=pickle.HIGHEST_PROTOCOL))
+    assert type(back) is list and len(back) == len(work)
+    for (got_i, got_s), (want_i, want_s) in zip(back, work, strict=True):
+        assert got_s == want_s and [_key(i) for i in got_i] == [_key(i) for i in want_i]
+    poses = MetricFrames(r.metrics for r in results)
+    back_poses = pickle.loads(pickle.dumps(poses, protocol=pickle.HIGHEST_PROTOCOL))
+    assert type(back_poses) is list and repr(back_poses) == repr(poses)
