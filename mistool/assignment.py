@@ -8,6 +8,7 @@ column unmatched costs the gate; a few rows and columns: by enumeration, without
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -91,26 +92,43 @@ def _enumerated(cost: list[list[float]], max_cost: float) -> list[tuple[int, int
     row: no pair, or a free column whose cost is finite and at most ``max_cost``); the
     first of equal totals is kept. Sorted by row. (One row and one column: the pair
     costs at most ``max_cost``, leaving both unmatched ``2 max_cost``, so it is made
-    exactly when it passes the gate.)"""
+    exactly when it passes the gate.)
+
+    The sets are tried in the order of a depth-first walk over the rows (each row
+    unmatched first, then its columns in order; :func:`_matchings`), each total summed
+    row by row from 0 as the walk did."""
     n, m = len(cost), len(cost[0])
     ok = [[math.isfinite(x) and x <= max_cost for x in row] for row in cost]
-    best: list[tuple[int, int]] = []
+    best: tuple[tuple[int, int], ...] = ()
     best_total = math.inf
-    pairs: list[tuple[int, int]] = []
-
-    def walk(r: int, used: int, total_cost: float) -> None:
-        nonlocal best, best_total
-        if r == n:
-            total = total_cost + max_cost * (n + m - 2 * len(pairs))
+    for pairs in _matchings(n, m):
+        total = 0.0
+        for r, k in pairs:
+            if not ok[r][k]:
+                break
+            total += cost[r][k]
+        else:
+            total = total + max_cost * (n + m - 2 * len(pairs))
             if total < best_total:
-                best, best_total = list(pairs), total
-            return
-        walk(r + 1, used, total_cost)  # row r unmatched
-        for k in range(m):
-            if ok[r][k] and not used >> k & 1:
-                pairs.append((r, k))
-                walk(r + 1, used | 1 << k, total_cost + cost[r][k])
-                pairs.pop()
+                best, best_total = pairs, total
+    return list(best)
 
-    walk(0, 0, 0.0)
-    return best
+
+@functools.cache
+def _matchings(n: int, m: int) -> tuple[tuple[tuple[int, int], ...], ...]:
+    """Every partial matching of ``n`` rows to ``m`` columns, as pairs sorted by row, in
+    the order of a depth-first walk: row ``r`` unmatched first, then matched to each
+    free column in order (computed once per shape)."""
+    out: list[tuple[tuple[int, int], ...]] = []
+
+    def walk(r: int, used: int, pairs: tuple[tuple[int, int], ...]) -> None:
+        if r == n:
+            out.append(pairs)
+            return
+        walk(r + 1, used, pairs)  # row r unmatched
+        for k in range(m):
+            if not used >> k & 1:
+                walk(r + 1, used | 1 << k, (*pairs, (r, k)))
+
+    walk(0, 0, ())
+    return tuple(out)

@@ -112,3 +112,53 @@ def test_a_few_tracks_do_not_import_scipy() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _enumerated_before(cost: list[list[float]], max_cost: float) -> list[tuple[int, int]]:
+    """``assignment._enumerated`` as it was (commit 7cc3df9): a recursive walk over the
+    rows, each unmatched first, then each free column in order."""
+    import math
+
+    n, m = len(cost), len(cost[0])
+    ok = [[math.isfinite(x) and x <= max_cost for x in row] for row in cost]
+    best: list[tuple[int, int]] = []
+    best_total = math.inf
+    pairs: list[tuple[int, int]] = []
+
+    def walk(r: int, used: int, total_cost: float) -> None:
+        nonlocal best, best_total
+        if r == n:
+            total = total_cost + max_cost * (n + m - 2 * len(pairs))
+            if total < best_total:
+                best, best_total = list(pairs), total
+            return
+        walk(r + 1, used, total_cost)
+        for k in range(m):
+            if ok[r][k] and not used >> k & 1:
+                pairs.append((r, k))
+                walk(r + 1, used | 1 << k, total_cost + cost[r][k])
+                pairs.pop()
+
+    walk(0, 0, 0.0)
+    return best
+
+
+@settings(max_examples=500, deadline=None)
+@given(
+    st.integers(1, assignment.ENUMERATE_MAX),
+    st.integers(1, assignment.ENUMERATE_MAX),
+    st.integers(0, 2**32 - 1),
+    st.booleans(),
+)
+def test_the_enumeration_over_listed_matchings_is_the_former_walk(n, m, seed, ties):
+    """The small problems' matchings tried from a list made once per shape give the
+    former recursive walk's pairs, ties (the first of equal totals) and the gate's
+    infinities and NaNs included."""
+    rng = np.random.default_rng(seed)
+    gate = 3.0
+    cost = rng.integers(0, 4, (n, m)).astype(np.float64) if ties else rng.uniform(-1, 7, (n, m))
+    odd = rng.random((n, m))
+    cost[odd < 0.1] = np.inf
+    cost[(odd >= 0.1) & (odd < 0.15)] = np.nan
+    rows = cost.tolist()
+    assert assignment._enumerated(rows, gate) == _enumerated_before(rows, gate)

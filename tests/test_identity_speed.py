@@ -256,3 +256,76 @@ def test_the_share_of_a_box_under_another_is_as_before(seed):
         + (t.ravel() * a.width)[:, None] * v
     )
     assert heads._covered(a, b) == float((heads.box_distance(pts, b) <= 0.0).mean())
+
+
+def _update_before(
+    cv: ConstantVelocity,
+    measured: np.ndarray,
+    gap: int,
+    continuous: bool,
+    first: bool,
+    unsure_along: np.ndarray | None,
+) -> None:
+    """``ConstantVelocity.update`` as it was (commit 7cc3df9): (2,) numpy arrays."""
+    from mistool.tracking.motion import VELOCITY_GAIN
+
+    if continuous:
+        d = measured - cv.position
+        if unsure_along is not None and not first:
+            along = float(d @ unsure_along)
+            most = abs(float(cv.velocity @ unsure_along)) * gap
+            d = d + (max(-most, min(most, along)) - along) * unsure_along
+        v = d / gap
+        cv.velocity = v if first else VELOCITY_GAIN * v + (1.0 - VELOCITY_GAIN) * cv.velocity
+    cv.position = np.asarray(measured, dtype=np.float64)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans(), st.booleans(), st.booleans())
+def test_the_motion_update_in_plain_floats_is_the_former_numpy(seed, continuous, first, unsure):
+    """ConstantVelocity.update (plain floats unless unsure along a direction) gives the
+    former numpy update's position and velocity bit for bit."""
+    rng = np.random.default_rng(seed)
+    pos, vel = rng.uniform(-50, 750, 2), rng.normal(0, 8, 2)
+    measured = rng.uniform(-50, 750, 2)
+    gap = int(rng.integers(1, 12))
+    along = unit_vector(float(rng.uniform(0, 180))) if unsure else None
+    got, want = ConstantVelocity(pos.copy(), vel.copy()), ConstantVelocity(pos.copy(), vel.copy())
+    got.update(measured, gap, continuous=continuous, first=first, unsure_along=along)
+    _update_before(want, measured, gap, continuous, first, along)
+    assert got.position.tolist() == want.position.tolist()
+    assert got.velocity.tolist() == want.velocity.tolist()
+    assert got.velocity.dtype == want.velocity.dtype == np.float64
+
+
+def _match_before(tracker: Any, fr: Any) -> dict[int, int]:
+    """``IdentityTracker._match`` as it was (commit 7cc3df9): ``track_cost`` of every
+    pair into a numpy cost matrix."""
+    from mistool.assignment import gated_assignment
+
+    cost = np.full((len(fr.live), len(fr.instances)), np.inf)
+    entries = [identity._one_entry(tracker._runs_of(inst)) for inst in fr.instances]
+    for a, t in enumerate(fr.live):
+        for b, inst in enumerate(fr.instances):
+            if identity._far_head(
+                t, inst, fr.index, tracker._entry_reach(inst)
+            ) or identity._shrunk(t, inst, fr.index):
+                continue
+            cost[a, b] = tracker._cost(t, inst, fr.index, entries[b])
+    return {b: a for a, b in gated_assignment(cost, tracker._weights.max_cost)}
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 4), st.integers(0, 4))
+def test_the_assignment_from_terms_computed_once_is_the_former_one(seed, n_tracks, n_insts):
+    """_match (each track's and instance's terms computed once per frame) makes the
+    former assignment: the same pairs from the same costs."""
+    rng = np.random.default_rng(seed)
+    tracker = identity.IdentityTracker(_config())
+    tracks = [_track(rng) for _ in range(n_tracks)]
+    frame = max([t.last_frame for t in tracks], default=0) + int(rng.integers(1, 8))
+    insts = [_instance(rng, shaft=bool(rng.random() < 0.7)) for _ in range(n_insts)]
+    fr = identity._Frame(frame, insts, tracks)
+    want = _match_before(tracker, fr)
+    tracker._match(fr)
+    assert fr.owner == want

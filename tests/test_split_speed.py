@@ -1151,3 +1151,46 @@ def test_the_compiled_entry_lane_is_the_former_one(seed, n, border):
         pts = np.round(pts)
     half = float(rng.integers(1, 40)) * 0.5
     assert np.array_equal(_entry_lane(pts, mid, half), _entry_lane_before(pts, mid, half))
+
+
+def _with_part_before(inst: Any, part: str, xy: np.ndarray, min_area: int) -> Any:
+    """``heads._with_part`` as it was (commit 7cc3df9): the pixels' bounds by numpy's
+    min and max over the first axis."""
+    from mistool.model import PARTS
+    from mistool.tracking.instances import make_instance, part_observation
+
+    parts = {p: o for p, o in inst.parts.items() if p != part}
+    if len(xy) >= min_area:
+        ij = xy.astype(np.int64)
+        x0, y0 = ij.min(axis=0)
+        x1, y1 = ij.max(axis=0) + 1
+        m = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        m[ij[:, 1] - y0, ij[:, 0] - x0] = 255
+        obs = part_observation(part, m, int(x0), int(y0), min_area)
+        if obs is not None:
+            parts[part] = obs
+    if not parts:
+        return None
+    return make_instance(inst.label, {p: parts[p] for p in PARTS if p in parts}, inst.image_shape)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 400), st.sampled_from([1, 5, 50]))
+def test_a_head_handed_over_is_the_former_instance(seed, n, min_area):
+    """heads._with_part (its pixels' bounds column by column) gives the former
+    instance: every value, box and mask bit."""
+    from mistool.tracking.heads import _with_part
+    from mistool.tracking.instances import make_instance, part_observation
+
+    rng = np.random.default_rng(seed)
+    m = np.zeros((40, 60), np.uint8)
+    cv2.line(m, (2, 3), (55, 30), 255, 6)
+    shaft = part_observation("shaft", m, int(rng.integers(0, 300)), int(rng.integers(0, 300)), 1)
+    assert shaft is not None
+    inst = make_instance(None, {"shaft": shaft}, (576, 720))
+    c = rng.uniform(20, 500, 2)
+    xy = np.unique(np.floor(c + rng.normal(0, 12, (n, 2))).clip(0, 700), axis=0)
+    rng.shuffle(xy)
+    got = _with_part(inst, "clasper", xy, min_area)
+    want = _with_part_before(inst, "clasper", xy, min_area)
+    assert _same_instance(got, want)

@@ -91,8 +91,9 @@ def _with_part(
     parts = {p: o for p, o in inst.parts.items() if p != part}
     if len(xy) >= min_area:
         ij = xy.astype(np.int64)
-        x0, y0 = ij.min(axis=0)
-        x1, y1 = ij.max(axis=0) + 1
+        xs, ys = ij[:, 0], ij[:, 1]  # (a column's min and max: numpy's over axis 0 of
+        x0, y0 = int(xs.min()), int(ys.min())  # (N, 2) is ~10x slower)
+        x1, y1 = int(xs.max()) + 1, int(ys.max()) + 1
         m = np.zeros((y1 - y0, x1 - x0), np.uint8)
         m[ij[:, 1] - y0, ij[:, 0] - x0] = 255
         obs = part_observation(part, m, int(x0), int(y0), min_area)

@@ -269,38 +269,83 @@ def track_cost(
     and the distance between where the instance's shaft enters the view (``entry``,
     :func:`shaft_entry`) and where the track's last did.
     """
-    gap = frame - t.last_frame
-    lost = t.state is TrackState.LOST
-    cx, cy = inst.centroid_px
+    return _pair_cost(_TrackTerms(t, frame), _InstanceTerms(inst, entry), frame, weights, fps)
+
+
+class _TrackTerms:
+    """What :func:`track_cost` reads of a track at one frame, computed once per frame
+    (plain floats: the same values as the numpy arrays they come from)."""
+
+    __slots__ = ("angle", "area", "elongation", "entry", "gap", "last_frame", "lost",
+                 "px", "py", "size", "state", "track")  # fmt: skip
+
+    def __init__(self, t: Track, frame: int) -> None:
+        self.track = t
+        self.state = t.state
+        self.lost = t.state is TrackState.LOST
+        self.gap = frame - t.last_frame
+        self.size = t.size
+        self.area = t.area
+        self.angle = t.angle
+        self.elongation = t.elongation
+        self.px, self.py = t.predict_xy(frame)
+        self.entry = None if t.entry is None else t.entry.tolist()
+
+
+class _InstanceTerms:
+    """What :func:`track_cost` reads of an instance (and its shaft's ``entry``),
+    computed once per frame."""
+
+    __slots__ = ("angle", "area", "cx", "cy", "diag", "elongation", "entry", "has_shaft",
+                 "inst", "root")  # fmt: skip
+
+    def __init__(self, inst: InstanceObservation, entry: np.ndarray | None) -> None:
+        self.inst = inst
+        self.cx, self.cy = inst.centroid_px
+        self.area = inst.area_px
+        self.root = math.sqrt(inst.area_px)
+        self.angle, self.elongation = _appearance(inst)
+        self.has_shaft = "shaft" in inst.parts
+        shape = inst.image_shape
+        self.diag = None if shape is None else math.hypot(*shape)
+        self.entry = None if entry is None else entry.tolist()
+
+
+def _pair_cost(
+    t: _TrackTerms, i: _InstanceTerms, frame: int, weights: CostWeights, fps: float
+) -> float:
+    """:func:`track_cost` of precomputed terms (the same operations in the same order:
+    the same bits)."""
+    gap = t.gap
+    lost = t.lost
     # scale: the instrument's full size, also when it was last seen only partly
-    scale = max(t.size, math.sqrt(inst.area_px), 10.0)
+    scale = max(t.size, i.root, 10.0)
     if lost:  # unseen: the search area grows with time
-        if inst.image_shape is not None:  # from where it left, whatever its size
-            scale = min(scale, weights.lost_scale_frac * math.hypot(*inst.image_shape))
+        if i.diag is not None:  # from where it left, whatever its size
+            scale = min(scale, weights.lost_scale_frac * i.diag)
         scale *= 1.0 + weights.lost_search_growth * (gap - LOST_AFTER_FRAMES) / fps
-    px, py = t.predict_xy(frame)  # (plain floats, numpy's values; np.hypot: the C
-    dist = float(np.hypot(cx - px, cy - py))  # library's, which math.hypot is not)
-    if lost and entry is not None and t.entry is not None and inst.image_shape is not None:
-        # a tool comes back through its trocar: its shaft enters where it left (its
-        # centroid, predicted on from its exit, lies outside the view)
-        moved = float(np.hypot(*(entry - t.entry)))
-        if moved <= weights.entry_scale_frac * math.hypot(*inst.image_shape):
+    # (plain floats, numpy's values; np.hypot: the C library's, which math.hypot is not)
+    dist = float(np.hypot(i.cx - t.px, i.cy - t.py))
+    moved = 0.0
+    if i.entry is not None and t.entry is not None and i.diag is not None:
+        moved = float(np.hypot(i.entry[0] - t.entry[0], i.entry[1] - t.entry[1]))
+        if lost and moved <= weights.entry_scale_frac * i.diag:
+            # a tool comes back through its trocar: its shaft enters where it left (its
+            # centroid, predicted on from its exit, lies outside the view)
             dist = min(dist, moved)
     cost = dist / scale
-    angle, elong = _appearance(inst)
+    angle, elong = i.angle, i.elongation
     # an instrument coming back shows its head first: its direction is no shaft's
-    if angle is not None and t.angle is not None and not (lost and "shaft" not in inst.parts):
+    if angle is not None and t.angle is not None and not (lost and not i.has_shaft):
         w = min(elong, t.elongation)
         cost += weights.angle * w * angle_diff_deg(angle, t.angle) / 90.0
     if t.state is TrackState.TRACKED:  # not a blob's area, nor an exit's partial one
-        cost += weights.area * abs(math.log(max(inst.area_px, 1) / max(t.area, 1.0)))
+        cost += weights.area * abs(math.log(max(i.area, 1) / max(t.area, 1.0)))
     cost += weights.gap * (gap - 1)
     if t.state is TrackState.HIDDEN:  # a shared blob keeps its name: no flapping
         cost += weights.hidden_penalty
-    if entry is not None and t.entry is not None and inst.image_shape is not None:
-        diag = math.hypot(*inst.image_shape)
-        dist = float(np.hypot(*(entry - t.entry)))
-        cost += weights.entry * dist / (weights.entry_scale_frac * diag)
+    if i.entry is not None and t.entry is not None and i.diag is not None:
+        cost += weights.entry * moved / (weights.entry_scale_frac * i.diag)
     return cost
 
 
@@ -359,14 +404,21 @@ def _far_head(t: Track, inst: InstanceObservation, frame: int, entry_reach: floa
     first elsewhere is another."""
     if not (t.in_blob or t.state.coasting) or "shaft" in inst.parts:
         return False
-    cx, cy = inst.centroid_px
-    px, py = t.predict_xy(frame)
-    if float(np.hypot(cx - px, cy - py)) <= FAR_HEAD_SIZES * t.size:
+    return _far_head_terms(_TrackTerms(t, frame), _InstanceTerms(inst, None), entry_reach)
+
+
+def _far_head_terms(t: _TrackTerms, i: _InstanceTerms, entry_reach: float) -> bool:
+    """:func:`_far_head` of precomputed terms."""
+    track = t.track
+    if not (track.in_blob or t.state.coasting) or i.has_shaft:
+        return False
+    cx, cy = i.cx, i.cy
+    if float(np.hypot(cx - t.px, cy - t.py)) <= FAR_HEAD_SIZES * t.size:
         return False
     near_entry = (
         t.entry is not None and float(np.hypot(cx - t.entry[0], cy - t.entry[1])) <= entry_reach
     )
-    return not (near_entry and _touches_border(inst))
+    return not (near_entry and _touches_border(i.inst))
 
 
 #: A track seen apart in the last frame takes no instance inside the view (not touching
@@ -558,16 +610,25 @@ class IdentityTracker:
 
     def _match(self, fr: _Frame) -> None:
         """One gated assignment of live tracks to instances."""
-        cost = np.full((len(fr.live), len(fr.instances)), np.inf)
-        entries = [_one_entry(self._runs_of(inst)) for inst in fr.instances]
-        for a, t in enumerate(fr.live):
-            for b, inst in enumerate(fr.instances):
-                if _far_head(t, inst, fr.index, self._entry_reach(inst)) or _shrunk(
-                    t, inst, fr.index
-                ):
-                    continue
-                cost[a, b] = self._cost(t, inst, fr.index, entries[b])
-        fr.owner = {b: a for a, b in gated_assignment(cost, self._weights.max_cost)}
+        frame, weights, fps = fr.index, self._weights, self._config.fps
+        insts = [_InstanceTerms(inst, _one_entry(self._runs_of(inst))) for inst in fr.instances]
+        reach = [self._entry_reach(inst) for inst in fr.instances]
+        cost = []
+        for t in fr.live:
+            tt = _TrackTerms(t, frame)
+            row = []
+            for b, i in enumerate(insts):
+                if _far_head_terms(tt, i, reach[b]) or _shrunk(t, i.inst, frame):
+                    row.append(math.inf)
+                else:
+                    row.append(_pair_cost(tt, i, frame, weights, fps))
+            cost.append(row)
+        fr.owner = {
+            b: a
+            for a, b in gated_assignment(
+                np.array(cost, np.float64).reshape(len(fr.live), len(insts)), weights.max_cost
+            )
+        }
 
     def _entry_reach(self, inst: InstanceObservation) -> float:
         """How far (px) from where a shaft last entered the view it may enter now

@@ -64,7 +64,18 @@ class ConstantVelocity:
                 between tools moves): the displacement's component along it counts no
                 faster than the velocity's own component (across it, as measured).
         """
-        if continuous:
+        measured = np.asarray(measured, dtype=np.float64)
+        if continuous and (unsure_along is None or first):
+            # (plain floats: numpy's values, one operation at a time as its (2,) arrays
+            # did, without their per-call cost)
+            (mx, my), (px, py) = measured.tolist(), self.position.tolist()
+            vx, vy = (mx - px) / gap, (my - py) / gap
+            if not first:
+                ox, oy = self.velocity.tolist()
+                keep = 1.0 - VELOCITY_GAIN
+                vx, vy = VELOCITY_GAIN * vx + keep * ox, VELOCITY_GAIN * vy + keep * oy
+            self.velocity = np.array([vx, vy])
+        elif continuous:
             d = measured - self.position
             if unsure_along is not None and not first:
                 along = float(d @ unsure_along)
@@ -74,7 +85,7 @@ class ConstantVelocity:
             self.velocity = (
                 v if first else VELOCITY_GAIN * v + (1.0 - VELOCITY_GAIN) * self.velocity
             )
-        self.position = np.asarray(measured, dtype=np.float64)
+        self.position = measured
 
     def reset_velocity(self) -> None:
         """Forget the velocity (a track found again after being lost)."""

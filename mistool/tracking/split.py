@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mistool.geometry import fit_of
+from mistool.geometry import grown_box
 from mistool.kernels import split as kernels
 from mistool.kernels.boxes import fit_runs, mask_runs
 from mistool.kernels.split import DOT_SERIAL_MAX
@@ -575,21 +575,36 @@ def _head_segments(
     distal end (its last shape seen apart: a bent wrist, open jaws). ``([ends, dirs,
     back, radius], row)``: (S, 2), (S, 2), (S,), (S,) segments and each one's
     instrument, head segments first, computed as the former numpy distances did."""
-    length = 2.0 * HEAD_LENGTH_WIDTHS * ax.radius if ax.head_len is None else ax.head_len
-    k = len(ax.dirs)
-    seg = [ax.ends + length[:, None] * ax.dirs, ax.dirs, length, ax.radius]
-    idx = [j for j, e in enumerate(expected) if name in e]
-    if not idx:
-        return seg, np.arange(k)
-    boxes = [expected[j][name] for j in idx]
-    shift = (ax.ends - ax.limit_end)[idx]  # the other parts move with their shaft's end
-    u = np.array([unit_vector(b.angle_deg) for b in boxes])
-    h = np.array([0.5 * b.length for b in boxes])
-    c = np.array([[b.cx, b.cy] for b in boxes]) + shift
-    r = np.array([max(b.width / 2.0, 1.0) for b in boxes])
-    box = [c + h[:, None] * u, u, 2 * h, r]
-    both = [np.concatenate([a, b]) for a, b in zip(seg, box, strict=True)]
-    return both, np.concatenate([np.arange(k), idx])
+    # (plain floats: numpy's values, one operation at a time as its arrays did)
+    radius = ax.radius.tolist()
+    length = (
+        [2.0 * HEAD_LENGTH_WIDTHS * r for r in radius]
+        if ax.head_len is None
+        else ax.head_len.tolist()
+    )
+    ends, dirs = ax.ends.tolist(), ax.dirs.tolist()
+    s_ends = [
+        (x + n * dx, y + n * dy) for (x, y), (dx, dy), n in zip(ends, dirs, length, strict=True)
+    ]
+    s_dirs, back, rad, rows = list(dirs), list(length), list(radius), list(range(len(dirs)))
+    limit = ax.limit_end.tolist()
+    for j, e in enumerate(expected):
+        b = e.get(name)
+        if b is None:
+            continue
+        t = math.radians(b.angle_deg)
+        ux, uy = math.cos(t), math.sin(t)  # (unit_vector)
+        h = 0.5 * b.length
+        # the other parts move with their shaft's end
+        cx = b.cx + (ends[j][0] - limit[j][0])
+        cy = b.cy + (ends[j][1] - limit[j][1])
+        s_ends.append((cx + h * ux, cy + h * uy))
+        s_dirs.append((ux, uy))
+        back.append(2 * h)
+        rad.append(max(b.width / 2.0, 1.0))
+        rows.append(j)
+    seg = [np.array(s_ends), np.array(s_dirs), np.array(back), np.array(rad)]
+    return seg, np.array(rows, np.int64)
 
 
 #: A head (wrist and jaws) lies on its shaft's distal extension: from the shaft's end
@@ -928,8 +943,11 @@ def _head_labels(
             continue
         parts.append(seg)
         row.append(np.full(len(seg[2]), a))
-    ends, dirs, back, radius = (np.concatenate(c) for c in zip(*parts, strict=True))
-    rows = np.concatenate(row).astype(np.int64)
+    if len(parts) == 1:  # (no anchor's boxes: the arrays as they are)
+        ends, dirs, back, radius = segs
+    else:
+        ends, dirs, back, radius = (np.concatenate(c) for c in zip(*parts, strict=True))
+    rows = np.concatenate(row).astype(np.int64) if len(row) > 1 else row[0]
     is_centre = np.ones(len(centres), np.bool_)
     is_centre[rows] = False
     runs = mask_runs(_mask_u8(part.mask))
@@ -985,14 +1003,20 @@ def _measure_runs(
     ox, oy = int(offset[0]), int(offset[1])
     out: list[_Measured | None] = []
     for j, n in enumerate(count.tolist()):
-        found = fit_runs(ry[j], rx0[j], rx1[j], n, min_area_px, ox, oy) if n else None
-        fit = None if found is None else fit_of(found, (ox, oy))
-        if found is None or fit is None:
+        if not n:
             out.append(None)
             continue
-        obs = PartObservation(name, fit.box, fit.corners, fit.area_px, fit.kept, fit.offset)
-        area, sx, sy = int(found[0][0]), int(found[0][3]), int(found[0][4])
-        out.append(_Measured(obs, sx + area * fit.offset[0], sy + area * fit.offset[1]))
+        # (geometry.fit_of's steps without its PartFit)
+        (area, x0, y0, sx, sy), kept, pts, hull = fit_runs(
+            ry[j], rx0[j], rx1[j], n, min_area_px, ox, oy
+        )
+        if area == 0:
+            out.append(None)
+            continue
+        box, corners = grown_box(pts, hull)
+        origin = (ox + x0, oy + y0)
+        obs = PartObservation(name, box, corners, area, kept, origin)
+        out.append(_Measured(obs, sx + area * origin[0], sy + area * origin[1]))
     return out
 
 
