@@ -1194,3 +1194,81 @@ def test_a_head_handed_over_is_the_former_instance(seed, n, min_area):
     got = _with_part(inst, "clasper", xy, min_area)
     want = _with_part_before(inst, "clasper", xy, min_area)
     assert _same_instance(got, want)
+
+
+def _lane_bins_before(q: np.ndarray, p: np.ndarray, d: np.ndarray, width: float) -> np.ndarray:
+    """``split.head_stop``'s ``lane_bins`` as it was (commit 7cc3df9), in numpy."""
+    step = max(0.25 * width, 1.0)
+    start = 1.0 * width
+    rel = q - p
+    along = rel @ d
+    across = np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0])
+    return ((along[(across <= 0.5 * width) & (along > start)] - start) // step).astype(np.int64)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.sampled_from([0, 1, 2, 3, 50, 4000]),
+    st.booleans(),
+    st.floats(0.5, 80.0),
+)
+def test_the_compiled_lane_bins_are_numpys(seed, n, on_grid, width):
+    """kernels.split.lane_bins (head_stop's lane) gives numpy's bins: the points in the
+    lane in their order, ``rel @ d`` by dgemv's order, numpy's float floor division;
+    pixel-grid points and entries (ties on the lane's edges) included."""
+    from mistool.kernels.split import lane_bins
+
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-50, 800, (n, 2))
+    p = rng.uniform(0, 700, 2)
+    if on_grid:
+        q, p = np.floor(q), np.floor(p)
+    t = float(rng.uniform(0, 2 * math.pi))
+    d = np.array([math.cos(t), math.sin(t)])
+    if on_grid and rng.random() < 0.3:  # along an axis: points on the lane's edges
+        d = np.array([1.0, 0.0]) if rng.random() < 0.5 else np.array([0.0, -1.0])
+    step = max(0.25 * width, 1.0)
+    got = lane_bins(q, float(p[0]), float(p[1]), float(d[0]), float(d[1]), 0.5 * width, width, step)
+    assert np.array_equal(got, _lane_bins_before(q, p, d, width))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-1e6, 1e6), st.floats(-1e3, 1e3).filter(lambda b: b != 0))
+def test_the_compiled_floor_division_is_numpys(a, b):
+    """kernels.split.floor_divide: numpy's float ``//`` bit for bit (signs, exact
+    multiples, the nearest-integer correction)."""
+    import numba
+
+    from mistool.kernels.split import floor_divide
+
+    call = numba.njit(lambda x, y: floor_divide(x, y))  # (a helper: called from a kernel)
+
+    for x, y in ((a, b), (float(np.round(a)), float(np.round(b)) or 1.0), (a, 0.1), (-a, 0.3)):
+        with np.errstate(all="ignore"):  # (huge quotients: numpy's own overflow)
+            want = np.float64(x) // np.float64(y)
+        got = call(x, y)
+        assert np.float64(got).tobytes() == want.tobytes()
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_pixels_by_findnonzero_are_numpys_nonzero(seed):
+    """split._pixels and border_entries' window (OpenCV's findNonZero, also of a
+    window's strided view) give np.nonzero's pixels in its order."""
+    from mistool.tracking.split import _nonzero_xy, _pixels
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(1, 60)), int(rng.integers(1, 60))
+    mask = rng.random((h, w)) < rng.uniform(0, 1)
+    box = RotatedBox(0.0, 0.0, 1.0, 1.0, 0.0)
+    part = PartObservation("shaft", box, np.zeros((4, 2)), 1, mask, (7, 11))
+    ys, xs = np.nonzero(mask)
+    want = np.stack([xs + 7, ys + 11], 1).astype(np.float64)
+    got = _pixels(part)
+    assert got.dtype == np.float64 and np.array_equal(got, want)
+    ya, xa = int(rng.integers(0, h)), int(rng.integers(0, w))
+    yb, xb = int(rng.integers(ya, h + 1)), int(rng.integers(xa, w + 1))
+    xs2, ys2 = _nonzero_xy(mask[ya:yb, xa:xb])
+    wys, wxs = np.nonzero(mask[ya:yb, xa:xb])
+    assert np.array_equal(xs2, wxs) and np.array_equal(ys2, wys)

@@ -1260,3 +1260,57 @@ def entry_lane(
         along = row_dot(rx[i], ry[i], d0, d1, single)
         across = row_dot(rx[i], ry[i], -d1, d0, single)
         out[i] = along >= 0.0 and abs(across) <= half
+
+
+@helper
+def floor_divide(a: float, b: float) -> float:
+    """``a // b`` of two floats as numpy's ``floor_divide`` (and CPython) computes it:
+    from ``fmod``, the quotient rounded to the nearest integer when ``floor`` lands
+    more than half away (``npy_divmod``)."""
+    mod = np.fmod(a, b)  # (C fmod: exact)
+    if b == 0.0:
+        return a / b
+    div = (a - mod) / b
+    if mod != 0.0:
+        if (b < 0.0) != (mod < 0.0):
+            div -= 1.0
+    if div != 0.0:
+        floordiv = np.floor(div)  # (a float: math.floor gives an int here)
+        if div - floordiv > 0.5:
+            floordiv += 1.0
+        return floordiv
+    return math.copysign(0.0, a / b)
+
+
+@kernel(
+    "int64[::1](float64[:, ::1], float64, float64, float64, float64, float64, float64, float64)"
+)
+def lane_bins(
+    q: np.ndarray,
+    px: float,
+    py: float,
+    d0: float,
+    d1: float,
+    half: float,
+    start: float,
+    step: float,
+) -> np.ndarray:
+    """The bin index along the lane of each point of ``q`` (N, 2) lying in it, in their
+    order (``split.head_stop``'s lane: ``rel = q - p``, ``along = rel @ d`` by
+    ``dgemv``, ``across = |rel_x d_y - rel_y d_x|``; the points with ``across <= half``
+    and ``along > start``, binned as ``((along - start) // step).astype(int64)``)."""
+    n = q.shape[0]
+    got = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        r0 = q[i, 0] - px
+        r1 = q[i, 1] - py
+        along = row_dot(r0, r1, d0, d1, True)
+        across = abs(r0 * d1 - r1 * d0)
+        if across <= half and along > start:
+            got[m] = np.int64(floor_divide(along - start, step))
+            m += 1
+    out = np.empty(m, np.int64)
+    for i in range(m):
+        out[i] = got[i]
+    return out

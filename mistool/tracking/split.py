@@ -120,8 +120,8 @@ def distal_axis(boxes: dict[str, RotatedBox], shape: tuple[int, int] | None = No
 
 
 def _pixels(part: PartObservation) -> np.ndarray:
-    """(N, 2) float64 full-image (x, y) of a part's pixels."""
-    ys, xs = np.nonzero(part.mask)
+    """(N, 2) float64 full-image (x, y) of a part's pixels, row by row."""
+    xs, ys = _nonzero_xy(part.mask)
     return np.stack([xs + part.offset[0], ys + part.offset[1]], 1).astype(np.float64)
 
 
@@ -223,7 +223,7 @@ def border_entries(
         # the shaft pixels within r of the run: its window of the crop, then the disc
         xa, ya = max(int(mid[0] - r) - x0, 0), max(int(mid[1] - r) - y0, 0)
         xb, yb = min(int(mid[0] + r) + 1 - x0, w), min(int(mid[1] + r) + 1 - y0, h)
-        ys, xs = np.nonzero(shaft.mask[ya:yb, xa:xb])
+        xs, ys = _nonzero_xy(shaft.mask[ya:yb, xa:xb])
         step = max(1, len(ys) // ENTRY_FIT_POINTS)
         box = np.stack([xs[::step] + (xa + x0), ys[::step] + (ya + y0)], 1).astype(np.float64)
         rel = box - mid
@@ -333,11 +333,11 @@ def head_stop(
     start = HEAD_STOP_FROM_WIDTHS * width
     least = max(min_area_px, 1)
 
+    p0, p1, d0, d1 = float(p[0]), float(p[1]), float(d[0]), float(d[1])
+
     def lane_bins(q: np.ndarray) -> np.ndarray:  # (bin index along,) of q in the lane
-        rel = q - p
-        along = rel @ d
-        across = np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0])
-        return ((along[(across <= 0.5 * width) & (along > start)] - start) // step).astype(np.int64)
+        # (compiled: numpy's ``rel = q - p``, ``rel @ d``, ``(along - start) // step``)
+        return kernels.lane_bins(_points(q), p0, p1, d0, d1, 0.5 * width, start, step)
 
     hi = lane_bins(heads)
     if len(hi) < least:
