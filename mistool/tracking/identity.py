@@ -18,8 +18,9 @@ appearance.
   and shaft direction tell them apart again. :meth:`IdentityTracker.resolve` also splits
   the blob between them (:func:`~mistool.tracking.split.split_instance`).
 - A piece of an instrument taken for another (a head an occluder cut off, seen for a
-  few frames, never with a shaft, never at the image border) is forgotten when it is
-  found inside that instrument's blob (``ABSORBED``), so the blob keeps its name.
+  few frames, never with a shaft, never at the image border unless it appeared with
+  that instrument) is forgotten when it is found inside that instrument's blob
+  (``ABSORBED``), so the blob keeps its name.
 - Touching since they appeared (``resolve`` only): a blob whose shaft pixels enter the
   view at more places on the image border than instruments known in it is split on
   those shafts; each known instrument takes the piece entering nearest to where its own
@@ -108,7 +109,8 @@ CROWDED_SPLIT_TRACKS = 3
 #: to their own tool (:func:`~mistool.tracking.heads.hand_over_heads`).
 HEAD_MEMORY_FRAMES = 10
 #: A track seen for at most this many frames, never with a shaft, found hidden in the
-#: blob of an older track that could not be split, was a piece of it (absorbed).
+#: blob of an older track that could not be split, was a piece of it (absorbed); at the
+#: image border only if both were first seen in the same frame (see :func:`_fragment_of`).
 FRAGMENT_MAX_SEEN = 3
 
 
@@ -202,6 +204,8 @@ class Track:
     in_blob: bool = False
     """Whether it was last updated inside a blob shared with others (a split's piece,
     or coasting)."""
+    first_frame: int = 0
+    """The frame it was first seen in."""
 
     def expected_heads(self, frame: int) -> dict[str, RotatedBox]:
         """Where its head parts seen at most :data:`HEAD_MEMORY_FRAMES` ago are expected
@@ -442,11 +446,16 @@ def _shrunk(t: Track, inst: InstanceObservation, frame: int) -> bool:
 def _fragment_of(t: Track, host: Track | None) -> bool:
     """Whether track ``t``, hidden in ``host``'s blob that could not be split, was only a
     piece of it: seen for at most :data:`FRAGMENT_MAX_SEEN` frames, never with a shaft,
-    while the host has been seen longer."""
+    while the host has been seen longer; and never at the image border (a tool entering
+    head first there, into another's blob, is a tool), unless both were first seen in
+    the same frame: a tool's head entering in two pieces (jaws apart, then one blob).
+    Held-out seed 6 frame 24: such a piece at the border stayed hidden in its tool's blob
+    for 30 frames, the tool coasting all along (no shape, no entry), until a split of
+    three tools gave the names out wrongly."""
     return (
         host is not None
         and t.boxes is None
-        and not t.at_border
+        and (not t.at_border or t.first_frame == host.first_frame)
         and t.seen <= FRAGMENT_MAX_SEEN
         and host.seen > t.seen
     )
@@ -948,7 +957,7 @@ class IdentityTracker:
         others too, whose centroid is not this instrument's: it coasts; ``apart``: seen
         apart from others, not a split's piece; ``crowded``: a piece of a blob split
         between at least :data:`CROWDED_SPLIT_TRACKS` tools, its motion along its shaft
-        unsure)."""
+        unsure; a track's first velocity is not measured on one)."""
         gap = frame - t.last_frame
         t.in_blob = merged or not apart
         if merged:
@@ -960,7 +969,9 @@ class IdentityTracker:
             t.motion.update(
                 c,
                 gap,
-                continuous=t.state is TrackState.TRACKED,
+                # a new track's first displacement to a crowded piece is no velocity:
+                # the piece's cut moved (held-out seed 6 frame 55: 70 px in a frame)
+                continuous=t.state is TrackState.TRACKED and not (crowded and t.seen == 1),
                 first=t.seen == 1,
                 unsure_along=unsure,
             )
@@ -1009,6 +1020,7 @@ class IdentityTracker:
             angle=angle,
             elongation=elong,
             size=math.sqrt(inst.area_px),
+            first_frame=frame,
         )
         t.shaftless = 0 if "shaft" in inst.parts else 1
         if "shaft" in inst.parts:
