@@ -200,6 +200,39 @@ def test_parts_panel_tells_whether_each_part_has_a_metric_pose(
         assert shown == list(replay.modes["metric"].visible[0, 0])
 
 
+def test_a_wrist_posed_by_its_joint_and_axis_is_drawn() -> None:
+    """mistool.pose gives a wrist its proximal end (the joint J) and axis, no distal end,
+    and pose_status "ok": the panel said "wrist ✓" and no wrist was drawn."""
+    table = _metric_table()
+    table = table[np.asarray(table["frame"]) == 2]
+    joint, tip = np.array([12.0, 5.0, 80.0]), np.array([12.0, 15.0, 80.0])
+    wrist = {c: [table[c][1]] for c in table.columns}
+    wrist.update(part=["wrist"], end_x_mm=[NAN], end_y_mm=[NAN], end_z_mm=[NAN])
+    wrist.update({f"start_{a}_mm": [v] for a, v in zip("xyz", joint, strict=True)})
+    rows = {c: np.concatenate([table[c], wrist[c]]) for c in table.columns}
+    rows["pose_status"] = np.array(["ok"] * 3, dtype=object)
+    config = Config(camera=CAMERA, shaft_diameter_mm=8.0, clasper_length_mm=8.0)
+    replay = build_replay(TrackTable(rows), config, image_wh=(720, 576))
+    assert replay.parts == ("shaft", "wrist", "clasper")
+    assert "wrist ✓" in parts_markdown(replay, 2)
+    g, s = replay.modes["metric"], METRIC_UNITS_PER_MM
+    assert g.visible[2, 0].all()
+    # The wrist: from the joint, half the clasper's length (4 mm) along its axis; the
+    # clasper from there to the tip.
+    up = _rotate(g.wxyz[2, 0, 1], [0, 0, 1])
+    base = g.centre[2, 0, 1] - 0.5 * g.length[2, 0, 1] * up
+    np.testing.assert_allclose(base, R_WORLD_CAMERA @ joint * s, atol=1e-9)
+    assert np.isclose(g.length[2, 0, 1], 4.0 * s)
+    w_end = R_WORLD_CAMERA @ (joint + [0.0, 4.0, 0.0]) * s
+    clasp_base = g.centre[2, 0, 2] - 0.5 * g.length[2, 0, 2] * _rotate(g.wxyz[2, 0, 2], [0, 0, 1])
+    np.testing.assert_allclose(clasp_base, w_end, atol=1e-9)
+    np.testing.assert_allclose(g.tip[2, 0], R_WORLD_CAMERA @ tip * s, atol=1e-9)
+    # A tip nearer than the nominal length: the wrist stops half way to it.
+    near = dict(rows, end_y_mm=np.array([5.0, 9.0, NAN]))
+    g = build_replay(TrackTable(near), config, image_wh=(720, 576)).modes["metric"]
+    assert np.isclose(g.length[2, 0, 1], 2.0 * s) and np.isclose(g.length[2, 0, 2], 2.0 * s)
+
+
 def test_paper_cylinders_follow_the_papers_scene() -> None:
     """Base at the paper's (x, y, z), length = box length, radius = half the box width,
     axis = +x turned by the yaw, clasper base on the shaft's end (the paper, Section 4)."""

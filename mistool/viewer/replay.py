@@ -740,6 +740,7 @@ def _metric_geometry(
     start, end, axis, quat = v[..., 0:3].copy(), v[..., 3:6].copy(), v[..., 6:9], v[..., 9:13]
     if not np.isfinite(end).all(axis=-1).any():
         return None
+    _wrist_ends(start, end, axis, parts, config)
     # Unknown proximal ends: go back along the axis by a nominal length.
     for p, part in enumerate(parts):
         missing = ~np.isfinite(start[:, :, p]).all(axis=-1)
@@ -780,6 +781,34 @@ def _metric_geometry(
         units="1 cm",
     )
     return geometry, end.copy(), rotation
+
+
+def _wrist_ends(
+    start: np.ndarray,
+    end: np.ndarray,
+    axis: np.ndarray,
+    parts: tuple[str, ...],
+    config: Config,
+) -> None:
+    """Give a wrist whose metric pose is its proximal end (the joint) and its axis, as
+    :mod:`mistool.pose` measures it (no distal end: ``pose_status`` "ok" all the same),
+    a distal end to be drawn to: the nominal wrist length along its axis (half the
+    clasper's length), at most half way to the clasper's tip (in place; (F, I, P, 3))."""
+    if "wrist" not in parts:
+        return
+    w = parts.index("wrist")
+    need = ~np.isfinite(end[:, :, w]).all(axis=-1)
+    need &= np.isfinite(start[:, :, w]).all(axis=-1) & np.isfinite(axis[:, :, w]).all(axis=-1)
+    if not need.any():
+        return
+    length = np.full(need.shape, 0.5 * (config.clasper_length_mm or 10.0))
+    if "clasper" in parts:
+        to_tip = end[:, :, parts.index("clasper")] - start[:, :, w]
+        with np.errstate(invalid="ignore"):
+            along = 0.5 * np.einsum("fij,fij->fi", to_tip, axis[:, :, w])
+        shorter = np.isfinite(along) & (along > 0) & (along < length)
+        length[shorter] = along[shorter]
+    end[:, :, w][need] = start[:, :, w][need] + length[need][:, None] * axis[:, :, w][need]
 
 
 def _part_point(end_w: np.ndarray, parts: tuple[str, ...], part: str) -> np.ndarray:
