@@ -351,13 +351,14 @@ def _track_chunks(
             if end == start:
                 break
             table = _paper(_displayed(rows.take(), cfg, measured), context, cfg)
+            if done_digest is not None:  # before the rows it covers: a stop between the
+                # two (Ctrl+C) keeps the chunks stored so far resumable, not orphaned
+                entry.set_frames_digest(done_digest)
+                done_digest = digest = None
             entry.add_chunk(start, end, table, tracker)
             if stored_one and on_shown is not None:
                 on_shown()
                 on_shown = None
-            if done_digest is not None:  # stored with the rows it covers
-                entry.set_frames_digest(done_digest)
-                done_digest = digest = None
             context, start = _tail(table, _PAPER_CONTEXT), end
             if stop is not None and stop.is_set():
                 return

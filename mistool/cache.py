@@ -9,7 +9,8 @@ Layout of one entry, ``<root>/<key>/``::
     meta.json          what the entry is (key inputs, frames, chunks done, complete or not)
     frames.json        the frame file names in frame order (a folder; for the viewer)
     raw/<a>-<b>.npz    raw (unrefined) rows of frames [a, b), one file per tracked chunk
-    state.pkl          the tracker's state after the last chunk (to resume from there)
+    state-<b>.pkl      the tracker's state after the last chunk, frames [.., b) (to
+                       resume from there; the previous one goes once the chunk is listed)
     final/<col>.npy    the finished, refined table: one .npy per column (memory-mapped)
 
 Columns are plain numpy arrays (no pickle): numbers as float64/int64, text (``instrument``,
@@ -290,12 +291,14 @@ class CacheEntry:
             self.path / "raw" / f"{start:08d}-{stop:08d}.npz",
             lambda f: np.savez(f, **cols),  # type: ignore[arg-type]
         )
-        if state is not None:
+        if state is not None:  # beside the previous state: a run killed before the
+            # chunk is listed below resumes from that one, not from the start
             data = pickle.dumps((stop, state))
-            _atomic_bytes(self.path / "state.pkl", lambda f: f.write(data))
+            _atomic_bytes(self._state_path(stop), lambda f: f.write(data))
         meta = self._meta()
         meta["chunks"] = [*meta.get("chunks", []), [start, stop]]
         self._write_meta(meta)
+        self._drop_states(keep=self._state_path(stop))
 
     def read_chunk(self, start: int, stop: int) -> TrackTable:
         """The raw rows of one stored chunk."""
@@ -308,11 +311,23 @@ class CacheEntry:
 
     def state(self, at: int) -> Any:
         """The tracker state stored after frame ``at - 1``, or None (no or another state)."""
-        try:
-            stop, state = pickle.loads((self.path / "state.pkl").read_bytes())
-        except (OSError, pickle.UnpicklingError, EOFError, ValueError, AttributeError):
-            return None
-        return state if stop == at else None
+        for path in (self._state_path(at), self.path / "state.pkl"):  # (an older layout)
+            try:
+                stop, state = pickle.loads(path.read_bytes())
+            except (OSError, pickle.UnpicklingError, EOFError, ValueError, AttributeError):
+                continue
+            if stop == at:
+                return state
+        return None
+
+    def _state_path(self, stop: int) -> Path:
+        return self.path / f"state-{stop:08d}.pkl"
+
+    def _drop_states(self, keep: Path | None = None) -> None:
+        for path in [*self.path.glob("state-*.pkl"), self.path / "state.pkl"]:
+            if path != keep:
+                with contextlib.suppress(OSError):
+                    path.unlink()
 
     def fail(self, message: str) -> None:
         """Record the error that stopped tracking."""
@@ -341,8 +356,7 @@ class CacheEntry:
         meta["complete"] = True
         self._write_meta(meta)
         shutil.rmtree(self.path / "raw", ignore_errors=True)
-        with contextlib.suppress(OSError):
-            (self.path / "state.pkl").unlink()
+        self._drop_states()
 
     def read_final(self, mmap: bool = True) -> TrackTable:
         """The finished table; numeric columns memory-mapped (read on demand) by default.
