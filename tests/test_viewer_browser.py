@@ -276,6 +276,74 @@ def _shaft_pixels(img: np.ndarray, rgb: tuple[int, int, int]) -> np.ndarray:
     return (dh <= 8) & (hsv[..., 1] > 150) & (hsv[..., 2] > 40)
 
 
+def _camera_aspect(client) -> float:
+    """The aspect (w / h) of the browser's 3D view as it last told the server. Its size
+    is the canvas's drawing buffer: the CSS size times a pixel ratio that viser lowers
+    (to 0.875 or 0.75) when frames come slowly, e.g. on a loaded machine."""
+    w, h = client.camera.image_width, client.camera.image_height
+    return w / h if h else 0.0
+
+
+def _laid_out(viewer: ReplayViewer, client) -> bool:
+    """Whether the viewer has sent ``client`` its endoscope layout for the window's
+    aspect as the browser last told it (what :meth:`ReplayViewer._camera_moved` does)."""
+    if abs(viewer._backdrop_aspect.get(client.client_id, 0.0) - _camera_aspect(client)) > 1e-3:
+        return False
+    with viewer._lock:  # the handler that sends it holds the lock until it has
+        return True
+
+
+def _canvas_clip(page, client, size: dict, timeout: float = 60.0) -> dict:
+    """The 3D canvas's box (integer px) once it has followed a new viewport ``size`` and
+    the browser has told the server (its camera's aspect is the canvas's, to its pixel
+    rounding): a box read at a fixed delay could still be the old or a half-resized
+    one. The last box at the deadline (the caller's asserts then say what is wrong)."""
+    canvas = page.locator("canvas").first
+    end = time.monotonic() + timeout
+    while True:
+        box = canvas.bounding_box() or {"x": 0, "y": 0, "width": 0, "height": 1}
+        clip = {k: round(box[k]) for k in ("x", "y", "width", "height")}
+        wide = clip["width"] > 0.9 * size["width"]
+        if (wide and _same_aspect(client, clip)) or time.monotonic() > end:
+            return clip
+        time.sleep(0.1)
+
+
+def _same_aspect(client, clip: dict) -> bool:
+    return abs(_camera_aspect(client) / (clip["width"] / max(clip["height"], 1)) - 1) < 0.01
+
+
+def _no_background(img: np.ndarray) -> bool:
+    """The endoscope's backdrop is gone: mostly the page's white."""
+    return bool((img.min(axis=2) > 250).mean() > 0.5)
+
+
+def _settled_shot(
+    page,
+    clip: dict,
+    *,
+    changed_from: np.ndarray | None = None,
+    until=None,
+    timeout: float = 60.0,
+) -> np.ndarray:
+    """A screenshot once the picture has settled: three in a row alike, 0.2 s apart (the
+    browser has drawn what it was sent, images decoded), unlike ``changed_from`` (the
+    change sent has arrived) and with ``until(shot)`` true. The last one at the
+    deadline: the caller's asserts then say what is wrong. (A fixed sleep was too short
+    for a loaded machine's browser: a shot still showed what was just hidden.)"""
+    end = time.monotonic() + timeout
+    last, alike = _shot(page, clip), 0
+    while time.monotonic() < end:
+        time.sleep(0.2)
+        shot = _shot(page, clip)
+        alike = alike + 1 if np.array_equal(shot, last) else 0
+        moved = changed_from is None or not np.array_equal(shot, changed_from)
+        if alike >= 2 and moved and (until is None or until(shot)):
+            return shot
+        last = shot
+    return last
+
+
 def test_endoscope_view_lines_up_with_the_mask(browser, viewer: ReplayViewer) -> None:
     """Through the endoscope each instrument's shaft cylinder covers its shaft in the mask
     behind it, in a tall window and after resizing it to a wide one. Two screenshots per
@@ -305,25 +373,24 @@ def test_endoscope_view_lines_up_with_the_mask(browser, viewer: ReplayViewer) ->
         client = next(c for c, _ in viewer._endoscope.values())
         for size in ({"width": 620, "height": 900}, {"width": 1280, "height": 640}):
             page.set_viewport_size(size)
-            time.sleep(0.3)
-            box = page.locator("canvas").first.bounding_box()  # beside the collapsed panel
-            assert box is not None
-            clip = {k: round(box[k]) for k in ("x", "y", "width", "height")}
+            clip = _canvas_clip(page, client, size)  # beside the collapsed panel
             w, h = clip["width"], clip["height"]
-            assert w > 0.9 * size["width"], (box, size)
-            assert _wait(
-                lambda wh=(w, h): (client.camera.image_width, client.camera.image_height) == wh
-            )
-            time.sleep(0.5)  # the new layout follows the camera message
-            for nodes in viewer.scene.parts.values():
-                nodes.hide()
-            time.sleep(1.0)
-            backdrop = _shot(page, clip)
-            client.scene.set_background_image(None)
-            viewer.scene.show(frame)
-            time.sleep(1.0)
-            cylinders = _shot(page, clip)
-            assert (cylinders.min(axis=2) > 250).mean() > 0.5  # background gone
+            assert w > 0.9 * size["width"], (clip, size)
+            told = (client.camera.image_width, client.camera.image_height)
+            assert _same_aspect(client, clip), (told, clip)
+            # The server lays the view out again for the new window (its backdrop and
+            # field of view, sent from the camera message's handler, under the lock).
+            assert _wait(lambda: _laid_out(viewer, client), timeout=60.0), "no new layout"
+            both = _settled_shot(page, clip)  # the backdrop and the cylinders on it
+            with viewer.server.atomic():
+                for nodes in viewer.scene.parts.values():
+                    nodes.hide()
+            backdrop = _settled_shot(page, clip, changed_from=both)
+            with viewer.server.atomic():
+                client.scene.set_background_image(None)
+                viewer.scene.show(frame)
+            cylinders = _settled_shot(page, clip, until=_no_background)
+            assert _no_background(cylinders)
             # Within the image (the padding is black; cylinders run on over it), below
             # the collapsed panel's handle.
             keep = (
