@@ -1,4 +1,4 @@
-"""A part mask's outer contour, compiled (:mod:`mistool.pose.measure`'s
+"""A part mask's outer contours, compiled (:mod:`mistool.pose.measure`'s
 ``cv2.findContours(mask, RETR_EXTERNAL, CHAIN_APPROX_NONE)`` on one crop).
 
 :func:`outer_contour` answers for the common case, a crop holding one 8-connected
@@ -6,10 +6,13 @@ component, with the points OpenCV gives (``contours_new.cpp`` of OpenCV 4.10+ / 
 Suzuki's border following): the component's outer border traced from its first pixel in
 raster order, clockwise on screen (x right, y down), every pixel the border visits, a
 pixel again each time the border comes back to it. Pixels outside the crop are
-background (OpenCV pads the image with a zero frame). A crop with several components
-(a shaft cut across, two tools touching) is left to OpenCV: which contours it returns
-(the outermost only) and in which order is its own business; the answer says so.
-``tests/test_pose_kernels.py`` compares the points with OpenCV's on random masks.
+background (OpenCV pads the image with a zero frame). :func:`external_contours` answers
+for any number of components (a shaft cut across, two tools touching) where none can lie
+in another's hole (no component's bounding box holds another's): OpenCV 5 returns one
+contour per component, each traced as above, in the reverse raster order of their first
+pixels; a crop where one box holds another is left to OpenCV (which leaves a component
+in a hole out). ``tests/test_pose_contours.py`` compares the points, their order and
+the answers with OpenCV's on random masks.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from mistool.kernels import helper, kernel
 from mistool.kernels.boxes import ctz as _ctz
 from mistool.kernels.boxes import load8 as _load8
 
-__all__ = ["outer_contour"]
+__all__ = ["external_contours", "outer_contour"]
 
 # chain codes E, NE, N, NW, W, SW, S, SE (OpenCV's)
 _DX = np.array([1, 1, 0, -1, -1, -1, 0, 1], np.int64)
@@ -136,29 +139,16 @@ def _pixel(flat: np.ndarray, h: int, w: int, x: int, y: int) -> np.uint64:
     return np.uint64(flat[y * w + x] != 0)
 
 
-@kernel("int64(boolean[:, ::1], int32[:, ::1])")
-def outer_contour(mask: np.ndarray, points: np.ndarray) -> int:
-    """The outer contour of a crop holding one 8-connected component, as
-    ``cv2.findContours(mask, RETR_EXTERNAL, CHAIN_APPROX_NONE)[0][0]`` (see the module
-    docstring), into ``points`` (crop px, x then y).
-
-    Returns:
-        The number of points; 0 for an empty crop; -1 when the crop holds several
-        components (ask OpenCV); -2 when ``points`` is too short (the border needs at
-        most ``4 * h * w`` rows).
-    """
-    h, w = mask.shape
-    flat = mask.view(np.uint8).ravel()
-    first = np.empty(2, np.int64)
-    count = _components(flat, h, w, first)
-    if count == 0:
-        return 0
-    if count > 1:
-        return -1
-    cap = points.shape[0]
+@helper
+def _trace(
+    flat: np.ndarray, h: int, w: int, x0: int, y0: int, points: np.ndarray, start: int
+) -> int:
+    """The outer border of the 8-connected component whose first pixel in raster order
+    is ``(x0, y0)`` (its west neighbour is background), traced as OpenCV traces it, into
+    ``points[start:]``: the number of points, or -2 when they do not fit."""
+    cap = points.shape[0] - start
     if cap < 1:
         return -2
-    x0, y0 = first[0], first[1]
     x, y = x0, y0
     s = 4
     n = 0
@@ -196,16 +186,182 @@ def outer_contour(mask: np.ndarray, points: np.ndarray) -> int:
                 if (code >> np.uint64(s)) & np.uint64(1) or s == 4:
                     break
             if s == 4:  # a single pixel
-                points[0, 0], points[0, 1] = x0, y0
+                points[start, 0], points[start, 1] = x0, y0
                 return 1
             x1, y1 = x0 + _DX[s], y0 + _DY[s]
         s = np.int64(_NEXT[code * np.uint64(8) + np.uint64(s)])
         if n == cap:
             return -2
-        points[n, 0], points[n, 1] = x, y
+        points[start + n, 0], points[start + n, 1] = x, y
         n += 1
         xn, yn = x + _DX[s], y + _DY[s]
         if xn == x0 and yn == y0 and x == x1 and y == y1:
             return n
         x, y = xn, yn
         s = (s + 4) & 7
+
+
+@kernel("int64(boolean[:, ::1], int32[:, ::1])")
+def outer_contour(mask: np.ndarray, points: np.ndarray) -> int:
+    """The outer contour of a crop holding one 8-connected component, as
+    ``cv2.findContours(mask, RETR_EXTERNAL, CHAIN_APPROX_NONE)[0][0]`` (see the module
+    docstring), into ``points`` (crop px, x then y).
+
+    Returns:
+        The number of points; 0 for an empty crop; -1 when the crop holds several
+        components (:func:`external_contours`); -2 when ``points`` is too short (the
+        border needs at most ``4 * h * w`` rows).
+    """
+    h, w = mask.shape
+    flat = mask.view(np.uint8).ravel()
+    first = np.empty(2, np.int64)
+    count = _components(flat, h, w, first)
+    if count == 0:
+        return 0
+    if count > 1:
+        return -1
+    return _trace(flat, h, w, first[0], first[1], points, 0)
+
+
+#: :func:`external_contours`' answers besides a count.
+CONTOURS_NESTED, CONTOURS_SHORT, CONTOURS_MANY = -1, -2, -3
+
+
+@kernel("Tuple((int64, int64[:, ::1]))(boolean[:, ::1], int32[:, ::1], int64[::1])")
+def external_contours(
+    mask: np.ndarray, points: np.ndarray, starts: np.ndarray
+) -> tuple[int, np.ndarray]:
+    """The outer contours of a crop's 8-connected components, as ``cv2.findContours(mask,
+    RETR_EXTERNAL, CHAIN_APPROX_NONE)`` gives them when no component lies in another's
+    hole: one per component, in the reverse raster order of their first pixels (OpenCV
+    5's order, ``tests/test_pose_contours.py``), each traced as :func:`outer_contour`.
+
+    Args:
+        mask: (h, w) the crop.
+        points: receives the contours one after the other (crop px, x then y); at most
+            ``4 * h * w`` rows are needed.
+        starts: receives where each contour starts in ``points``, then the end; its
+            length bounds the number of components (``C + 1`` entries for ``C``).
+
+    Returns:
+        ``(C, runs)``: the number of contours ``C`` (0 for an empty crop), or
+        :data:`CONTOURS_NESTED` when a component's bounding box holds another's strictly
+        (it may lie in a hole, where OpenCV would leave it out: ask OpenCV),
+        :data:`CONTOURS_SHORT` when ``points`` is too short, :data:`CONTOURS_MANY` when
+        ``starts`` is; and the crop's row runs in raster order, ``(R, 4)``: row, first
+        column, column after the last, and the run's contour plus one (``k + 1``).
+    """
+    h, w = mask.shape
+    flat = mask.view(np.uint8).ravel()
+    runs, n_comp = _labelled_runs(flat, h, w)
+    if n_comp + 1 > len(starts):
+        return CONTOURS_MANY, runs
+    first = np.empty((n_comp, 2), np.int64)
+    if _nested(runs, n_comp, h, w, first):
+        return CONTOURS_NESTED, runs
+    for r in range(len(runs)):
+        runs[r, 3] = n_comp - runs[r, 3]  # contour n_comp - 1 - c, plus one
+    n = 0
+    for k in range(n_comp):
+        c = n_comp - 1 - k
+        starts[k] = n
+        got = _trace(flat, h, w, first[c, 0], first[c, 1], points, n)
+        if got < 0:
+            return CONTOURS_SHORT, runs
+        n += got
+    starts[n_comp] = n
+    return n_comp, runs
+
+
+@helper
+def _labelled_runs(flat: np.ndarray, h: int, w: int) -> tuple[np.ndarray, int]:
+    """A (h, w) 0/1 crop's row runs in raster order, ``(R, 4)``: row, first column,
+    column after the last, and the run's 8-connected component (numbered in the raster
+    order of their first pixels); and the number of components. Runs joined by
+    union-find with the previous row's; a root is its set's first run (the smaller index
+    wins)."""
+    runs = np.empty((2 * h + 16, 4), np.int64)
+    parent = np.empty(2 * h + 16, np.int64)
+    n_runs = 0
+    prev_lo = prev_hi = 0  # the previous row's runs: [prev_lo, prev_hi)
+    for y in range(h):
+        base = y * w
+        lo = n_runs
+        x = 0
+        while True:
+            x0 = _next_change(flat, base + x, base + w, False) - base
+            if x0 >= w:
+                break
+            x = _next_change(flat, base + x0, base + w, True) - base
+            r = n_runs
+            if r == len(parent):
+                parent = _grown(parent)
+                runs = _grown_rows(runs)
+            runs[r, 0], runs[r, 1], runs[r, 2], parent[r] = y, x0, x, r
+            n_runs += 1
+            for j in range(prev_lo, prev_hi):  # 8-connected: the runs above within one pixel
+                if runs[j, 1] <= x and runs[j, 2] >= x0:
+                    _join(parent, j, r)
+        prev_lo, prev_hi = lo, n_runs
+    n_comp = 0
+    for r in range(n_runs):
+        a = _root(parent, r)
+        if a == r:
+            runs[r, 3] = n_comp
+            n_comp += 1
+        else:
+            runs[r, 3] = runs[a, 3]
+    return runs[:n_runs], n_comp
+
+
+@helper
+def _root(parent: np.ndarray, a: int) -> int:
+    """The root of ``a``'s set."""
+    while parent[a] != a:
+        a = parent[a]
+    return a
+
+
+@helper
+def _join(parent: np.ndarray, a: int, b: int) -> None:
+    """Joins ``a``'s set and ``b``'s: the smaller root stays the root."""
+    ra, rb = _root(parent, a), _root(parent, b)
+    if ra != rb:
+        parent[max(ra, rb)] = min(ra, rb)
+
+
+@helper
+def _grown_rows(a: np.ndarray) -> np.ndarray:
+    """A (N, 4) array copied into one twice as long."""
+    b = np.empty((2 * len(a), 4), a.dtype)
+    for i in range(len(a)):
+        for j in range(4):
+            b[i, j] = a[i, j]
+    return b
+
+
+@helper
+def _nested(runs: np.ndarray, n_comp: int, h: int, w: int, first: np.ndarray) -> bool:
+    """Whether a component's bounding box holds another's strictly; ``first[c]``
+    receives component ``c``'s first pixel (x, y)."""
+    box = np.empty((n_comp, 4), np.int64)  # x0, y0, x1, y1 (inclusive)
+    for c in range(n_comp):
+        box[c, 0], box[c, 1], box[c, 2], box[c, 3] = w, h, -1, -1
+    for r in range(len(runs)):
+        c = runs[r, 3]
+        if box[c, 2] < 0:  # its first run
+            first[c, 0], first[c, 1] = runs[r, 1], runs[r, 0]
+        box[c, 0] = min(box[c, 0], runs[r, 1])
+        box[c, 1] = min(box[c, 1], runs[r, 0])
+        box[c, 2] = max(box[c, 2], runs[r, 2] - 1)
+        box[c, 3] = max(box[c, 3], runs[r, 0])
+    for i in range(n_comp):
+        for j in range(n_comp):
+            if (
+                box[i, 0] < box[j, 0]
+                and box[i, 1] < box[j, 1]
+                and box[j, 2] < box[i, 2]
+                and box[j, 3] < box[i, 3]
+            ):
+                return True
+    return False

@@ -39,7 +39,7 @@ from typing import Any, TypeVar, cast
 import numpy as np
 
 from mistool.kernels import helper, kernel
-from mistool.kernels.contours import outer_contour
+from mistool.kernels.contours import external_contours, outer_contour
 from mistool.kernels.polygon import convex_hull, fill_convex
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -68,6 +68,7 @@ __all__ = [
     "PARAMS",
     "SHAFT_ASK_PYTHON",
     "SHAFT_MEASURED",
+    "SHAFT_MERGED",
     "SHAFT_NOT_VISIBLE",
     "TIP",
     "WHY",
@@ -106,6 +107,8 @@ PARAMS: tuple[str, ...] = (
     "tip_bend_sigma_rad",
     "jaw_sep",
     "jaw_rad",
+    "cut_angle_deg",
+    "cut_offset_frac",
 )
 (
     _P_MAX_SIGMA_MM,
@@ -124,6 +127,8 @@ PARAMS: tuple[str, ...] = (
     _P_TIP_BEND,
     _P_JAW_SEP,
     _P_JAW_RAD,
+    _P_CUT_ANGLE,
+    _P_CUT_OFFSET,
 ) = range(len(PARAMS))
 
 #: Why :func:`shaft_pose` left cells empty (``OUT["why_all"]`` / ``OUT["why_shaft"]``);
@@ -603,6 +608,20 @@ def one_cut_shaft(
     """
     mom = np.zeros(6)
     raster_moments(union, mom)
+    return _one_cut(outline, starts, mom, x0, y0, max_angle_deg, max_offset_frac)
+
+
+@helper
+def _one_cut(
+    outline: np.ndarray,
+    starts: np.ndarray,
+    mom: np.ndarray,
+    x0: int,
+    y0: int,
+    max_angle_deg: float,
+    max_offset_frac: float,
+) -> bool:
+    """:func:`one_cut_shaft` from the filled pieces' moments ``mom`` (origin ``(x0, y0)``)."""
     if mom[0] <= 0:
         return False
     mu20, mu11, mu02 = _central(mom)
@@ -1614,16 +1633,290 @@ def shaft_pose(
 
 
 #: :func:`shaft_from_masks`' answers.
-SHAFT_MEASURED, SHAFT_NOT_VISIBLE, SHAFT_ASK_PYTHON = 0, 1, 2
+SHAFT_MEASURED, SHAFT_NOT_VISIBLE, SHAFT_ASK_PYTHON, SHAFT_MERGED = 0, 1, 2, 3
 #: ``geo`` of :func:`shaft_from_masks`: the entries :func:`shaft_pose` reads, then the
 #: number of the instrument's other parts.
 GEO_OTHERS = 7
+#: :func:`shaft_from_masks` answers for a shaft crop of at most this many pieces.
+_MAX_PIECES = 64
+
+
+@helper
+def _contour_area(outline: np.ndarray, start: int, stop: int) -> float:
+    """``cv2.contourArea`` of a contour (integer points: exact sums)."""
+    if stop <= start:
+        return 0.0
+    a00 = 0.0
+    px, py = float(outline[stop - 1, 0]), float(outline[stop - 1, 1])
+    for i in range(start, stop):
+        x, y = float(outline[i, 0]), float(outline[i, 1])
+        a00 += px * y - py * x
+        px, py = x, y
+    return abs(a00 * 0.5)
+
+
+@helper
+def _squares_below(n: int) -> int:
+    """``0^2 + 1^2 + ... + (n - 1)^2``."""
+    return (n - 1) * n * (2 * n - 1) // 6
+
+
+@helper
+def _add_run(y: int, xa: int, xb: int, m: np.ndarray) -> None:
+    """Adds the pixels ``xa <= x < xb`` of row ``y`` to the integer moments ``m``
+    (``m00, m10, m01, m20, m11, m02``)."""
+    n = xb - xa
+    sx = (xa + xb - 1) * n // 2
+    sxx = _squares_below(xb) - _squares_below(xa)
+    m[0] += n
+    m[1] += sx
+    m[2] += n * y
+    m[3] += sxx
+    m[4] += sx * y
+    m[5] += n * y * y
+
+
+@helper
+def _background_run(
+    xa: int,
+    xb: int,
+    y: int,
+    uh: int,
+    uw: int,
+    piece: int,
+    r: int,
+    prev_lo: int,
+    prev_hi: int,
+    bg: np.ndarray,
+    parent: np.ndarray,
+    edge: np.ndarray,
+) -> None:
+    """Records background run ``r`` (columns ``xa <= x < xb`` of canvas row ``y``, the
+    piece ``piece`` on its left) for :func:`_filled_moments`, joined with the previous
+    row's runs ``[prev_lo, prev_hi)`` that it touches (4-connected); ``edge``: its set
+    reaches the canvas' edge."""
+    bg[r, 0], bg[r, 1], bg[r, 2], bg[r, 3], parent[r] = xa, xb, y, piece, r
+    edge[r] = y == 0 or y == uh - 1 or xa == 0 or xb == uw
+    for j in range(prev_lo, prev_hi):
+        if bg[j, 0] < xb and bg[j, 1] > xa:
+            p = j
+            while parent[p] != p:
+                p = parent[p]
+            q = r
+            while parent[q] != q:
+                q = parent[q]
+            if p != q:
+                keep, drop = min(p, q), max(p, q)
+                parent[drop] = keep
+                edge[keep] = edge[keep] or edge[drop]
+
+
+@helper
+def _filled_moments(
+    runs: np.ndarray, large: np.ndarray, x0: int, y0: int, uh: int, uw: int, mom: np.ndarray
+) -> None:
+    """The moments of the large pieces filled (``cv2.drawContours(union, pieces, -1, 1,
+    thickness=-1)`` of their outer contours, then :func:`raster_moments`), on the canvas
+    of ``uh`` rows and ``uw`` columns at the crop's ``(x0, y0)``, into ``mom``, without
+    drawing it: each piece with its holes (background runs not 4-connected to the
+    canvas' edge; a hole's run belongs to the piece on its left, since no piece lies in
+    another's hole, :func:`mistool.kernels.contours.external_contours`). The same exact
+    integer sums as :func:`raster_moments` of the drawn canvas.
+
+    Args:
+        runs: the crop's row runs in raster order (row, first column, column after the
+            last, piece label ``k + 1``: ``external_contours``).
+        large: (C + 1,) 1 for the pieces to fill (by label).
+    """
+    m = np.zeros(6, np.int64)
+    cap = len(runs) + uh + 1  # background runs: at most one more than the pieces' a row
+    bg = np.empty((cap, 4), np.int64)  # first column, column after the last, row, piece
+    parent = np.empty(cap, np.int64)
+    edge = np.empty(cap, np.bool_)
+    n = 0
+    prev_lo = prev_hi = 0
+    k = 0  # the next run
+    n_fg = len(runs)
+    x1 = x0 + uw
+    for y in range(uh):
+        while k < n_fg and runs[k, 0] < y0 + y:
+            k += 1
+        lo = n
+        x = 0  # canvas column reached
+        carry = 0
+        while True:  # the gap before the next run (clipped to the canvas), then the run
+            if k < n_fg and runs[k, 0] == y0 + y and runs[k, 1] < x1:
+                fa, fb, lab = max(runs[k, 1], x0) - x0, min(runs[k, 2], x1) - x0, runs[k, 3]
+                k += 1
+                if fb <= 0:
+                    continue
+            else:
+                fa = fb = uw
+                lab = 0
+            if fa > x:
+                _background_run(x, fa, y, uh, uw, carry, n, prev_lo, prev_hi, bg, parent, edge)
+                n += 1
+            if fb >= uw and not lab:
+                break
+            if large[lab]:
+                _add_run(y, fa, fb, m)
+            carry = lab
+            x = fb
+            if x >= uw:
+                break
+        prev_lo, prev_hi = lo, n
+    for r in range(n):
+        p = r
+        while parent[p] != p:
+            p = parent[p]
+        if not edge[p] and large[bg[r, 3]]:  # a hole of a large piece
+            _add_run(bg[r, 2], bg[r, 0], bg[r, 1], m)
+    for i in range(6):
+        mom[i] = m[i]
+
+
+@helper
+def _largest_piece(
+    outline: np.ndarray, starts: np.ndarray, n_pieces: int, runs: np.ndarray, par: np.ndarray
+) -> int:
+    """``measure._shaft_points``' choice among a crop's pieces: -1 to keep them all (one
+    piece large, or the large ones one shaft cut across: ``measure._one_cut_shaft``),
+    else the largest piece's contour (two shafts: it alone is measured)."""
+    areas = np.empty(n_pieces)
+    big = 0
+    for c in range(n_pieces):
+        areas[c] = _contour_area(outline, starts[c], starts[c + 1])
+        if areas[c] > areas[big]:
+            big = c
+    floor = 0.25 * areas[big]
+    large = np.zeros(n_pieces + 1, np.uint8)
+    n_large = n_pts = 0
+    for c in range(n_pieces):
+        if areas[c] >= floor:
+            large[c + 1] = 1
+            n_large += 1
+            n_pts += starts[c + 1] - starts[c]
+    if n_large < 2:
+        return -1
+    pts = np.empty((n_pts, 2), np.int32)
+    pstarts = np.empty(n_large + 1, np.int64)
+    k = j = 0
+    x0 = y0 = np.int64(2**62)
+    x1 = y1 = -x0
+    for c in range(n_pieces):
+        if large[c + 1]:
+            pstarts[j] = k
+            j += 1
+            for i in range(starts[c], starts[c + 1]):
+                x, y = np.int64(outline[i, 0]), np.int64(outline[i, 1])
+                pts[k, 0], pts[k, 1] = x, y
+                k += 1
+                x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
+    pstarts[n_large] = k
+    mom = np.empty(6)
+    _filled_moments(runs, large, x0, y0, y1 - y0 + 1, x1 - x0 + 1, mom)
+    if _one_cut(pts, pstarts, mom, x0, y0, par[_P_CUT_ANGLE], par[_P_CUT_OFFSET]):
+        return -1
+    return big
+
+
+@helper
+def _near_others(lab: np.ndarray, gap_rows: np.ndarray, near: np.ndarray) -> None:
+    """``cv2.dilate(lab == OTHER, disk) > 0`` into ``near`` (bool, ``lab``'s shape; the
+    disk: ``gap_rows[i]`` its half-width at row ``i - g``, ``2 g + 1`` rows; pixels outside
+    ``lab`` count as not OTHER, as OpenCV's default border for a dilation)."""
+    hh, ww = lab.shape
+    g = (len(gap_rows) - 1) // 2
+    pre = np.zeros((hh, ww + 1), np.int64)  # per row: OTHER pixels left of each column
+    for y in range(hh):
+        acc = 0
+        for x in range(ww):
+            acc += lab[y, x] == _OTHER
+            pre[y, x + 1] = acc
+    for y in range(hh):
+        for x in range(ww):
+            hit = False
+            for i in range(2 * g + 1):
+                yy = y + i - g
+                if 0 <= yy < hh:
+                    r = gap_rows[i]
+                    if pre[yy, min(x + r, ww - 1) + 1] > pre[yy, max(x - r, 0)]:
+                        hit = True
+                        break
+            near[y, x] = hit
+
+
+@helper
+def _paste(
+    lab: np.ndarray, lx: int, ly: int, mask: np.ndarray, mx: int, my: int, value: int
+) -> None:
+    """``silhouette.paste``: ``lab[mask] = value`` where the mask crop at ``(mx, my)``
+    overlaps the label crop at ``(lx, ly)`` (full-image px)."""
+    h, w = lab.shape
+    mh, mw = mask.shape
+    xa, ya = max(mx, lx), max(my, ly)
+    xb, yb = min(mx + mw, lx + w), min(my + mh, ly + h)
+    for y in range(ya, yb):
+        for x in range(xa, xb):
+            if mask[y - my, x - mx]:
+                lab[y - ly, x - lx] = value
+
+
+@helper
+def _across_gap(
+    outline: np.ndarray,
+    starts: np.ndarray,
+    shaft: np.ndarray,
+    sx: int,
+    sy: int,
+    o1: np.ndarray,
+    x1: int,
+    y1: int,
+    o2: np.ndarray,
+    x2: int,
+    y2: int,
+    n_others: int,
+    height: int,
+    width: int,
+    gap_rows: np.ndarray,
+) -> tuple[bool, np.ndarray, np.ndarray]:
+    """``measure._across_gap``: the boundary points (next to background, next to the
+    other parts) with the other parts grown by the gap (the disk of ``gap_rows``), in the
+    same window; ``(found, bg, other)``, ``found`` False where ``measure._across_gap``
+    keeps the points it had."""
+    g = (len(gap_rows) - 1) // 2
+    h, w = shaft.shape
+    cx0, cy0 = max(sx - 2 - g, 0), max(sy - 2 - g, 0)
+    cx1, cy1 = min(sx + w + 2 + g, width), min(sy + h + 2 + g, height)
+    wx0, wy0, wx1, wy1 = cx1, cy1, cx0, cy0  # the others' crops within the shaft's
+    for k in range(n_others):
+        m, mx, my = (o1, x1, y1) if k == 0 else (o2, x2, y2)
+        mh, mw = m.shape
+        wx0, wy0 = min(wx0, max(mx, cx0)), min(wy0, max(my, cy0))
+        wx1, wy1 = max(wx1, min(mx + mw, cx1)), max(wy1, min(my + mh, cy1))
+    wx0, wy0 = max(wx0 - g, cx0), max(wy0 - g, cy0)
+    wx1, wy1 = min(wx1 + g, cx1), min(wy1 + g, cy1)
+    empty = np.empty((0, 2))
+    if wx0 >= wx1 or wy0 >= wy1:
+        return False, empty, empty
+    lab = np.zeros((wy1 - wy0, wx1 - wx0), np.uint8)
+    for k in range(n_others):
+        m, mx, my = (o1, x1, y1) if k == 0 else (o2, x2, y2)
+        _paste(lab, wx0, wy0, m, mx, my, _OTHER)
+    _paste(lab, wx0, wy0, shaft, sx, sy, _SHAFT)
+    near = np.empty((wy1 - wy0, wx1 - wx0), np.bool_)
+    _near_others(lab, gap_rows, near)
+    none = np.zeros((0, 0), np.bool_)
+    _, _, bg, other, _ = shaft_boundary(
+        outline, starts, shaft, sx, sy, near, wx0, wy0, none, 0, 0, height, width
+    )
+    return len(other) >= 3, bg, other
 
 
 @kernel(
     "int64(boolean[:, ::1], boolean[:, ::1], int64, int64, boolean[:, ::1], int64, int64,"
     " float64[:, ::1], float64, float64[::1], float64[::1], int64[::1], float32[:, ::1],"
-    " int32[:, ::1], int64[::1])"
+    " int32[:, ::1], int64[::1], boolean[:, ::1], int64[::1])"
 )
 def shaft_from_masks(
     shaft: np.ndarray,
@@ -1641,12 +1934,17 @@ def shaft_from_masks(
     rims: np.ndarray,
     shifted: np.ndarray,
     canvas: np.ndarray,
+    kept: np.ndarray,
+    gap_rows: np.ndarray,
 ) -> int:
-    """The shaft's pose from its mask, in one call, for an undistorted camera: its outer
-    contour (:func:`mistool.kernels.contours.outer_contour`), its boundary points and
-    moments (:func:`shaft_boundary`), its centroid, then :func:`shaft_pose` and the
-    quality (:func:`rims_iou`, into ``OUT["quality"]``, or ``OUT["quality_opencv"]`` set
-    where OpenCV must answer); the steps of ``measure._shaft_points`` on its common path.
+    """The shaft's pose from its masks, in one call, for an undistorted camera: the steps
+    of ``measure._shaft_points`` (its outer contours traced as OpenCV traces them,
+    :mod:`mistool.kernels.contours`; of several pieces, the larger of two shafts or all
+    the pieces of one, ``measure._one_cut_shaft``; its boundary points and moments,
+    :func:`shaft_boundary`, across a gap at the junction where it has one,
+    ``measure._across_gap``; its centroid), then :func:`shaft_pose` and the quality
+    (:func:`rims_iou`, into ``OUT["quality"]``, or ``OUT["quality_opencv"]`` set where
+    OpenCV must answer).
 
     Args:
         shaft: the shaft crop; o1, o2: the other parts' crops (``(0, 0)`` for none) at
@@ -1654,42 +1952,85 @@ def shaft_from_masks(
         K, radius, par, out, rims, shifted, canvas: as :func:`shaft_pose`.
         geo: as :func:`shaft_pose` (the shaft crop's ``x0, y0, h, w``, the image's
             ``H, W``, ``max_pixels``), then the number of other parts (at most 2).
+        kept: the shaft crop's shape: receives the measured shaft (its larger piece) for
+            :data:`SHAFT_MERGED`.
+        gap_rows: the junction gap's disk (``measure._GAP_DISK``): its half-width at each
+            row (``2 g + 1`` rows for a gap of ``g`` px).
 
     Returns:
-        :data:`SHAFT_MEASURED` (``out`` and the rims filled); :data:`SHAFT_NOT_VISIBLE`
-        (no pixel); :data:`SHAFT_ASK_PYTHON` where ``measure._shaft_points`` takes
-        another path (several pieces, an outline without area, a junction across a gap):
-        nothing is written then.
+        :data:`SHAFT_MEASURED` (``out`` and the rims filled); :data:`SHAFT_MERGED` (the
+        same, for the larger of two shafts, in ``kept``); :data:`SHAFT_NOT_VISIBLE` (no
+        pixel); :data:`SHAFT_ASK_PYTHON` where ``measure._shaft_points`` must answer (a
+        piece that may lie in another's hole, an outline without area): nothing is
+        written then.
     """
     h, w = shaft.shape
     sx, sy = geo[0], geo[1]
-    buf = np.empty((4 * (h + w) + 16, 2), np.int32)
-    n = outer_contour(shaft, buf)
-    if n == -2:  # a long border: the bound that always holds
+    starts = np.empty(_MAX_PIECES + 1, np.int64)
+    buf = np.empty((8 * (h + w) + 64, 2), np.int32)
+    n_pieces, runs = external_contours(shaft, buf, starts)
+    if n_pieces == -2:  # a long border: the bound that always holds
         buf = np.empty((4 * h * w + 4, 2), np.int32)
-        n = outer_contour(shaft, buf)
-    if n == 0:
+        n_pieces, runs = external_contours(shaft, buf, starts)
+    if n_pieces == 0:
         return SHAFT_NOT_VISIBLE
-    if n < 0:
+    if n_pieces < 0:
         return SHAFT_ASK_PYTHON
-    starts = np.empty(2, np.int64)
-    starts[0], starts[1] = 0, n
+    measured = shaft
+    merged = False
+    outline = buf[: starts[n_pieces]]
+    if n_pieces > 1:  # several pieces
+        big = _largest_piece(buf, starts, n_pieces, runs, par)
+        if big >= 0:  # two shafts: the larger alone
+            merged = True
+            flat = kept.reshape(h * w)  # a view (C-contiguous)
+            for i in range(np.uint64(h * w)):
+                flat[i] = False
+            for r in range(len(runs)):
+                if runs[r, 3] == big + 1:
+                    row = runs[r, 0] * w
+                    for x in range(runs[r, 1], runs[r, 2]):
+                        flat[row + x] = True
+            measured = kept
+            outline = buf[starts[big] : starts[big + 1]]
+            starts[0], starts[1], n_pieces = 0, len(outline), 1
+    starts = starts[: n_pieces + 1]
     pix, border, bg, other, mom = shaft_boundary(
-        buf[:n], starts, shaft, sx, sy, o1, x1, y1, o2, x2, y2, geo[4], geo[5]
+        outline, starts, measured, sx, sy, o1, x1, y1, o2, x2, y2, geo[4], geo[5]
     )
-    if mom[0] < 1.0 or (len(other) < 3 and geo[GEO_OTHERS] > 0):
+    if mom[0] < 1.0:
         return SHAFT_ASK_PYTHON
+    if len(other) < 3 and geo[GEO_OTHERS] > 0:  # a thin gap between the shaft and its head?
+        found, gap_bg, gap_other = _across_gap(
+            outline,
+            starts,
+            measured,
+            sx,
+            sy,
+            o1,
+            x1,
+            y1,
+            o2,
+            x2,
+            y2,
+            geo[GEO_OTHERS],
+            geo[4],
+            geo[5],
+            gap_rows,
+        )
+        if found:
+            bg, other = gap_bg, gap_other
     centre = np.empty(2)
     centre[0] = mom[1] / mom[0] + float(sx)
     centre[1] = mom[2] / mom[0] + float(sy)
     shaft_pose(pix, border, centre, mom, bg, other, K, radius, par, out, geo, rims, shifted, canvas)
     if not math.isnan(out[_O_QA]):  # the quality (quality.rims_iou)
         iou = np.empty(1)
-        if rims_iou(rims, shifted, canvas, shaft, sx, sy, iou):
+        if rims_iou(rims, shifted, canvas, measured, sx, sy, iou):
             out[_O_QUALITY] = iou[0]
         else:
             out[_O_QUALITY_OPENCV] = 1.0
-    return SHAFT_MEASURED
+    return SHAFT_MERGED if merged else SHAFT_MEASURED
 
 
 # -- the clasper's tip ---------------------------------------------------------------------

@@ -27,9 +27,11 @@ first pose: numba is not loaded by a program that only imports mistool) do steps
 few passes; the parameters below are passed to them as one array (:func:`_params`). For
 an undistorted lens the shaft goes from its mask to its row in one call
 (:func:`_shaft_in_one_call`, the masks' outlines traced as OpenCV traces them,
-:mod:`mistool.kernels.contours`); a shaft in several pieces or with a gap at its junction
-takes the steps in Python (:func:`_shaft_in_steps`, OpenCV's contours). With a distorted
-lens the points are undistorted (:mod:`mistool.lens`) between the kernels.
+:mod:`mistool.kernels.contours`: one piece or several, a gap at the junction or none);
+the steps in Python (:func:`_shaft_in_steps`, OpenCV's contours) answer for a piece
+whose bounding box holds another's (it may lie in a hole), an outline without area, an
+instrument of more than three parts, and a distorted lens, whose points are undistorted
+(:mod:`mistool.lens`) between the kernels.
 """
 
 from __future__ import annotations
@@ -160,6 +162,8 @@ def _params() -> np.ndarray:
         "tip_bend_sigma_rad": _TIP_BEND_SIGMA_RAD,
         "jaw_sep": _JAW_SEP,
         "jaw_rad": _JAW_RAD,
+        "cut_angle_deg": _CUT_ANGLE_DEG,
+        "cut_offset_frac": _CUT_OFFSET_FRAC,
     }
     return np.array([float(values[name]) for name in PARAMS])
 
@@ -258,6 +262,9 @@ _JUNCTION_GAP_PX = 5
 _GAP_DISK = cv2.getStructuringElement(
     cv2.MORPH_ELLIPSE, (2 * _JUNCTION_GAP_PX + 1, 2 * _JUNCTION_GAP_PX + 1)
 )
+#: The disk's half-width at each of its rows (the kernels' form of it; each row is
+#: centred and unbroken, ``tests/test_pose_contours.py``).
+_GAP_ROWS = ((_GAP_DISK.sum(axis=1) - 1) // 2).astype(np.int64)
 
 
 def _across_gap(
@@ -384,8 +391,8 @@ class _ShaftMask:
 
     __slots__ = ("mask", "merged", "offset")
 
-    def __init__(self, mask: np.ndarray, offset: tuple[int, int]) -> None:
-        self.mask, self.offset, self.merged = mask, offset, False
+    def __init__(self, mask: np.ndarray, offset: tuple[int, int], merged: bool) -> None:
+        self.mask, self.offset, self.merged = mask, offset, merged
 
 
 def _shaft_in_one_call(
@@ -398,9 +405,11 @@ def _shaft_in_one_call(
     rims: Rims,
 ) -> _ShaftMask | str | None:
     """:func:`_shaft_points` and the shaft's pose in one kernel call
-    (:func:`mistool.kernels.pose.shaft_from_masks`) for an undistorted camera and at most
-    two other parts: the shaft region (``res`` and ``rims`` filled), ``"not visible"``,
-    or None where :func:`_shaft_points` takes another path (nothing filled)."""
+    (:func:`mistool.kernels.pose.shaft_from_masks`: one piece or several, a gap at the
+    junction or none) for an undistorted camera and at most two other parts: the
+    measured shaft region (``res`` and ``rims`` filled), ``"not visible"``, or None where
+    :func:`_shaft_points` must answer (a piece that may lie in another's hole, an outline
+    without area; nothing filled)."""
     others = [p for n, p in parts.items() if n != "shaft"]
     if len(others) > 2:
         return None
@@ -412,6 +421,7 @@ def _shaft_in_one_call(
     ox, oy = int(shaft.offset[0]), int(shaft.offset[1])
     H, W = image_shape
     geo = np.array([ox, oy, *mask.shape, H, W, _QUALITY_MAX_PIXELS, len(others)], np.int64)
+    kept = np.empty(mask.shape, np.bool_)
     got = kp.shaft_from_masks(
         mask,
         m1,
@@ -428,9 +438,13 @@ def _shaft_in_one_call(
         rims.pts,
         rims.shifted,
         rims.canvas,
+        kept,
+        _GAP_ROWS,
     )
     if got == kp.SHAFT_MEASURED:
-        return _ShaftMask(mask, (ox, oy))
+        return _ShaftMask(mask, (ox, oy), False)
+    if got == kp.SHAFT_MERGED:
+        return _ShaftMask(kept, (ox, oy), True)
     return "not visible" if got == kp.SHAFT_NOT_VISIBLE else None
 
 
