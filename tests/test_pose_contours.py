@@ -14,6 +14,7 @@ import functools
 
 import cv2
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_pose import part_obs, unit
@@ -423,7 +424,7 @@ def test_the_quality_iou_equals_opencvs(seed: int, edge_on: bool) -> None:
 def test_the_clasper_in_one_call_equals_its_steps(seed: int) -> None:
     """``_tip_in_one_call`` (outline, jaw width, border flag, ``tip_pose`` and the
     quality in one kernel call) gives what ``_tip_in_steps`` gives, cell for cell; a
-    clasper in several pieces is left to the steps."""
+    clasper whose pieces' boxes nest is left to the steps."""
     obs, camera, length = scene(seed)
     parts = obs.parts
     clasper = parts.get("clasper")
@@ -438,7 +439,7 @@ def test_the_clasper_in_one_call_equals_its_steps(seed: int) -> None:
     tip1, tip2 = np.full(kp.TIP["size"], np.nan), np.full(kp.TIP["size"], np.nan)
     got1, q1 = measure_mod._tip_in_one_call(clasper, mask, joint, a, K, SHAPE, length_mm, 4.0, tip1)
     if got1 == kp.CLASPER_ASK_PYTHON:
-        assert len(_opencv(mask)) > 1 and np.isnan(tip1).all()
+        assert _nested_boxes(mask) and np.isnan(tip1).all()
         return
     got2, q2 = measure_mod._tip_in_steps(
         clasper, mask, joint, a, K, SHAPE, length_mm, 4.0, camera, False, tip2
@@ -446,6 +447,39 @@ def test_the_clasper_in_one_call_equals_its_steps(seed: int) -> None:
     assert got1 == got2
     assert np.array_equal(tip1, tip2, equal_nan=True)
     assert q1 == q2 or (np.isnan(q1) and np.isnan(q2))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_a_clasper_in_pieces_in_one_call_equals_its_steps(seed: int) -> None:
+    """A clasper cut across (two pieces or more, specks): the one call answers, on
+    OpenCV's first longest outline, and gives what the steps give."""
+    rng = np.random.default_rng(seed)
+    K = np.asarray(PINHOLE.K)
+    J = np.array([rng.uniform(-20, 20), rng.uniform(-15, 15), rng.uniform(40, 70)])
+    a = unit([rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.0, 0.6)])
+    tip = J + 10.0 * unit(a + 0.4 * rng.normal(size=3))
+    labels = render_instrument(SHAPE, K, J - 300.0 * a, J, tip, 4.0, 0.6)
+    clasper = (labels == 70).astype(np.uint8)
+    ys, xs = np.nonzero(clasper)
+    i = int(rng.integers(len(xs)))
+    d = rng.normal(size=2) * 30
+    p, q = (int(xs[i] - d[0]), int(ys[i] - d[1])), (int(xs[i] + d[0]), int(ys[i] + d[1]))
+    cv2.line(clasper, p, q, 0, int(rng.integers(1, 4)))
+    obs = part_obs(clasper > 0)
+    assert obs is not None
+    mask = as_mask(obs.mask)
+    tip1, tip2 = np.full(kp.TIP["size"], np.nan), np.full(kp.TIP["size"], np.nan)
+    length = 10.0 if seed % 2 else np.nan
+    got1, q1 = measure_mod._tip_in_one_call(obs, mask, J, a, K, SHAPE, length, 4.0, tip1)
+    got2, q2 = measure_mod._tip_in_steps(
+        obs, mask, J, a, K, SHAPE, length, 4.0, PINHOLE, False, tip2
+    )
+    if len(_opencv(mask)) > 1 and not _nested_boxes(mask):
+        assert got1 != kp.CLASPER_ASK_PYTHON
+    if got1 != kp.CLASPER_ASK_PYTHON:
+        assert got1 == got2
+        assert np.array_equal(tip1, tip2, equal_nan=True)
+        assert q1 == q2 or (np.isnan(q1) and np.isnan(q2))
 
 
 def test_the_shafts_quality_in_one_call_is_rims_iou() -> None:

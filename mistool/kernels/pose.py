@@ -2485,8 +2485,9 @@ def clasper_from_mask(
     quality: np.ndarray,
 ) -> int:
     """The clasper's tip from its mask, in one call, for an undistorted camera
-    (``measure._clasper_rows`` on its common path): its outer contour
-    (:func:`mistool.kernels.contours.outer_contour`), the jaw width in the image and
+    (``measure._clasper_rows``): its outer contour
+    (:func:`mistool.kernels.contours.outer_contour`; of several pieces, OpenCV's first
+    longest, :func:`mistool.kernels.contours.external_contours`), the jaw width in the image and
     whether the crop touches the image border, :func:`tip_pose`, then the quality
     (:func:`rims_iou`).
 
@@ -2499,7 +2500,8 @@ def clasper_from_mask(
 
     Returns:
         :func:`tip_pose`'s answer; :data:`CLASPER_EMPTY` for a crop without pixels;
-        :data:`CLASPER_ASK_PYTHON` (nothing written) for a crop of several pieces.
+        :data:`CLASPER_ASK_PYTHON` (nothing written) for a crop of several pieces where
+        one's bounding box holds another's (OpenCV answers).
     """
     h, w = mask.shape
     buf = np.empty((4 * (h + w) + 16, 2), np.int32)
@@ -2509,13 +2511,26 @@ def clasper_from_mask(
         n = outer_contour(mask, buf)
     if n == 0:
         return CLASPER_EMPTY
-    if n < 0:
-        return CLASPER_ASK_PYTHON
+    lo = 0
+    if n < 0:  # several pieces: OpenCV's first longest outline (measure._longest_outline)
+        starts = np.empty(_MAX_PIECES + 1, np.int64)
+        buf = np.empty((8 * (h + w) + 64, 2), np.int32)
+        n_pieces, _ = external_contours(mask, buf, starts)
+        if n_pieces == -2:
+            buf = np.empty((4 * h * w + 4, 2), np.int32)
+            n_pieces, _ = external_contours(mask, buf, starts)
+        if n_pieces < 1:
+            return CLASPER_ASK_PYTHON
+        best = 0
+        for k in range(1, n_pieces):
+            if starts[k + 1] - starts[k] > starts[best + 1] - starts[best]:
+                best = k
+        lo, n = starts[best], starts[best + 1] - starts[best]
     width = max(K[0, 0] * 0.25 * (2.0 * radius) / max(joint[2], 1.0), 2.0)
     at_border = min(ox, oy) <= 0 or ox + w - 1 >= width_image - 1 or oy + h - 1 >= height - 1
     quality[0], quality[1] = math.nan, 0.0
     got = tip_pose(
-        buf[:n],
+        buf[lo : lo + n],
         mask,
         ox,
         oy,

@@ -656,7 +656,8 @@ def _tip_in_one_call(
     """The clasper's tip and quality in one kernel call for an undistorted camera
     (:func:`mistool.kernels.pose.clasper_from_mask`: its outline, :func:`_tip`'s kernel,
     the quality): ``(got, quality)``, ``got`` as :func:`_tip` or the kernel's
-    ``CLASPER_EMPTY`` / ``CLASPER_ASK_PYTHON`` (a crop of several pieces: nothing done)."""
+    ``CLASPER_EMPTY`` / ``CLASPER_ASK_PYTHON`` (a crop of several pieces where one's box
+    holds another's: nothing done)."""
     kp = kernels()
     ox, oy = int(clasper.offset[0]), int(clasper.offset[1])
     H, W = image_shape
@@ -702,7 +703,7 @@ def _tip_in_steps(
     tip: np.ndarray,
 ) -> tuple[int, float]:
     """:func:`_tip` on the clasper's longest outline (:func:`_longest_outline`), then the
-    quality: every path (a distorted lens, a crop of several pieces); ``(got, quality)``
+    quality: every path (a distorted lens, a crop whose pieces' boxes nest); ``(got, quality)``
     as :func:`_tip_in_one_call`."""
     outline = _longest_outline(mask)
     if outline is None:
