@@ -208,7 +208,7 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
         np.stack(corners) if corners else np.zeros((0, 4, 2)),
         np.packbits(np.concatenate(masks)) if masks else np.zeros(0, np.uint8),
         labels,
-        pack_metrics([r.metrics for r in results]),
+        [r.metrics for r in results],
         np.concatenate(unknown).astype(np.int64) if unknown else np.zeros(0, np.int64),
         np.array(run_counts, np.int64),
         np.array(run_lengths, np.int64),
@@ -217,89 +217,6 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
 
 
 _PART_CODE = {name: k for k, name in enumerate(PARTS)}
-
-Metrics = list[dict[str, dict[str, float]] | None]
-"""A frame's metric pose: per instance, part -> {column: value}, or None."""
-
-
-def pack_metrics(frames: list[Metrics]) -> tuple[Any, ...]:
-    """Several frames' metric poses as a few flat values for pickling: every float in
-    one array, each part's column names as an index into a table of the distinct name
-    tuples (a part's ~30 names are the same in every frame), the rest as integer codes.
-    An instance with a value that is not a ``float`` (None, text) is sent as it is.
-    :func:`unpack_metrics` gives equal dicts back (same keys in the same order, the same
-    floats bit for bit); unpickling them costs the caller about a third of unpickling
-    the dicts (``scripts/bench_throughput.py --process-cpu``)."""
-    lengths: list[int] = []  # per frame: instances
-    codes: list[int] = []  # per instance: -1 None, -2 as it is, else its parts
-    parts: list[int] = []  # per part: its name's index, its column names' index
-    values: list[float] = []
-    as_is: list[Any] = []
-    names: dict[str, int] = {}
-    columns: dict[tuple[str, ...], int] = {}
-    for metrics in frames:
-        lengths.append(len(metrics))
-        for metric in metrics:
-            if metric is None:
-                codes.append(-1)
-                continue
-            flat = [v for cols in metric.values() for v in cols.values()]
-            if not all(type(v) is float for v in flat):
-                codes.append(-2)
-                as_is.append(metric)
-                continue
-            codes.append(len(metric))
-            for part, cols in metric.items():
-                keys = tuple(cols)
-                parts.append(names.setdefault(part, len(names)))
-                parts.append(columns.setdefault(keys, len(columns)))
-            values.extend(flat)
-    return (
-        np.array(lengths, np.int64),
-        np.array(codes, np.int64),
-        np.array(parts, np.int64),
-        np.array(values, np.float64),
-        list(names),
-        list(columns),
-        as_is,
-    )
-
-
-def unpack_metrics(packed: tuple[Any, ...]) -> list[Metrics]:
-    """The metric poses :func:`pack_metrics` packed."""
-    lengths, codes, parts, values, names, columns, as_is = packed
-    codes_, parts_, values_ = codes.tolist(), parts.tolist(), values.tolist()
-    out: list[Metrics] = []
-    i = p = v = a = 0  # next instance code, part pair, value, instance sent as it is
-    for n in lengths.tolist():
-        frame: Metrics = []
-        for code in codes_[i : i + n]:
-            if code == -1:
-                frame.append(None)
-            elif code == -2:
-                frame.append(as_is[a])
-                a += 1
-            else:
-                metric: dict[str, dict[str, float]] = {}
-                for _ in range(code):
-                    keys = columns[parts_[p + 1]]
-                    metric[names[parts_[p]]] = dict(
-                        zip(keys, values_[v : v + len(keys)], strict=True)
-                    )
-                    p += 2
-                    v += len(keys)
-                frame.append(metric)
-        i += n
-        out.append(frame)
-    return out
-
-
-class MetricFrames(list[Metrics]):
-    """Several frames' metric poses (:func:`measure_frames`' result), sent packed
-    (:func:`pack_metrics`); unpickles to a plain list of equal values."""
-
-    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
-        return unpack_metrics, (pack_metrics(list(self)),)
 
 
 class MeasureWork(list[tuple[list[InstanceObservation], tuple[int, int]]]):
@@ -325,9 +242,8 @@ def _unpack_work(
 def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
     """The results :func:`pack_frames` packed (every value, dtype and shape; a mask is a
     bool view of its frame's unpacked bytes)."""
-    frames, inst_i, inst_f, part_i, part_f, corners, bits, labels, packed_metrics, *rest = packed
+    frames, inst_i, inst_f, part_i, part_f, corners, bits, labels, metrics, *rest = packed
     unknown, run_counts, run_lengths, run_ends = rest
-    metrics = unpack_metrics(packed_metrics)
     inst_rows, inst_xy = inst_i.tolist(), inst_f.tolist()
     part_rows, part_nums = part_i.tolist(), part_f.tolist()
     run_n, run_len = run_counts.tolist(), run_lengths.tolist()
@@ -422,9 +338,7 @@ def measure_frames(
     of the blobs the identity step split and the instances of deferred frames, measured
     in a worker while the caller goes on with the next frames; several frames per task,
     since each task costs the caller an inter-process round trip)."""
-    return MetricFrames(
-        measure_all(instances, shape, config, metric) for instances, shape in frames
-    )
+    return [measure_all(instances, shape, config, metric) for instances, shape in frames]
 
 
 def unknown_values(

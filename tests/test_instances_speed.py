@@ -516,7 +516,6 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
         FrameResult,
         FrameResults,
         MeasureWork,
-        MetricFrames,
         observe_labels,
     )
 
@@ -555,6 +554,3 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
     assert type(back) is list and len(back) == len(work)
     for (got_i, got_s), (want_i, want_s) in zip(back, work, strict=True):
         assert got_s == want_s and [_key(i) for i in got_i] == [_key(i) for i in want_i]
-    poses = MetricFrames(r.metrics for r in results)
-    back_poses = pickle.loads(pickle.dumps(poses, protocol=pickle.HIGHEST_PROTOCOL))
-    assert type(back_poses) is list and repr(back_poses) == repr(poses)
