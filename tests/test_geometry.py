@@ -450,3 +450,40 @@ def test_fit_part_equals_the_opencv_definition(seed, min_area):
     assert got.area_px == area and got.offset == (offset[0] + x, offset[1] + y)
     assert np.array_equal(got.kept, kept[y : y + bh, x : x + bw] > 0)
     assert got.kept.dtype == np.bool_ and got.kept.flags.c_contiguous
+
+
+def _mask_runs_before(mask: np.ndarray) -> list[tuple[int, int, int]]:
+    """The row runs of a mask's non-zero pixels in raster order, from numpy's edges."""
+    out = []
+    for y, row in enumerate(mask != 0):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], row.astype(np.int8), [0]])))
+        out.extend((y, int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True))
+    return out
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.integers(1, 40),
+    st.integers(1, 300),
+    st.sampled_from([1, 2, 8, 33, 200]),
+)
+def test_mask_runs_passing_over_long_stretches_are_numpys_runs(seed, h, w, scale):
+    """kernels.boxes.mask_runs (32, then 8 pixels at a time where the row does not
+    change) gives the row runs of numpy's edges: runs and gaps of every length (around
+    the 8- and 32-pixel strides, at the row's end), any non-zero byte values."""
+    from mistool.kernels.boxes import mask_runs
+
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((h, w), np.uint8)
+    for y in range(h):
+        x = int(rng.integers(0, scale + 1))
+        while x < w:
+            n = int(rng.integers(1, 2 * scale + 2))
+            mask[y, x : x + n] = rng.integers(1, 256, min(n, w - x))
+            x += n + int(rng.integers(1, 2 * scale + 2))
+    if rng.random() < 0.2:
+        mask[int(rng.integers(0, h))] = 0xFF  # a row set from end to end
+    ry, rx0, rx1, n = mask_runs(mask)
+    got = list(zip(ry[:n].tolist(), rx0[:n].tolist(), rx1[:n].tolist(), strict=True))
+    assert got == _mask_runs_before(mask)

@@ -24,7 +24,7 @@ from mistool.kernels.instances import (
     label_runs,
     paint_components,
 )
-from mistool.model import InstanceObservation, PartObservation
+from mistool.model import InstanceObservation, PartObservation, RotatedBox
 from mistool.tracking import instances
 from mistool.tracking.instances import (
     MERGE_GAP_PX,
@@ -554,3 +554,55 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
     assert type(back) is list and len(back) == len(work)
     for (got_i, got_s), (want_i, want_s) in zip(back, work, strict=True):
         assert got_s == want_s and [_key(i) for i in got_i] == [_key(i) for i in want_i]
+
+
+def _make_instance_before(
+    label: str | None, parts: dict[str, PartObservation], shape: tuple[int, int] | None
+) -> InstanceObservation:
+    """``instances.make_instance`` as it was (the sums from ``cv2.reduce``)."""
+    area = sum(p.area_px for p in parts.values())
+    sx = sy = 0.0
+    x0 = y0 = math.inf
+    x1 = y1 = -math.inf
+    for p in parts.values():
+        m = p.mask.view(np.uint8)
+        cols = cv2.reduce(m, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+        rows = cv2.reduce(m, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+        sx += float(cols @ np.arange(len(cols))) + p.offset[0] * p.area_px
+        sy += float(rows @ np.arange(len(rows))) + p.offset[1] * p.area_px
+        h, w = p.mask.shape
+        x0, y0 = min(x0, p.offset[0]), min(y0, p.offset[1])
+        x1, y1 = max(x1, p.offset[0] + w), max(y1, p.offset[1] + h)
+    return InstanceObservation(
+        label=label,
+        parts=parts,
+        centroid_px=(sx / area, sy / area),
+        area_px=area,
+        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)),
+        image_shape=shape,
+    )
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 3), st.booleans())
+def test_make_instance_sums_the_masks_as_before(seed, nparts, strided):
+    """make_instance's centroid from exact pixel sums of each part's mask (compiled,
+    kernels.instances.mask_sums) is the former one from cv2.reduce's row and column
+    sums, bit for bit: masks of any shape (up to a large blob), offsets far from 0, a
+    mask that is a strided view."""
+    rng = np.random.default_rng(seed)
+    parts = {}
+    for name in ("shaft", "wrist", "clasper")[:nparts]:
+        h, w = int(rng.integers(1, 700)), int(rng.integers(1, 700))
+        mask = rng.random((h, w)) < rng.uniform(0.02, 1.0)
+        mask[int(rng.integers(0, h)), int(rng.integers(0, w))] = True
+        if strided:
+            mask = np.repeat(mask, 2, axis=1)[:, ::2]
+        off = (int(rng.integers(0, 5000)), int(rng.integers(0, 5000)))
+        area = int(mask.sum())
+        box = RotatedBox(1.0, 2.0, 3.0, 1.0, 0.0)
+        parts[name] = PartObservation(name, box, np.zeros((4, 2)), area, mask, off)
+    got = make_instance(None, parts, (9000, 9000))
+    want = _make_instance_before(None, parts, (9000, 9000))
+    assert got.centroid_px == want.centroid_px
+    assert (got.area_px, got.bbox_xywh) == (want.area_px, want.bbox_xywh)

@@ -982,6 +982,7 @@ def test_border_runs_are_the_former_ones(seed, where):
     assert len(got) == len(want)
     for (e1, n1), (e2, n2) in zip(got, want, strict=True):
         assert n1 == n2 and np.array_equal(e1, e2)
+        assert type(n1) is int and e1.dtype == np.float64 and e1.shape == (3, 2)
 
 
 def test_a_one_pixel_head_is_shown_by_its_one_point_distance():

@@ -225,6 +225,29 @@ def _mask_runs_into(mask: np.ndarray, ry: np.ndarray, rx0: np.ndarray, rx1: np.n
         inside = False
         x = 0
         while x < w:
+            if x + 32 <= w:  # 32 pixels passed over at once where none changes
+                if inside:
+                    a = load8(mask, base + x)
+                    b = load8(mask, base + x + 8)
+                    c = load8(mask, base + x + 16)
+                    d = load8(mask, base + x + 24)
+                    if (
+                        (((a & _LOW7) + _LOW7) | a)
+                        & (((b & _LOW7) + _LOW7) | b)
+                        & (((c & _LOW7) + _LOW7) | c)
+                        & (((d & _LOW7) + _LOW7) | d)
+                        & _HIGH
+                    ) == _HIGH:
+                        x += 32
+                        continue
+                elif (
+                    load8(mask, base + x)
+                    | load8(mask, base + x + 8)
+                    | load8(mask, base + x + 16)
+                    | load8(mask, base + x + 24)
+                ) == 0:
+                    x += 32
+                    continue
             if x + 8 <= w:
                 word = load8(mask, base + x)
                 set_ = (((word & _LOW7) + _LOW7) | word) & _HIGH  # bit 7: byte non-zero

@@ -559,3 +559,23 @@ def chamfer_gap(
                 best = d
                 reach = best / CHAMFER_HV
     return best
+
+
+@kernel("UniTuple(int64, 2)(uint8[:, ::1])")
+def mask_sums(mask: np.ndarray) -> tuple[int, int]:
+    """``(sum of x * value, sum of y * value)`` over a mask's pixels (crop coordinates;
+    a bool mask's values are 0 and 1), exactly: what ``tracking.make_instance`` had from
+    ``cv2.reduce``'s column and row sums dotted with their indices."""
+    h, w = mask.shape
+    sx = 0
+    sy = 0
+    for y in range(h):
+        row = 0
+        wx = 0
+        for x in range(w):
+            v = np.int64(mask[y, x])
+            row += v
+            wx += x * v
+        sx += wx
+        sy += y * row
+    return sx, sy

@@ -775,17 +775,49 @@ def _border_touch(mask: np.ndarray, x0: int, y0: int, hh: int, ww: int) -> np.nd
     return on
 
 
-@kernel("int64(uint8[:, ::1], int64, int64, int64, int64, int64, int64, int64[:, ::1])")
+@helper
+def _border_xy(i: int, ww: int, hh: int, out: np.ndarray, j: int, k: int) -> None:
+    """``out[j, k]``: pixel (x, y) of index ``i`` along the image border walked as a loop
+    (top, right, bottom, left; ``split._border_index_to_xy``)."""
+    i %= 2 * (ww - 1) + 2 * (hh - 1)
+    if i < ww - 1:
+        out[j, k, 0], out[j, k, 1] = i, 0
+        return
+    i -= ww - 1
+    if i < hh - 1:
+        out[j, k, 0], out[j, k, 1] = ww - 1, i
+        return
+    i -= hh - 1
+    if i < ww - 1:
+        out[j, k, 0], out[j, k, 1] = ww - 1 - i, hh - 1
+        return
+    i -= ww - 1
+    out[j, k, 0], out[j, k, 1] = 0, hh - 1 - i
+
+
+@kernel(
+    "int64(uint8[:, ::1], int64, int64, int64, int64, int64, int64, int64[:, ::1],"
+    " float64[:, :, ::1])"
+)
 def border_runs(
-    mask: np.ndarray, x0: int, y0: int, hh: int, ww: int, min_px: int, max_gap: int, out: np.ndarray
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    hh: int,
+    ww: int,
+    min_px: int,
+    max_gap: int,
+    out: np.ndarray,
+    ends: np.ndarray,
 ) -> int:
     """``split.border_runs``' runs of a shaft crop (``mask`` at (x0, y0)) in an (hh, ww)
     image: the image border walked as a loop (top, right, bottom, left; index 0 the top
     left pixel), where the shaft's pixels touch it; runs closer than ``max_gap`` px
     joined, those of at least ``min_px`` kept, walking from the first border pixel off
     the shaft. ``out`` (at least n / 2 + 1, 2): each run's first index (from that
-    pixel: not reduced modulo n) and length; how many. None (0) when fewer than
-    ``min_px`` border pixels are the shaft's or all are."""
+    pixel: not reduced modulo n) and length; ``ends`` (as many, 3, 2): the (x, y) px of
+    its first, middle and last pixel; how many. None (0) when fewer than ``min_px``
+    border pixels are the shaft's or all are."""
     on = _border_touch(mask, x0, y0, hh, ww)
     n = on.shape[0]
     total = 0
@@ -799,13 +831,16 @@ def border_runs(
         return 0
     m = 0
     i = 0
+    at = start  # (start + i) modulo n, without a division per pixel
     while i < n:  # runs of the loop rolled to start there (on[start] is off)
-        if not on[(start + i) % n]:
+        if not on[at]:
             i += 1
+            at = at + 1 if at + 1 < n else 0
             continue
         a = i
-        while i < n and on[(start + i) % n]:
+        while i < n and on[at]:
             i += 1
+            at = at + 1 if at + 1 < n else 0
         if m > 0 and a - (out[m - 1, 0] + out[m - 1, 1]) <= max_gap:
             out[m - 1, 1] = i - out[m - 1, 0]
         else:
@@ -815,8 +850,13 @@ def border_runs(
     k = 0
     for j in range(m):
         if out[j, 1] >= min_px:
-            out[k, 0] = out[j, 0] + start
-            out[k, 1] = out[j, 1]
+            first = out[j, 0] + start
+            length = out[j, 1]
+            out[k, 0] = first
+            out[k, 1] = length
+            _border_xy(first, ww, hh, ends, k, 0)
+            _border_xy(first + length // 2, ww, hh, ends, k, 1)
+            _border_xy(first + length - 1, ww, hh, ends, k, 2)
             k += 1
     return k
 
