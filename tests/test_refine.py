@@ -175,11 +175,15 @@ def test_trocar_fusion_and_clasper_realignment_are_their_former_definitions(seed
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 30))
 def test_quaternions_are_those_of_each_row_as_before(seed, n):
-    """The quaternion columns: ``quat_from_z(axis / np.linalg.norm(axis))`` of each row
-    with a finite axis (the former per-row loop), bit for bit; NaN elsewhere."""
+    """The quaternion columns (:func:`mistool.kernels.refine.quats_of_axes`):
+    ``quat_from_z(axis / np.linalg.norm(axis))`` of each row with a finite axis (the
+    former per-row loop), bit for bit, axes along -z included; NaN elsewhere."""
     rng = np.random.default_rng(seed)
     axes = rng.normal(0.0, 1.0, (n, 3))
     axes[rng.random(n) < 0.2, rng.integers(0, 3)] = np.nan
+    down = rng.random(n) < 0.1  # along -z: the 180-degree turn about +x
+    axes[down] = [0.0, 0.0, -1.0]
+    axes[down] *= rng.uniform(0.5, 2.0, (int(down.sum()), 1))
     table = TrackTable(
         {
             "frame": np.arange(n),

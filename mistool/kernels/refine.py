@@ -1,5 +1,6 @@
 """The trocar-constrained re-solve of one instrument's shaft rows
-(:func:`mistool.pose.refine._trocar_fusion`), one row at a time on scalars.
+(:func:`mistool.pose.refine._trocar_fusion`), one row at a time on scalars; and the
+quaternion of every row's axis (:func:`quats_of_axes`, bit for bit).
 
 Every dot product is summed left to right, where numpy's BLAS may use fused
 multiply-adds: the results agree with the former numpy arithmetic to ~1e-13 mm on tracked
@@ -13,6 +14,7 @@ import math
 import numpy as np
 
 from mistool.kernels import helper, kernel
+from mistool.kernels.split import fma
 
 #: Columns of the row values the kernel reads, in order.
 FUSION_INPUTS = (
@@ -266,3 +268,23 @@ def trocar_fusion(
                 out[r, 6 + j] = J[j] + t * a[j]
             what[r] = 2
     return what
+
+
+@kernel("void(float64[:, ::1], int64[::1], float64[:, ::1])")
+def quats_of_axes(ax: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
+    """``quat_from_z(a / np.linalg.norm(a))`` (:mod:`mistool.pose.cylinder`) of each
+    ``a = ax[r]``, ``r`` in ``rows``, into
+    ``out[k]`` for ``rows[k]``, bit for bit: both dot products (``v.dot(v)`` of 3 and
+    ``q @ q`` of 4 elements, OpenBLAS's ``ddot`` below 16 elements) as one multiply-add
+    per element from 0 (:func:`mistool.kernels.split.dot2`'s order)."""
+    for k in range(len(rows)):
+        r = rows[k]
+        a0, a1, a2 = ax[r, 0], ax[r, 1], ax[r, 2]
+        n = math.sqrt(fma(a2, a2, fma(a1, a1, fma(a0, a0, 0.0))))
+        z0, z1, z2 = a0 / n, a1 / n, a2 / n
+        if z2 < -1.0 + 1e-12:
+            out[k, 0], out[k, 1], out[k, 2], out[k, 3] = 0.0, 1.0, 0.0, 0.0
+            continue
+        q0, q1, q2, q3 = 1.0 + z2, -z1, z0, 0.0
+        s = math.sqrt(fma(q3, q3, fma(q2, q2, fma(q1, q1, fma(q0, q0, 0.0)))))
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = q0 / s, q1 / s, q2 / s, q3 / s

@@ -29,9 +29,6 @@ import numpy as np
 
 from mistool.errors import ConfigError
 from mistool.model import TrackTable
-from mistool.pose.cylinder import (
-    quat_from_z,
-)
 from mistool.pose.filtering import MODES, filter_series, noise_scale
 from mistool.pose.measure import AUX_KEYS, MAX_SIGMA_DEG
 from mistool.pose.status import status_column
@@ -59,12 +56,6 @@ def _set3(
 ) -> None:
     for j, n in enumerate(names):
         cols[n][idx] = values[:, j]
-
-
-def _norm(v: np.ndarray) -> float:
-    """``np.linalg.norm`` of a 1-D float64 vector, without its overhead: the very same
-    ``sqrt(v.dot(v))`` it computes, so the same bits."""
-    return math.sqrt(float(v.dot(v)))
 
 
 def _finite(a: float, b: float, c: float) -> bool:
@@ -261,7 +252,10 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
     ax = _get3(cols, _AXIS, np.arange(table.num_rows))
     rows = np.flatnonzero(np.all(np.isfinite(ax), axis=1))
     if len(rows):
-        quats = np.array([quat_from_z(a / _norm(a)) for a in ax[rows]])
+        from mistool.kernels.refine import quats_of_axes  # numba: at first use
+
+        quats = np.empty((len(rows), 4))  # quat_from_z(a / |a|) of each row, compiled
+        quats_of_axes(np.ascontiguousarray(ax, np.float64), rows.astype(np.int64), quats)
         for j, n in enumerate(_QUAT):
             cols[n][rows] = quats[:, j]
     cols["pose_status"] = status_column(cols, table.num_rows)
