@@ -60,13 +60,14 @@ from mistool.sequence import (
 from mistool.tracking.instances import LabelRuns, scan_labels
 from mistool.tracking.split import border_runs
 
-#: Frames per task sent to a local worker process: enough to amortise a task's cost in
-#: the caller (its executor threads' wake-ups, pickling, the future: ~0.5 ms of CPU per
-#: task) against a frame's work (~0.4-1 ms now): 16 frames cut the caller's CPU from
-#: 0.23 to 0.18-0.19 ms/frame (one instrument) and 0.75-0.78 to 0.68-0.70 (crossing)
-#: against 8, and 32 no further (``scripts/bench_throughput.py`` ``process_cpu``, 2
-#: workers, two alternating rounds).
-LOCAL_BATCH_FRAMES = 16
+#: Frames per task sent to a local worker process: enough to amortise a task's cost (the
+#: caller's executor threads' wake-ups, pickling, the future; the worker's queue, lock
+#: and pipe: together ~1 ms of CPU per task) against a frame's work (~0.4-1.3 ms of every
+#: process's CPU). Against 16, 64 frames cut every process's CPU per frame with one
+#: instrument from 0.61 to 0.56 ms (32: 0.59, 128: 0.57) and leave the crossing's
+#: within 1% (1.38-1.41 either way): reused 2-worker pools, 3 runs each after a warm-up,
+#: 3-4 alternating rounds at load 5-7 (the session's notes: docs/throughput.md).
+LOCAL_BATCH_FRAMES = 64
 #: Frames per task on a Dask cluster (a task's scheduling costs ~1 ms or more).
 DASK_BATCH_FRAMES = 64
 #: Seconds to wait for a Dask scheduler to answer before giving up.
