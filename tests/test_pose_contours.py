@@ -11,6 +11,7 @@ gone)."""
 from __future__ import annotations
 
 import functools
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -27,6 +28,7 @@ from mistool.pose import measure as measure_mod
 from mistool.pose.quality import Rims, rims_iou
 from mistool.pose.raycast import render_instrument
 from mistool.pose.silhouette import as_mask
+from mistool.pose.status import reason_code
 
 #: The fixed scenes the loops below share (each is a few ray-cast renders).
 _fixed_scene = functools.lru_cache(maxsize=None)(scene)
@@ -502,3 +504,119 @@ def test_the_shafts_quality_in_one_call_is_rims_iou() -> None:
         assert q == want or (np.isnan(q) and np.isnan(want))
         checked += 1
     assert checked >= 4, checked
+
+
+def _rows_equal(a: dict, b: dict) -> None:
+    """Two instances' rows: the same parts and cells, in the same order, bit for bit
+    (NaN equal to NaN)."""
+    assert list(a) == list(b)
+    for name in a:
+        assert list(a[name]) == list(b[name])
+        x, y = np.array(list(a[name].values())), np.array(list(b[name].values()))
+        assert np.array_equal(x, y, equal_nan=True), (name, x, y)
+
+
+def _instance_one_call_equals_steps(parts: dict, camera: object, length: float | None) -> bool:
+    """``measure._instance_in_one_call`` against ``_instance_in_steps`` (the former
+    ``measure_instance``): the same rows where the one call answers; whether it did."""
+    K = np.ascontiguousarray(camera.K, dtype=np.float64)  # type: ignore[attr-defined]
+    got = measure_mod._instance_in_one_call(parts, parts["shaft"], SHAPE, K, 4.0, length)
+    want = measure_mod._instance_in_steps(
+        parts,
+        parts["shaft"],
+        SHAPE,
+        camera,  # type: ignore[arg-type]
+        K,
+        False,
+        4.0,
+        length,
+    )
+    if got is None:
+        return False
+    _rows_equal(got, want)
+    return True
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(["all", "no clasper", "shaft first"]))
+def test_the_instance_in_one_call_equals_its_steps(seed: int, variant: str) -> None:
+    """Rendered scenes (one tool or two merged, holes, cuts, gaps at the junction, a
+    wrist; without the clasper; parts in another order): ``instance_from_masks`` gives
+    every row the steps give, cell for cell, reasons included."""
+    obs, camera, length = scene(seed)
+    parts = dict(obs.parts)
+    if parts.get("shaft") is None or camera.distorted:
+        return
+    if variant == "no clasper":
+        parts.pop("clasper", None)
+    elif variant == "shaft first":
+        parts = {"shaft": parts.pop("shaft"), **dict(reversed(list(parts.items())))}
+    _instance_one_call_equals_steps(parts, camera, length)
+
+
+def test_the_instance_in_one_call_is_the_common_path() -> None:
+    """The one call answers for most undistorted scenes and for each way a row ends
+    (measured, the tip not found, no clasper, merged, a shaft reason), so that the test
+    above proves something; and ``measure_instance`` takes it."""
+    answered = tried = 0
+    statuses: set[float] = set()
+    for seed in (*range(40), 56, 113, 190):  # (56: rejected, 113: merged, 190: occluded)
+        obs, camera, length = _fixed_scene(seed)
+        if obs.parts.get("shaft") is None or camera.distorted:
+            continue
+        for parts in (obs.parts, {k: v for k, v in obs.parts.items() if k != "clasper"}):
+            tried += 1
+            if _instance_one_call_equals_steps(parts, camera, length):
+                answered += 1
+                rows = measure_mod.measure_instance(
+                    SimpleNamespace(parts=parts),  # type: ignore[arg-type]
+                    SHAPE,
+                    camera,
+                    8.0,
+                    length,
+                )
+                statuses |= {row["aux_status"] for row in rows.values()}
+    assert tried >= 12 and answered >= 0.8 * tried, (answered, tried)
+    reasons = ("no clasper", "merged", "one silhouette line", "rejected", "occluded")
+    assert {reason_code(r) for r in reasons} <= statuses, statuses
+
+
+def test_the_instance_in_one_call_when_the_tip_or_the_shaft_is_not_found() -> None:
+    """Drawn: a clasper of two pixels (the tip not found), a shaft crop without pixels
+    (not visible), and a clean tool (every row measured): the rows the steps give."""
+    canvas = np.zeros(SHAPE, np.uint8)
+    cv2.line(canvas, (100, 500), (300, 300), 160, 24)
+    cv2.circle(canvas, (310, 290), 8, 70, -1)
+    tool = {"shaft": part_obs(canvas == 160), "clasper": part_obs(canvas == 70)}
+    assert _instance_one_call_equals_steps(tool, PINHOLE, 10.0)
+    K = np.ascontiguousarray(PINHOLE.K, dtype=np.float64)
+    rows = measure_mod._instance_in_one_call(tool, tool["shaft"], SHAPE, K, 4.0, 10.0)
+    assert rows is not None and all(np.isnan(row["aux_status"]) for row in rows.values())
+    assert np.isfinite(rows["clasper"]["end_z_mm"]) and np.isfinite(rows["shaft"]["quality"])
+    ys, xs = np.nonzero(canvas == 160)
+    end = np.argsort(xs - ys)[-4::3]  # two pixels of the shaft's distal end, 3 apart
+    speck = np.zeros(SHAPE, bool)
+    speck[ys[end] - 1, xs[end] + 1] = True  # a clasper of a pixel beyond each
+    assert speck.sum() == 2 and not (speck & (canvas == 160)).any()
+    tool["clasper"] = part_obs(speck)
+    assert _instance_one_call_equals_steps(tool, PINHOLE, None)
+    rows = measure_mod._instance_in_one_call(tool, tool["shaft"], SHAPE, K, 4.0, None)
+    assert rows is not None and rows["clasper"]["aux_status"] == reason_code("tip not found")
+    empty = SimpleNamespace(mask=np.zeros((3, 4), bool), offset=(5, 6), box=None)
+    none = {"shaft": empty, "clasper": tool["clasper"]}
+    assert _instance_one_call_equals_steps(none, PINHOLE, 10.0)
+    rows = measure_mod._instance_in_one_call(none, empty, SHAPE, K, 4.0, 10.0)  # type: ignore[arg-type]
+    assert rows is not None and rows["clasper"]["aux_status"] == reason_code("not visible")
+
+
+def test_the_instance_in_one_call_leaves_other_parts_to_the_steps() -> None:
+    """A part other than the shaft, the clasper and the wrist, or more than three parts:
+    the steps answer (the one call writes three rows)."""
+    obs, camera, length = next(
+        s
+        for s in map(_fixed_scene, range(40))
+        if "clasper" in s[0].parts and "shaft" in s[0].parts and not s[1].distorted
+    )
+    K = np.ascontiguousarray(camera.K, dtype=np.float64)
+    parts = {"shaft": obs.parts["shaft"], "jaw": obs.parts["clasper"]}
+    assert measure_mod._instance_in_one_call(parts, parts["shaft"], SHAPE, K, 4.0, length) is None

@@ -64,8 +64,12 @@ __all__ = [
     "CLASPER_EMPTY",
     "FIT_LEN",
     "GEO_OTHERS",
+    "INSTANCE_ASK_PYTHON",
+    "INSTANCE_MEASURED",
+    "ONE_CALL_REASONS",
     "OUT",
     "PARAMS",
+    "ROW_LEN",
     "SHAFT_ASK_PYTHON",
     "SHAFT_MEASURED",
     "SHAFT_MERGED",
@@ -75,6 +79,7 @@ __all__ = [
     "clasper_from_mask",
     "cylinder_outline",
     "fit_line",
+    "instance_from_masks",
     "iou_count",
     "jaw_ends",
     "rims_iou",
@@ -2558,6 +2563,180 @@ def clasper_from_mask(
         else:
             quality[1] = 1.0
     return got
+
+
+#: A part's row as :func:`instance_from_masks` writes it (``measure.POSE_KEYS`` then
+#: ``measure.AUX_KEYS``): end, axis, start, quaternion, quality; the two limb lines, the
+#: joint's or tip's pixel, the proximal end's pixel, the two sigmas, the distal flag, the
+#: status (a reason's code, NaN for none).
+ROW_LEN = 28
+_R_START, _R_QUAT, _R_QUALITY, _R_LINES, _R_UV, _R_DISTAL, _R_STATUS = 6, 9, 13, 14, 20, 26, 27
+#: The reasons :func:`instance_from_masks` records, by their index in its ``reasons``
+#: argument (which holds each one's status code): :data:`WHY`'s (the first unused), then
+#: these.
+ONE_CALL_REASONS: tuple[str, ...] = (*WHY, "merged", "no clasper", "tip not found", "not visible")
+_RS_MERGED, _RS_NO_CLASPER, _RS_TIP_NOT_FOUND, _RS_NOT_VISIBLE = range(len(WHY), len(WHY) + 4)
+#: :func:`instance_from_masks`' answers.
+INSTANCE_MEASURED, INSTANCE_ASK_PYTHON = 0, 1
+
+
+@helper
+def _why_rows(rows: np.ndarray, first: int, stop: int, code: float) -> None:
+    """A reason's code on rows ``first`` to ``stop - 1``, where none is recorded yet
+    (``measure._why``)."""
+    for i in range(first, stop):
+        if not rows[i, _R_STATUS] >= 0:
+            rows[i, _R_STATUS] = code
+
+
+@helper
+def _shaft_row_of(res: np.ndarray, rows: np.ndarray, reasons: np.ndarray) -> bool:
+    """The shaft's row from :func:`shaft_pose`'s ``res`` (its quality included) and the
+    reasons it gives (``measure._instance_in_steps``); whether to go on to the clasper."""
+    rows[0, _R_DISTAL] = res[_O_DISTAL]
+    for j in range(12):  # the limb lines to the sigmas
+        rows[0, _R_LINES + j] = res[_O_L1 + j]
+    for j in range(13):  # the pose without its quality
+        rows[0, j] = res[_O_END + j]
+    rows[0, _R_QUALITY] = res[_O_QUALITY]  # NaN without a quality cylinder
+    why_shaft, why_all = int(res[_O_WHY_SHAFT]), int(res[_O_WHY_ALL])
+    if why_shaft:
+        _why_rows(rows, 0, 1, reasons[why_shaft])
+    if why_all:
+        _why_rows(rows, 0, 3, reasons[why_all])
+        return False
+    return res[_O_CLASPER] != 0
+
+
+@helper
+def _clasper_rows_of(
+    found: int,
+    tip: np.ndarray,
+    joint: np.ndarray,
+    quality: float,
+    rows: np.ndarray,
+    reasons: np.ndarray,
+) -> None:
+    """The clasper's and the wrist's rows from :func:`clasper_from_mask`'s answer
+    (``measure._clasper_rows``)."""
+    if found >= 0:  # a clasper with pixels
+        if found:
+            rows[1, _R_UV], rows[1, _R_UV + 1] = tip[0], tip[1]
+        if found == 2:
+            for j in range(6):  # end and axis
+                rows[1, j] = tip[2 + j]
+            for j in range(4):
+                rows[1, _R_QUAT + j] = tip[8 + j]
+            for j in range(3):
+                rows[1, _R_START + j] = joint[j]
+            rows[1, _R_QUALITY] = quality
+        else:
+            _why_rows(rows, 1, 3, reasons[_RS_TIP_NOT_FOUND])
+    else:
+        _why_rows(rows, 2, 3, reasons[_RS_NO_CLASPER])
+    if not math.isnan(tip[5]):  # the wrist's axis
+        for j in range(3):
+            rows[2, 3 + j] = tip[5 + j]
+        for j in range(4):
+            rows[2, _R_QUAT + j] = tip[8 + j]
+    for j in range(3):
+        rows[2, _R_START + j] = joint[j]
+
+
+@kernel(
+    "int64(boolean[:, ::1], boolean[:, ::1], int64, int64, boolean[:, ::1], int64, int64,"
+    " int64, int64, int64, int64, int64, int64, int64, float64[:, ::1], float64, float64,"
+    " float64, float64[::1], int64[::1], float64[::1], float64[:, ::1])"
+)
+def instance_from_masks(
+    shaft: np.ndarray,
+    o1: np.ndarray,
+    x1: int,
+    y1: int,
+    o2: np.ndarray,
+    x2: int,
+    y2: int,
+    clasper: int,
+    sx: int,
+    sy: int,
+    height: int,
+    width: int,
+    max_pixels: int,
+    n_others: int,
+    K: np.ndarray,  # noqa: N803
+    radius: float,
+    length: float,
+    cap: float,
+    par: np.ndarray,
+    gap_rows: np.ndarray,
+    reasons: np.ndarray,
+    rows: np.ndarray,
+) -> int:
+    """One instrument's rows from its masks, in one call, for an undistorted camera
+    (``measure.measure_instance``): :func:`shaft_from_masks`, then, where the shaft asks
+    for it, :func:`clasper_from_mask`, each row written in its final order with the
+    reasons of its empty cells.
+
+    Args:
+        shaft: the shaft crop at ``(sx, sy)``; o1, o2: the other parts' crops (``(0, 0)``
+            for none) at ``(x1, y1)``, ``(x2, y2)``; clasper: which of them is the
+            clasper (1 or 2; 0: none); n_others: how many there are (at most 2).
+        height, width: the image's size (px); max_pixels: the quality canvas' bound.
+        K, radius, par, gap_rows: as :func:`shaft_from_masks`; length, cap: as
+            :func:`clasper_from_mask` (``length`` NaN when unknown).
+        reasons: the status code of each of :data:`ONE_CALL_REASONS`.
+        rows: (3, :data:`ROW_LEN`) receives the shaft's, the clasper's and the wrist's
+            rows (``measure.POSE_KEYS + AUX_KEYS``; NaN where unknown).
+
+    Returns:
+        :data:`INSTANCE_MEASURED`, or :data:`INSTANCE_ASK_PYTHON` where Python or OpenCV
+        must answer (a shaft or clasper crop whose pieces' boxes nest, an outline without
+        area, a quality hull resting on float rounding): the rows are not to be read then.
+    """
+    h, w = shaft.shape
+    geo = np.empty(8, np.int64)
+    geo[0], geo[1], geo[2], geo[3] = sx, sy, h, w
+    geo[4], geo[5], geo[6], geo[GEO_OTHERS] = height, width, max_pixels, n_others
+    res = np.empty(_O_QUALITY_OPENCV + 1)
+    pts = np.empty((48, 2), np.float32)
+    shifted = np.empty((48, 2), np.int32)
+    canvas = np.zeros(6, np.int64)
+    kept = np.empty((h, w), np.bool_)
+    got = shaft_from_masks(
+        shaft, o1, x1, y1, o2, x2, y2, K, radius, par, res, geo, pts, shifted, canvas, kept,
+        gap_rows,
+    )  # fmt: skip
+    if got == SHAFT_ASK_PYTHON:
+        return INSTANCE_ASK_PYTHON
+    for i in range(3):
+        for j in range(ROW_LEN):
+            rows[i, j] = math.nan
+    if got == SHAFT_NOT_VISIBLE:
+        _why_rows(rows, 0, 3, reasons[_RS_NOT_VISIBLE])
+        return INSTANCE_MEASURED
+    if not math.isnan(res[_O_QA]) and res[_O_QUALITY_OPENCV]:
+        return INSTANCE_ASK_PYTHON
+    if not _shaft_row_of(res, rows, reasons):
+        return INSTANCE_MEASURED
+    if got == SHAFT_MERGED:
+        _why_rows(rows, 0, 3, reasons[_RS_MERGED])
+        return INSTANCE_MEASURED
+    joint, a = res[_O_JOINT : _O_JOINT + 3], res[_O_A : _O_A + 3]
+    tip = np.empty(12)
+    for j in range(12):
+        tip[j] = math.nan
+    quality = np.empty(2)
+    found = CLASPER_EMPTY
+    if clasper:
+        m, mx, my = (o1, x1, y1) if clasper == 1 else (o2, x2, y2)
+        found = clasper_from_mask(
+            m, mx, my, joint, a, K, length, height, width, cap, par, tip, radius, max_pixels,
+            pts, shifted, canvas, quality,
+        )  # fmt: skip
+        if found == CLASPER_ASK_PYTHON or (found == 2 and quality[1]):
+            return INSTANCE_ASK_PYTHON
+    _clasper_rows_of(found, tip, joint, quality[0], rows, reasons)
+    return INSTANCE_MEASURED
 
 
 @kernel("float64(uint8[:, ::1], boolean[:, ::1], int64, int64, int64, int64, int64)")

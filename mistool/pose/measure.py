@@ -25,9 +25,12 @@ shaft seen end-on, J out of the image, numerically unstable solutions) the cells
 Where the work runs: compiled kernels (:mod:`mistool.kernels.pose`, imported at the
 first pose: numba is not loaded by a program that only imports mistool) do steps 1-4 in a
 few passes; the parameters below are passed to them as one array (:func:`_params`). For
-an undistorted lens the shaft goes from its mask to its row in one call
-(:func:`_shaft_in_one_call`, the masks' outlines traced as OpenCV traces them,
-:mod:`mistool.kernels.contours`: one piece or several, a gap at the junction or none);
+an undistorted lens an instrument of a shaft, a clasper and a wrist goes from its masks
+to its rows in one call (:func:`_instance_in_one_call`: the shaft's kernel, then the
+clasper's, each row written in order with its reasons); else the shaft goes from its
+mask to its row in one call (:func:`_shaft_in_one_call`, the masks' outlines traced as
+OpenCV traces them, :mod:`mistool.kernels.contours`: one piece or several, a gap at the
+junction or none), the clasper in another (:func:`_tip_in_one_call`);
 the steps in Python (:func:`_shaft_in_steps`, OpenCV's contours) answer for a piece
 whose bounding box holds another's (it may lie in a hole), an outline without area, an
 instrument of more than three parts, and a distorted lens, whose points are undistorted
@@ -498,7 +501,8 @@ def measure_instance(
     (see the module docstring): gather the shaft's points (:func:`_shaft_points`), then
     the kernel :func:`mistool.kernels.pose.shaft_pose` (the shaft's image frame, limb
     lines, axis, joint, uncertainties, row), the shaft's quality, then the clasper's and
-    the wrist's rows (:func:`_clasper_rows`).
+    the wrist's rows (:func:`_clasper_rows`); all in one kernel call where it can
+    (:func:`_instance_in_one_call`), else in :func:`_instance_in_steps`.
 
     Args:
         instance: an ``InstanceObservation`` (``.parts``: part name -> observation with
@@ -515,9 +519,9 @@ def measure_instance(
         plus :data:`AUX_KEYS`; NaN where unknown or not trustworthy.
     """
     parts = instance.parts
-    out = {name: _nan_row() for name in parts}
     shaft = parts.get("shaft")
     if camera is None or shaft is None or shaft_diameter_mm is None or not shaft_diameter_mm > 0:
+        out = {name: _nan_row() for name in parts}
         if camera is None:
             _why(out, "no camera")
         elif shaft is None or not shaft.mask.any():
@@ -525,10 +529,109 @@ def measure_instance(
         else:
             _why(out, "no shaft diameter")
         return out
-    kp = kernels()
-    OUT = kp.OUT
     K, distorted = _camera(camera)
     radius = 0.5 * float(shaft_diameter_mm)
+    if not distorted:
+        rows = _instance_in_one_call(parts, shaft, image_shape, K, radius, clasper_length_mm)
+        if rows is not None:
+            return rows
+    return _instance_in_steps(
+        parts, shaft, image_shape, camera, K, distorted, radius, clasper_length_mm
+    )
+
+
+#: The cells of a row, in order (:data:`POSE_KEYS`, then :data:`AUX_KEYS`).
+_ROW_KEYS = POSE_KEYS + AUX_KEYS  # (as long as each row: zip without strict, ~0.5 us a row)
+#: Each part's row in :func:`mistool.kernels.pose.instance_from_masks`' answer.
+_ROW_OF = {"shaft": 0, "clasper": 1, "wrist": 2}
+
+
+@functools.cache
+def _reasons() -> np.ndarray:
+    """The status code of each reason :func:`mistool.kernels.pose.instance_from_masks`
+    records (``ONE_CALL_REASONS``; NaN for the first, no reason)."""
+    names = kernels().ONE_CALL_REASONS
+    return np.array([math.nan] + [reason_code(name) for name in names[1:]])
+
+
+def _instance_in_one_call(
+    parts: Mapping[str, PartObservation],
+    shaft: PartObservation,
+    image_shape: tuple[int, int],
+    K: np.ndarray,  # noqa: N803
+    radius: float,
+    clasper_length_mm: float | None,
+) -> dict[str, dict[str, float]] | None:
+    """:func:`measure_instance` in one kernel call for an undistorted camera and a shaft
+    with at most a clasper and a wrist (:func:`mistool.kernels.pose.instance_from_masks`:
+    :func:`_shaft_in_one_call`'s kernel, then :func:`_tip_in_one_call`'s, the rows written
+    in order with their reasons), or None where :func:`_instance_in_steps` must answer
+    (:func:`_shaft_in_one_call` or :func:`_tip_in_one_call` would ask for the steps, a
+    quality left to OpenCV, other parts)."""
+    if len(parts) > 3:
+        return None
+    m1 = m2 = _NO_MASK
+    x1 = y1 = x2 = y2 = clasper = n = 0
+    for name, p in parts.items():
+        if name == "shaft":
+            continue
+        if name not in _ROW_OF:
+            return None
+        n += 1
+        if n == 1:
+            m1, x1, y1 = as_mask(p.mask), int(p.offset[0]), int(p.offset[1])
+        else:
+            m2, x2, y2 = as_mask(p.mask), int(p.offset[0]), int(p.offset[1])
+        if name == "clasper":
+            clasper = n
+    rows = np.empty((3, len(_ROW_KEYS)))
+    H, W = image_shape
+    asked = kernels().instance_from_masks(
+        as_mask(shaft.mask),
+        m1,
+        x1,
+        y1,
+        m2,
+        x2,
+        y2,
+        clasper,
+        int(shaft.offset[0]),
+        int(shaft.offset[1]),
+        int(H),
+        int(W),
+        _QUALITY_MAX_PIXELS,
+        n,
+        K,
+        radius,
+        math.nan if clasper_length_mm is None else float(clasper_length_mm),
+        float(_TIP_CAP),
+        _params(),
+        _GAP_ROWS,
+        _reasons(),
+        rows,
+    )
+    if asked:
+        return None
+    cells = rows.tolist()
+    return {name: dict(zip(_ROW_KEYS, cells[_ROW_OF[name]])) for name in parts}  # noqa: B905
+
+
+def _instance_in_steps(
+    parts: Mapping[str, PartObservation],
+    shaft: PartObservation,
+    image_shape: tuple[int, int],
+    camera: Camera,
+    K: np.ndarray,  # noqa: N803
+    distorted: bool,
+    radius: float,
+    clasper_length_mm: float | None,
+) -> dict[str, dict[str, float]]:
+    """:func:`measure_instance` in steps: the shaft (:func:`_shaft_in_one_call`, else
+    :func:`_shaft_in_steps`), its quality, then the clasper's and the wrist's rows
+    (:func:`_clasper_rows`): every path."""
+    out = {name: _nan_row() for name in parts}
+    kp = kernels()
+    OUT = kp.OUT
     res = np.empty(OUT["size"])
     rims = Rims()
     sp: _ShaftMask | _ShaftPoints | str | None = None
