@@ -230,6 +230,56 @@ def test_a_head_shown_where_expected_is_decided_as_by_every_pixel(seed, angle, m
     assert np.array_equal(heads._pixels(blob, "shaft"), xy)
 
 
+@settings(max_examples=400, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.floats(0.0, 180.0, exclude_max=True),
+    st.sampled_from(["none", "box", "same"]),
+    st.booleans(),
+)
+def test_the_head_pixels_claimed_are_counted_as_from_their_pixel_list(seed, angle, own, one):
+    """heads._claimed (one compiled pass over the donor's mask) counts the pixels that
+    hand_over_heads moves, ``(to_me <= HEAD_CLAIM_PX) & (to_me < to_own)`` of their
+    box_distance to the expected box and to the donor's own (none: inf; the same box:
+    none moves), for parts of one pixel (its one-point order) and of many."""
+    from mistool.tracking import heads
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(1, 70)), int(rng.integers(1, 70))
+    mask = np.zeros((h, w), np.uint8)
+    if one:
+        mask[int(rng.integers(0, h)), int(rng.integers(0, w))] = 1
+    else:
+        for _ in range(int(rng.integers(1, 4))):
+            a, b = rng.integers(-5, 75, 2), rng.integers(-5, 75, 2)
+            cv2.line(mask, tuple(map(int, a)), tuple(map(int, b)), 1, int(rng.integers(1, 15)))
+        mask[int(rng.integers(0, h)), int(rng.integers(0, w))] = 1
+    offset = (int(rng.integers(0, 600)), int(rng.integers(0, 400)))
+    ys, xs = np.nonzero(mask)
+
+    def near_box(a: float) -> RotatedBox:  # near a pixel of the part
+        k = int(rng.integers(0, len(xs)))
+        t = rng.uniform(0, 2 * math.pi)
+        far = rng.uniform(0, 20)
+        length = float(rng.uniform(0.5, 60))
+        return RotatedBox(
+            offset[0] + xs[k] + far * math.cos(t),
+            offset[1] + ys[k] + far * math.sin(t),
+            length,
+            float(rng.uniform(0.5, length)),
+            a,
+        )
+
+    want = near_box(angle)
+    theirs = {"none": None, "box": near_box(float(rng.uniform(0, 180))), "same": want}[own]
+    blob = _blob(mask.astype(bool), offset)
+    xy = np.stack([xs + offset[0], ys + offset[1]], 1).astype(np.float64)
+    to_me = _box_distance_before(xy, want)
+    to_own = _box_distance_before(xy, theirs) if theirs is not None else np.full(len(xy), np.inf)
+    moved = int(((to_me <= heads.HEAD_CLAIM_PX) & (to_me < to_own)).sum())
+    assert heads._claimed(blob, "shaft", want, theirs) == moved
+
+
 def _fit_part_before(mask: np.ndarray, min_area_px: int, offset: tuple[int, int]):
     """``geometry.fit_part`` as it was (commit ddfb117): numpy's min/max of the points,
     the former pixel-edge gaps."""

@@ -964,6 +964,61 @@ def shown_near(
     return near >= min_area
 
 
+@kernel(
+    "int64(uint8[:, ::1], int64, int64, float64, float64, float64, float64, float64, float64,"
+    " boolean, float64, float64, float64, float64, float64, float64, float64)"
+)
+def claimed(
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    cx: float,
+    cy: float,
+    u0: float,
+    u1: float,
+    hl: float,
+    hw: float,
+    has_own: bool,
+    ocx: float,
+    ocy: float,
+    ou0: float,
+    ou1: float,
+    ohl: float,
+    ohw: float,
+    reach: float,
+) -> int:
+    """How many pixels of a part's crop (``mask`` at (x0, y0)) lie within ``reach`` px
+    of a box and nearer to it than to a second box (``has_own``; without it, every one
+    within reach whose distance is below inf): ``heads.box_distance`` of every pixel to
+    each (one pixel alone: ``dgemv``'s one-point order), counted as ``heads.
+    hand_over_heads`` counted ``(to_me <= reach) & (to_me < to_own)``."""
+    h, w = mask.shape
+    count = 0
+    for y in range(h):
+        for x in range(w):
+            if mask[y, x] != 0:
+                count += 1
+                if count == 2:
+                    break
+        if count == 2:
+            break
+    single = count == 1
+    moved = 0
+    for y in range(h):
+        for x in range(w):
+            if mask[y, x] == 0:
+                continue
+            px = float(x + x0)
+            py = float(y + y0)
+            d = _box_d(px, py, cx, cy, u0, u1, hl, hw, single)
+            if not d <= reach:
+                continue
+            own = _box_d(px, py, ocx, ocy, ou0, ou1, ohl, ohw, single) if has_own else math.inf
+            if d < own:
+                moved += 1
+    return moved
+
+
 # the split's initial axes (mistool.tracking.split._initial_axes) ------------------------
 
 

@@ -160,11 +160,13 @@ def hand_over_heads(
             for d, donor in enumerate(out):
                 if d == r or donor is None or part not in donor.parts:
                     continue
-                xy = _pixels(donor, part)
-                to_me = box_distance(xy, want)
                 own = expected[d].get(part)
                 if own is not None and _covered(want, own) >= HEAD_UNDER_FRAC:
                     continue  # expected under the other's head: hidden by it
+                if _claimed(donor, part, want, own) < min_area:
+                    continue  # (counted without the pixel lists: the usual answer)
+                xy = _pixels(donor, part)
+                to_me = box_distance(xy, want)
                 to_own = box_distance(xy, own) if own is not None else np.full(len(xy), np.inf)
                 move = (to_me <= HEAD_CLAIM_PX) & (to_me < to_own)
                 if int(move.sum()) < min_area:
@@ -178,6 +180,25 @@ def hand_over_heads(
                 mine = got
                 break
     return out
+
+
+def _claimed(inst: InstanceObservation, part: str, want: RotatedBox, own: RotatedBox | None) -> int:
+    """How many of the instance's pixels of ``part`` :func:`hand_over_heads` would move
+    to the tool expecting it at ``want``: within :data:`HEAD_CLAIM_PX` of ``want`` and
+    nearer to it than to ``own`` (their :func:`box_distance`; compiled, one pass over the
+    mask without its pixel list: :func:`mistool.kernels.split.claimed`)."""
+    obs = inst.parts[part]
+    u0, u1 = _unit(want.angle_deg)
+    o = own if own is not None else want
+    o0, o1 = _unit(o.angle_deg)
+    mask = np.ascontiguousarray(obs.mask).view(np.uint8)
+    return int(
+        kernels.claimed(
+            mask, int(obs.offset[0]), int(obs.offset[1]), want.cx, want.cy, u0, u1,
+            0.5 * want.length, 0.5 * want.width, own is not None, o.cx, o.cy, o0, o1,
+            0.5 * o.length, 0.5 * o.width, HEAD_CLAIM_PX,
+        )
+    )  # fmt: skip
 
 
 def _own_and_theirs(
