@@ -150,6 +150,12 @@ class _RecentInstances:
     def most(self) -> int:
         return max(self._counts, default=0)
 
+    def hint(self) -> int:
+        """:meth:`most`, at least 1: a batch made before any frame is identified defers
+        nothing on the hint alone, but its worker still defers a frame with fewer
+        instances than an earlier frame of the batch (:class:`mistool.parallel.Batch`)."""
+        return max(1, self.most())
+
 
 @dataclass
 class _Pending:
@@ -340,7 +346,7 @@ def iter_chunks(
     # in this process, the pose waits for the identity step (never measured for a blob it
     # splits); in a pool, only frames with fewer instances than recently seen wait
     recent = _RecentInstances()
-    defer = _defer_always if pool is None else recent.most
+    defer = _defer_always if pool is None else recent.hint
     work = parallel.batches(seq, measured, batch, video_spans=spans, defer_below=defer)
     start, count, yielded = 0, 0, False
     unknown: set[int] = set()

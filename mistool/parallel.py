@@ -457,7 +457,9 @@ class Batch:
     metric: bool
     lossy: bool
     defer_below: int = 0
-    """See :func:`observe_labels` (0: every frame's pose measured in the worker)."""
+    """See :func:`observe_labels` (0: every frame's pose measured in the worker); when
+    above 0, raised within the batch to the most instances of its earlier frames
+    (:func:`_raised`)."""
 
 
 # One fast-path gate per worker process and folder (the caller's gate is not shared).
@@ -512,10 +514,20 @@ def _video_span(span: VideoSpan) -> list[tuple[np.ndarray, bool]]:
     return _READER[0].read(span.start, span.stop)
 
 
+def _raised(below: int, result: FrameResult) -> int:
+    """The next frame's ``defer_below`` in a batch: at least the instances of this frame
+    when the batch defers at all (``below`` > 0: the caller's hint is one or more batches
+    old, so a frame with fewer instances than an earlier frame of its own batch is the
+    sign of a blob too)."""
+    return max(below, len(result.instances)) if below > 0 else below
+
+
 def _observe_span(batch: Batch, span: VideoSpan, metric: bool) -> list[FrameResult]:
     out = FrameResults()
+    below = batch.defer_below
     for labels, corrupt in _video_span(span):
-        result = observe_labels(labels, batch.config, metric, batch.lossy, batch.defer_below)
+        result = observe_labels(labels, batch.config, metric, batch.lossy, below)
+        below = _raised(below, result)
         result.corrupt = corrupt
         out.append(result)
     return out
@@ -532,11 +544,13 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
     if batch.items and isinstance(batch.items[0], VideoSpan):
         return _observe_span(batch, batch.items[0], metric)
     out = FrameResults()
+    below = batch.defer_below
     for name, item in zip(batch.names, batch.items, strict=True):
         try:
             assert not isinstance(item, VideoSpan)
             labels = _load(item, batch.config)
-            out.append(observe_labels(labels, batch.config, metric, batch.lossy, batch.defer_below))
+            out.append(observe_labels(labels, batch.config, metric, batch.lossy, below))
+            below = _raised(below, out[-1])
         except MistoolError as exc:
             where = str(item) if isinstance(item, Path) else name
             if where in str(exc):

@@ -750,3 +750,28 @@ def test_unknown_values_of_8_bit_frames_are_the_trackings(seed: int) -> None:
                     parallel.unknown_values(None, cfg, lossy, runs=scan_labels(img)),
                 ):
                     assert got.dtype == np.int64 and got.tolist() == want.tolist()
+
+
+def test_a_batch_defers_a_frame_with_fewer_instances_than_an_earlier_frame_of_it(
+    crossing: Path,
+) -> None:
+    """Within a batch that defers (``defer_below`` > 0: the caller's hint, one batch old,
+    64 frames or more behind), a worker defers the pose of a frame with fewer instances
+    than an earlier frame of the same batch; the frames of as many instances keep
+    theirs, and a batch that never defers (0: the viewer's tracking) defers nothing."""
+    cfg = open_sequence(crossing).config
+    two = np.zeros((40, 60), np.uint8)
+    two[3:9, 2:45] = 160
+    two[30:36, 2:45] = 160
+    one = np.zeros((40, 60), np.uint8)
+    one[15:25, 5:40] = 160
+    frames = [two, one, two]
+    assert [len(parallel.observe_labels(f, cfg, True).instances) for f in frames] == [2, 1, 2]
+    batch = parallel.Batch(("a", "b", "c"), tuple(frames), cfg, True, False, defer_below=1)
+    got = parallel.observe_batch(batch)
+    assert [r.deferred for r in got] == [False, True, False]
+    assert len(got[0].metrics) == 2 and got[1].metrics == [] and len(got[2].metrics) == 2
+    first = parallel.Batch(("b",), (one,), cfg, True, False, defer_below=1)
+    assert not parallel.observe_batch(first)[0].deferred  # nothing earlier in its batch
+    never = parallel.Batch(("a", "b"), (two, one), cfg, True, False)  # (defer_below 0)
+    assert [r.deferred for r in parallel.observe_batch(never)] == [False, False]
