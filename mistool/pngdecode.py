@@ -63,28 +63,6 @@ class PngImage:
         """Palette images: (N,) uint32 colours packed ``r << 16 | g << 8 | b``; else None."""
 
 
-def _chunks(data: bytes) -> tuple[list[tuple[bytes, int, int]], bool] | None:
-    """``[(type, start, stop)]`` of every chunk's body, and whether every CRC is right;
-    None when the chunk structure is broken (or bytes follow ``IEND``)."""
-    crc32 = _ZLIB.crc32
-    out = []
-    pos, n = 8, len(data)
-    ok = True
-    unpack = struct.unpack_from
-    while pos + 12 <= n:
-        length, kind = unpack(">I4s", data, pos)
-        stop = pos + 8 + length
-        if length > 0x7FFFFFFF or stop + 4 > n:
-            return None
-        if crc32(data[pos + 4 : stop]) != unpack(">I", data, stop)[0]:
-            ok = False
-        out.append((kind, pos + 8, stop))
-        pos = stop + 4
-        if kind == b"IEND":
-            return (out, ok) if pos == n else None
-    return None
-
-
 def _filtered_rows(
     data: bytes, max_pixels: int
 ) -> tuple[np.ndarray, int, np.ndarray | None] | None:
@@ -93,24 +71,102 @@ def _filtered_rows(
     buffer), or None."""
     if len(data) < 57 or data[:8] != _SIGNATURE or data[12:16] != b"IHDR":
         return None
-    w, h, depth, ctype, comp, filt, interlace = struct.unpack_from(">IIBBBBB", data, 16)
-    if (ctype, depth) not in ((0, 8), (0, 16), (3, 8)) or (comp, filt, interlace) != (0, 0, 0):
+    w, h, depth, ctype, comp, filt, interlace = _HEADER.unpack_from(data, 16)
+    if (ctype, depth) not in _TAKEN or comp or filt or interlace:
         return None
     if not (0 < w <= 0x7FFFFFFF and 0 < h <= 0x7FFFFFFF) or w * h > max_pixels:
         return None
-    walked = _chunks(data)
-    if walked is None or not walked[1] or walked[0][0] != (b"IHDR", 16, 29):
+    got = _image_data(data, ctype)
+    if got is None:
         return None
-    palette = _idat_and_palette(walked[0], data, ctype)
-    if palette is None:
-        return None
-    idat, plte = palette
+    idat, plte = got
     bpp = depth // 8
     size = h * (w * bpp + 1)  # filtered rows: one filter byte each
     filtered = _inflate_into(idat, size)
     if filtered is None:
         return None
     return filtered.reshape(h, w * bpp + 1), bpp, plte
+
+
+#: ``(colour type, bit depth)`` decoded here: 8/16-bit grey, 8-bit palette.
+_TAKEN = frozenset({(0, 8), (0, 16), (3, 8)})
+_HEADER = struct.Struct(">IIBBBBB")  # IHDR: width, height, depth, colour type, methods
+_CHUNK = struct.Struct(">I4s")  # a chunk's length and type
+_CRC = struct.Struct(">I")
+
+
+def _image_data(data: bytes, ctype: int) -> tuple[bytes, np.ndarray | None] | None:
+    """The joined image data and the packed palette (palette images) of a file whose
+    header is checked, walking its chunks once; None when a chunk's CRC is wrong, the
+    chunk structure is broken (or bytes follow ``IEND``), or the chunk sequence is not
+    one this decoder takes (the first: ``IHDR`` of 13 bytes; then the critical chunks in
+    their order or those in :data:`ANCILLARY_OK`)."""
+    crc32 = _ZLIB.crc32
+    chunk, crc = _CHUNK.unpack_from, _CRC.unpack_from
+    n = len(data)
+    pos = 8
+    idat: list[bytes] = []
+    plte: np.ndarray | None = None
+    state = 0  # 0: before IDAT, 1: in the IDAT run, 2: after it
+    alpha = False
+    while pos + 12 <= n:
+        length, kind = chunk(data, pos)
+        start = pos + 8
+        stop = start + length
+        if length > 0x7FFFFFFF or stop + 4 > n:
+            return None
+        if crc32(data[pos + 4 : stop]) != crc(data, stop)[0]:
+            return None
+        pos = stop + 4
+        if start == 16:  # the first chunk
+            if kind != b"IHDR" or stop != 29:
+                return None
+            continue
+        if kind == b"IDAT":
+            if state == 2:
+                return None
+            state = 1
+            idat.append(data[start:stop])
+            continue
+        if state == 1:
+            state = 2
+        if kind == b"IEND":
+            if stop != start or pos != n:
+                return None
+            if not idat or (ctype == 3 and plte is None):
+                return None
+            return b"".join(idat), plte
+        side = _side_chunk(kind, data, start, stop, ctype, plte, alpha, state)
+        if side is None:
+            return None
+        plte, alpha = side
+    return None  # no IEND
+
+
+def _side_chunk(
+    kind: bytes,
+    data: bytes,
+    start: int,
+    stop: int,
+    ctype: int,
+    plte: np.ndarray | None,
+    alpha: bool,
+    state: int,
+) -> tuple[np.ndarray | None, bool] | None:
+    """A chunk other than ``IHDR``, ``IDAT`` and ``IEND`` (body ``data[start:stop]``)
+    met in :func:`_image_data`'s walk (``state``: 0 before the image data, 2 after it):
+    the palette so far and whether a ``tRNS`` came, or None when it is not taken."""
+    if kind == b"PLTE":
+        size = stop - start
+        if ctype != 3 or plte is not None or state or size == 0 or size % 3 or size > 768:
+            return None
+        rgb = np.frombuffer(data, np.uint8, size, start).reshape(-1, 3).astype(np.uint32)
+        return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2], alpha
+    if kind == b"tRNS":  # palette transparency: OpenCV adds alpha, labels ignore it
+        if ctype != 3 or plte is None or alpha or state or stop - start > len(plte):
+            return None
+        return plte, True
+    return (plte, alpha) if kind in ANCILLARY_OK else None
 
 
 def decode_png(data: bytes, max_pixels: int) -> PngImage | None:
@@ -127,10 +183,7 @@ def decode_png(data: bytes, max_pixels: int) -> PngImage | None:
     if got is None:
         return None
     rows, bpp, plte = got
-    # imported at the first decode: numba (with scipy) costs ~0.4 s to import, which a
-    # program that only imports mistool (the viewer before its first frame) need not pay
-    from mistool.kernels.png import unfilter_rows
-
+    unfilter_rows = _png_kernels().unfilter_rows
     h, w = rows.shape[0], (rows.shape[1] - 1) // bpp
     unfiltered = np.empty((h, w * bpp), np.uint8)
     if not unfilter_rows(rows, bpp, unfiltered):
@@ -144,6 +197,20 @@ def decode_png(data: bytes, max_pixels: int) -> PngImage | None:
     if int(pixels.max()) >= len(plte):  # OpenCV's colour for such an index: not ours to guess
         return None
     return PngImage(pixels, plte)
+
+
+_PNG_KERNELS: list[Any] = []
+
+
+def _png_kernels() -> Any:
+    """:mod:`mistool.kernels.png`, imported at the first decode: numba (with scipy) costs
+    ~0.4 s to import, which a program that only imports mistool (the viewer before its
+    first frame) need not pay."""
+    if not _PNG_KERNELS:
+        from mistool.kernels import png
+
+        _PNG_KERNELS.append(png)
+    return _PNG_KERNELS[0]
 
 
 def grey8(data: bytes) -> bool:
@@ -176,8 +243,7 @@ def decode_png_runs(data: bytes, max_pixels: int) -> PngRuns | None:
     if got is None:
         return None
     rows = got[0]
-    from mistool.kernels.png import unfilter_runs
-
+    unfilter_runs = _png_kernels().unfilter_runs
     h, w = rows.shape[0], rows.shape[1] - 1
     scratch = _scratch("rowpair", 2 * w, np.uint8)
     bounds = np.zeros(4, np.int64)
@@ -214,13 +280,22 @@ def _scratch(name: str, size: int, dtype: type) -> np.ndarray:
     The decoder's large temporaries live here, kept from frame to frame: freed and
     allocated anew each frame, they made glibc hand memory back to the system and fault
     it in again (~180 page faults per 720x576 frame, a third of the decoding time)."""
+    return _scratch_at(name, size, dtype)[0]
+
+
+def _scratch_at(name: str, size: int, dtype: type) -> tuple[np.ndarray, int]:
+    """:func:`_scratch` and the address of its first item (kept with the buffer:
+    ``ndarray.ctypes.data`` costs ~1.4 us)."""
     have = getattr(_local, name, None)
     if have is None or have.size < size:
         have = np.empty(size, dtype)
+        at = have.ctypes.data
         if have.nbytes > SCRATCH_KEEP_BYTES:
-            return have
+            return have, at
         setattr(_local, name, have)
-    return have[:size]
+        setattr(_local, name + "_at", at)
+        return have[:size], at
+    return have[:size], getattr(_local, name + "_at")
 
 
 def _inflate_into(idat: bytes, size: int) -> np.ndarray | None:
@@ -228,10 +303,10 @@ def _inflate_into(idat: bytes, size: int) -> np.ndarray | None:
     than ``size`` bytes, so a bomb stops there); None unless it holds exactly ``size``
     bytes, ends with a correct Adler-32 and nothing follows it. zlib-ng's inflate is
     called directly when it can be (:class:`_NativeInflate`), else a piece at a time."""
-    out = _scratch("filtered", size, np.uint8)
+    out, at = _scratch_at("filtered", size, np.uint8)
     native = _native_inflate()
     if native is not None and size < 1 << 32 and len(idat) < 1 << 32:
-        return out if native.inflate(idat, out) else None
+        return out if native.inflate(idat, out, at) else None
     inflate = _ZLIB.decompressobj()
     pos, data = 0, idat
     try:
@@ -256,7 +331,7 @@ class _ZngStream(ctypes.Structure):
     """zlib-ng 2.x's ``zng_stream`` (``zlib-ng.h``, its native API)."""
 
     _fields_ = (
-        ("next_in", ctypes.c_void_p),
+        ("next_in", ctypes.c_char_p),  # (a bytes object's own buffer, kept while set)
         ("avail_in", ctypes.c_uint32),
         ("total_in", ctypes.c_size_t),
         ("next_out", ctypes.c_void_p),
@@ -289,15 +364,16 @@ class _NativeInflate:
         if lib.zng_inflateInit2(self._ref, 15) != 0:  # 15: a zlib header, 32 KB window
             raise OSError("zng_inflateInit2 failed")
 
-    def inflate(self, data: bytes, out: np.ndarray) -> bool:
-        """Inflate the zlib stream ``data`` into ``out`` (C-contiguous uint8): whether it
-        filled ``out`` exactly, its Adler-32 right, with nothing after it."""
+    def inflate(self, data: bytes, out: np.ndarray, out_at: int | None = None) -> bool:
+        """Inflate the zlib stream ``data`` into ``out`` (C-contiguous uint8; ``out_at``:
+        its address when the caller knows it): whether it filled ``out`` exactly, its
+        Adler-32 right, with nothing after it."""
         s = self._stream
         if self._lib.zng_inflateReset(self._ref) != 0:
             return False
-        s.next_in = ctypes.cast(ctypes.c_char_p(data), ctypes.c_void_p)
+        s.next_in = data
         s.avail_in = len(data)
-        s.next_out = out.ctypes.data
+        s.next_out = out.ctypes.data if out_at is None else out_at
         s.avail_out = out.size
         done = self._lib.zng_inflate(self._ref, _Z_FINISH) == _Z_STREAM_END
         s.next_in = s.next_out = None  # (no pointer kept into data or out)
@@ -355,42 +431,3 @@ def _native_inflate() -> _NativeInflate | None:
         return None
     _local.inflate = _NativeInflate(_NATIVE[0])
     return _local.inflate
-
-
-def _idat_and_palette(
-    chunks: list[tuple[bytes, int, int]], data: bytes, ctype: int
-) -> tuple[bytes, np.ndarray | None] | None:
-    """The joined image data and the packed palette (palette images), or None when the
-    chunk sequence is not one this decoder takes."""
-    idat: list[bytes] = []
-    plte: np.ndarray | None = None
-    state = 0  # 0: before IDAT, 1: in the IDAT run, 2: after it
-    alpha = False
-    for kind, start, stop in chunks[1:]:
-        if kind == b"IDAT":
-            if state == 2:
-                return None
-            state = 1
-            idat.append(data[start:stop])
-            continue
-        if state == 1:
-            state = 2
-        if kind == b"IEND":
-            if stop != start:
-                return None
-            break
-        if kind == b"PLTE":
-            n = stop - start
-            if ctype != 3 or plte is not None or state or n == 0 or n % 3 or n > 768:
-                return None
-            rgb = np.frombuffer(data, np.uint8, n, start).reshape(-1, 3).astype(np.uint32)
-            plte = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
-        elif kind == b"tRNS":  # palette transparency: OpenCV adds alpha, labels ignore it
-            if ctype != 3 or plte is None or alpha or state or stop - start > len(plte):
-                return None
-            alpha = True
-        elif kind not in ANCILLARY_OK:
-            return None
-    if not idat or (ctype == 3 and plte is None):
-        return None
-    return b"".join(idat), plte

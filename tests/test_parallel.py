@@ -21,7 +21,7 @@ import pytest
 from mistool import parallel
 from mistool.api import iter_track, refine, run, track
 from mistool.config import Config, InstrumentSpec
-from mistool.errors import MaskFormatError
+from mistool.errors import InputPathError, MaskFormatError
 from mistool.model import TrackTable
 from mistool.sequence import open_sequence
 from mistool.synth import synthesize
@@ -714,6 +714,38 @@ def test_an_8_bit_grey_png_is_read_straight_to_runs_with_the_same_results(
     (grey / "cut.png").write_bytes(blob[: len(blob) // 2])
     with pytest.raises(MaskFormatError, match=r"cut\.png: cannot decode"):
         parallel._load(grey / "cut.png", cfg)
+
+
+def test_a_frame_file_is_read_whole_and_its_read_errors_are_unchanged(
+    crossing: Path, tmp_path: Path
+) -> None:
+    """A worker reads a frame's file with ``os.read`` (``parallel._read``, no file
+    objects): a file longer than one read (a PNG with a large text chunk, which the fast
+    decoder takes) is read whole and decoded to the same runs; a folder named like a
+    frame and a missing file give ``read_label_image``'s one-line error."""
+    from mistool.sequence import read_label_image
+    from mistool.tracking.instances import LabelRuns, scan_labels
+
+    cfg = open_sequence(crossing).config
+    path = sorted(crossing.glob("*.png"))[5]
+    blob = path.read_bytes()
+    text = b"tEXt" + b"Comment\x00" + bytes(range(32, 127)) * 1000  # ~95 KB
+    chunk = (len(text) - 4).to_bytes(4, "big") + text + zlib.crc32(text).to_bytes(4, "big")
+    big = tmp_path / "big"
+    big.mkdir()
+    (big / "a.png").write_bytes(blob[:33] + chunk + blob[33:])
+    assert (big / "a.png").stat().st_size > 4 * parallel._READ_PIECE
+    assert parallel._read(str(big / "a.png")) == (big / "a.png").read_bytes()
+    got = parallel._load(big / "a.png", cfg)
+    want = scan_labels(read_label_image(path))
+    assert isinstance(got, LabelRuns) and got.bounds == want.bounds and got.n == want.n
+    for name in ("ry", "rx0", "rx1", "rv"):
+        assert getattr(got, name)[: got.n].tolist() == getattr(want, name)[: want.n].tolist()
+    (big / "b.png").mkdir()
+    with pytest.raises(InputPathError, match=r"b\.png: cannot read: Is a directory"):
+        parallel._load(big / "b.png", cfg)
+    with pytest.raises(InputPathError, match=r"c\.png: cannot read: No such file"):
+        parallel._load(big / "c.png", cfg)
 
 
 @pytest.mark.parametrize("seed", range(6))
