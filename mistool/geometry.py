@@ -390,19 +390,26 @@ def grow_to_pixel_edges(
 def grown_box(pts: np.ndarray, hull: np.ndarray) -> tuple[RotatedBox, np.ndarray]:
     """:func:`grow_to_pixel_edges` of contiguous (N, 2) points (int32 or float32) whose
     ``minAreaRect`` is that of ``hull`` (those of them that may lie on their hull, as
-    :func:`mistool.kernels.boxes.fit_runs` gives them): ``(box, corners)``."""
-    grow_box: Any = _KERNELS.get("grow_box")
-    if grow_box is None:  # (imported at the first fit: numba is not for the viewer's start)
-        from mistool.kernels.boxes import grow_box
+    :func:`mistool.kernels.boxes.fit_runs` gives them): ``(box, corners)``. Integer
+    points take one compiled call (``cv2.minAreaRect``'s angle bit for bit,
+    :func:`mistool.kernels.boxes.grown_box_of`)."""
+    kernels: Any = _KERNELS.get("boxes")
+    if kernels is None:  # (imported at the first fit: numba is not for the viewer's start)
+        from mistool.kernels import boxes as kernels
 
-        _KERNELS["grow_box"] = grow_box
-    (_, _), (_, _), angle = cv2.minAreaRect(hull)
-    t = math.radians(angle)
-    # e1 = (c, s): OpenCV's first side ("width"); the kernel projects the points on e1 and
-    # e2 = (-s, c) as numpy's ``points @ e`` does, moves each side out by half its
-    # lattice gap (:func:`_lattice_gaps`), gives the corners and the canonical box
+        _KERNELS["boxes"] = kernels
     corners = np.empty((4, 2))
-    cx, cy, length, width, direction = grow_box(pts, math.cos(t), math.sin(t), angle, corners)
+    if pts.dtype == np.int32 and hull.dtype == np.int32:
+        cx, cy, length, width, direction = kernels.grown_box_of(pts, hull, corners)
+    else:
+        (_, _), (_, _), angle = cv2.minAreaRect(hull)
+        t = math.radians(angle)
+        # e1 = (c, s): OpenCV's first side ("width"); the kernel projects the points on
+        # e1 and e2 = (-s, c) as numpy's ``points @ e`` does, moves each side out by half
+        # its lattice gap (:func:`_lattice_gaps`), gives the corners and the canonical box
+        cx, cy, length, width, direction = kernels.grow_box(
+            pts, math.cos(t), math.sin(t), angle, corners
+        )
     return RotatedBox(cx=cx, cy=cy, length=length, width=width, angle_deg=direction), corners
 
 

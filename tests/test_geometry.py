@@ -487,3 +487,85 @@ def test_mask_runs_passing_over_long_stretches_are_numpys_runs(seed, h, w, scale
     ry, rx0, rx1, n = mask_runs(mask)
     got = list(zip(ry[:n].tolist(), rx0[:n].tolist(), rx1[:n].tolist(), strict=True))
     assert got == _mask_runs_before(mask)
+
+
+# cv2.minAreaRect compiled (mistool.kernels.boxes.min_area_rect) ----------------------------
+
+
+def _point_set(rng: np.random.Generator, kind: str) -> np.ndarray:
+    """(N, 2) int32 points of one kind: where OpenCV's hull order, start point and ties
+    decide the result."""
+    m = int(rng.integers(1, 30))
+    if kind == "random":
+        pts = rng.integers(0, int(rng.choice([2, 5, 60, 700])), (m, 2))
+    elif kind == "collinear":
+        step = rng.integers(-5, 6, 2)
+        pts = rng.integers(-3, 800, 2) + np.outer(rng.integers(-20, 20, m), step)
+    elif kind == "duplicates":
+        few = rng.integers(0, int(rng.choice([3, 40])), (int(rng.integers(1, 6)), 2))
+        pts = few[rng.integers(0, len(few), m)]
+    elif kind == "one or two":
+        pts = rng.integers(0, 50, (int(rng.integers(1, 3)), 2))
+    elif kind == "rectangle":  # corners of an axis-aligned rectangle or square, and inside
+        a, b = (int(v) for v in rng.integers(1, 30, 2))
+        b = a if rng.random() < 0.5 else b
+        corners = np.array([[0, 0], [a, 0], [a, b], [0, b]])
+        pts = np.vstack([corners, rng.integers(0, min(a, b) + 1, (m, 2))])
+    elif kind == "diamond":  # a square at 45 deg: four rectangles of equal area
+        a = int(rng.integers(1, 30))
+        pts = np.vstack(
+            [[[a, 0], [0, a], [-a, 0], [0, -a]], rng.integers(-a // 2, a // 2 + 1, (m, 2))]
+        )
+    else:  # "contour": a drawn part's outer contour points, in OpenCV's order
+        mask = np.zeros((60, 60), np.uint8)
+        for _ in range(int(rng.integers(1, 4))):
+            p, q = rng.integers(0, 60, 2), rng.integers(0, 60, 2)
+            cv2.line(
+                mask, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), 255, int(rng.integers(1, 9))
+            )
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        pts = np.concatenate(contours).reshape(-1, 2)
+    pts = pts[rng.permutation(len(pts))] if kind in ("rectangle", "diamond") else pts
+    return np.ascontiguousarray(pts + rng.integers(-1000, 1000, 2) * (rng.random() < 0.3), np.int32)
+
+
+KINDS = ["random", "collinear", "duplicates", "one or two", "rectangle", "diamond", "contour"]
+
+
+@settings(max_examples=1500, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(KINDS))
+def test_min_area_rect_is_opencvs_bit_for_bit(seed, kind):
+    """min_area_rect: cv2.minAreaRect's five float32 values to the last bit (signs of
+    zeros too), and convex_hull_ccw: cv2.convexHull(clockwise=False)'s vertices in its
+    order from its start point (which decides between rectangles of equal area)."""
+    from mistool.kernels.boxes import convex_hull_ccw, min_area_rect
+
+    pts = _point_set(np.random.default_rng(seed), kind)
+    (cx, cy), (w, h), angle = cv2.minAreaRect(pts)
+    want = np.array([cx, cy, w, h, angle], np.float64)
+    got = np.array(min_area_rect(pts), np.float64)
+    assert np.array_equal(got.view(np.int64), want.view(np.int64)), (got, want)
+    hull = cv2.convexHull(pts, clockwise=False).reshape(-1, 2)
+    assert np.array_equal(pts[convex_hull_ccw(pts)], hull)
+
+
+def test_min_area_rect_degenerate_and_tied_cases():
+    """Known cases: one point, two, a square (four tied rectangles), a 45 deg square."""
+    from mistool.kernels.boxes import min_area_rect
+
+    for pts in (
+        [[2, 3]],
+        [[2, 3], [2, 3]],
+        [[0, 0], [3, 3]],
+        [[0, 0], [10, 0], [10, 5], [0, 5]],
+        [[0, 0], [5, 0], [5, 5], [0, 5]],
+        [[5, 0], [0, 5], [-5, 0], [0, -5]],
+    ):
+        p = np.array(pts, np.int32)
+        (cx, cy), (w, h), angle = cv2.minAreaRect(p)
+        assert min_area_rect(p) == (cx, cy, w, h, angle)
+    assert min_area_rect(np.array([[0, 0], [3, 3]], np.int32))[2:] == (
+        0.0,
+        pytest.approx(math.sqrt(18)),
+        -45.0,
+    )

@@ -170,10 +170,9 @@ def test_components_equal_opencvs_labels_bounds_and_counts(seed, dtype, threads)
 @settings(max_examples=300, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 20, 300]))
 def test_fit_of_selected_runs_is_fit_part_of_their_pixels(seed, min_area):
-    """Algorithm 1 of the runs of some labels and a value range is fit_part of the mask
-    of their pixels (fit_part itself is checked against OpenCV in test_geometry)."""
-    from mistool.geometry import fit_of
-
+    """Algorithm 1 of the runs of some labels and a value range, its box included, is
+    fit_part of the mask of their pixels (fit_part itself is checked against OpenCV in
+    test_geometry)."""
     rng = np.random.default_rng(seed)
     img = _label_image(rng, np.uint8, [10, 11, 20, 30])
     bounds = foreground(img)
@@ -191,16 +190,18 @@ def test_fit_of_selected_runs_is_fit_part_of_their_pixels(seed, min_area):
         if lo <= rv[i] <= hi and members[label[i]]:
             mask[ry[i], rx0[i] : rx1[i]] = 255
     offset = (x, y)
-    found = fit_selected(ry, rx0, rx1, rv, label, n, lo, hi, members, min_area, *offset)
-    got, want = fit_of(found, offset), fit_part(mask, min_area, offset)
+    info, kept, box, corners = fit_selected(
+        ry, rx0, rx1, rv, label, n, lo, hi, members, min_area, *offset
+    )
+    want = fit_part(mask, min_area, offset)
     if want is None:
-        assert got is None
+        assert info[0] == 0
         return
-    assert got is not None and got.box == want.box
-    assert np.array_equal(got.corners, want.corners) and got.area_px == want.area_px
-    assert got.offset == want.offset and np.array_equal(got.kept, want.kept)
-    ys, xs = np.nonzero(got.kept)
-    assert (found[0][3], found[0][4]) == (xs.sum(), ys.sum())
+    assert RotatedBox(*box) == want.box and np.array_equal(corners, want.corners)
+    assert info[0] == want.area_px and (x + info[1], y + info[2]) == want.offset
+    assert np.array_equal(kept, want.kept)
+    ys, xs = np.nonzero(kept)
+    assert (info[3], info[4]) == (xs.sum(), ys.sum())
 
 
 # --- observe_frame against the former mask pipeline (commit 3307ee1) ------------------------

@@ -26,7 +26,7 @@ from llvmlite import ir  # type: ignore[import-untyped]
 from numba import types
 from numba.core.extending import intrinsic
 
-from mistool.kernels import kernel
+from mistool.kernels import helper, kernel
 
 
 def _fma_typed(typingctx: object, a: object, b: object, c: object) -> tuple[object, object]:
@@ -152,6 +152,332 @@ def grow_box(
     if direction >= 180.0 - ANGLE_SNAP_DEG or length == 0.0:
         direction = 0.0
     return cx, cy, length, width, direction
+
+
+# --- cv2.minAreaRect of integer points ----------------------------------------------------
+#
+# OpenCV 5.0's ``minAreaRect``, step for step, so that its float32 results come out bit for
+# bit: the convex hull as ``convexHull(points, clockwise=False)`` gives it (Sklansky's scan
+# of the points sorted by x, then y, then input order; its vertices in OpenCV's order and
+# from its start point, which decide between rectangles of equal area), then the rotating
+# calipers in float32 (an edge chosen by the sign of a dot product), then the rectangle's
+# angle brought into [-90, 0) in double (a side along 0 deg is reported at -90 deg).
+
+
+@helper
+def _hull_chain(
+    xs: np.ndarray,
+    ys: np.ndarray,
+    start: int,
+    end: int,
+    stack: np.ndarray,
+    nsign: int,
+    sign2: int,
+) -> int:
+    """One chain of the hull from sorted point ``start`` to ``end`` (either direction) as
+    OpenCV's ``Sklansky_`` scans it: ``stack`` gets the chain's sorted indices; returns
+    their number. Points whose step in y has the sign ``nsign`` are passed over; a turn
+    whose cross product does not have the sign ``sign2`` (or from a repeated point) pops
+    the middle point."""
+    incr = 1 if end > start else -1
+    if start == end or (xs[start] == xs[end] and ys[start] == ys[end]):
+        stack[0] = start
+        return 1
+    pprev = start
+    pcur = start + incr
+    pnext = pcur + incr
+    size = 3
+    stack[0], stack[1], stack[2] = pprev, pcur, pnext
+    stop = end + incr
+    while pnext != stop:
+        by = ys[pnext] - ys[pcur]
+        if (1 if by > 0 else (-1 if by < 0 else 0)) != nsign:
+            ax = xs[pcur] - xs[pprev]
+            ay = ys[pcur] - ys[pprev]
+            bx = xs[pnext] - xs[pcur]
+            turn = ay * bx - ax * by  # (int64: no overflow)
+            if (1 if turn > 0 else (-1 if turn < 0 else 0)) == sign2 and (ax != 0 or ay != 0):
+                pprev = pcur
+                pcur = pnext
+                pnext += incr
+                stack[size] = pnext
+                size += 1
+            elif pprev == start:
+                pcur = pnext
+                stack[1] = pcur
+                pnext += incr
+                stack[2] = pnext
+            else:
+                stack[size - 2] = pnext
+                pcur = pprev
+                pprev = stack[size - 4]
+                size -= 1
+        else:
+            pnext += incr
+            stack[size - 1] = pnext
+    return size - 1
+
+
+@helper
+def _monotone_shift(out: np.ndarray, m: int) -> None:
+    """OpenCV's last step of the hull: a cyclic shift of the ``m >= 3`` indices ``out``
+    that makes them ascending or descending, when there is one (else they stay)."""
+    imin = imax = 0
+    ups = 0
+    for i in range(1, m):
+        if out[i - 1] < out[i]:
+            ups += 1
+        if ups > 1 and ups <= i - 2:
+            break
+        if out[i] < out[imin]:
+            imin = i
+        if out[i] > out[imax]:
+            imax = i
+    gap = abs(imax - imin)
+    if (gap == 1 or gap == m - 1) and (ups <= 1 or ups >= m - 2):
+        ascending = (imax + 1) % m == imin
+        j = imin if ascending else imax
+        if j > 0:
+            shifted = np.empty(m, np.int64)
+            done = 0
+            for i in range(m):
+                shifted[i] = out[j]
+                nj = j + 1 if j + 1 < m else 0
+                done = i + 1
+                if i < m - 1 and ascending != (out[j] < out[nj]):
+                    done = i
+                    break
+                j = nj
+            if done == m:
+                for i in range(m):
+                    out[i] = shifted[i]
+
+
+@helper
+def hull_ccw(points: np.ndarray, out: np.ndarray) -> int:
+    """``cv2.convexHull(points, clockwise=False, returnPoints=True)`` of (N, 2) integer
+    points, N >= 1, as indices into ``points`` (``out``, (N,) at least): the hull's
+    vertices in OpenCV's order and from its start; returns their number."""
+    n = points.shape[0]
+    key = np.empty(n, np.int64)
+    for i in range(n):  # x, then y (offset: any int32 y keeps the order)
+        key[i] = np.int64(points[i, 0]) * (1 << 32) + (np.int64(points[i, 1]) + (1 << 31))
+    order = np.argsort(key, kind="mergesort")  # stable: equal points in input order
+    xs = np.empty(n, np.int64)
+    ys = np.empty(n, np.int64)
+    for i in range(n):
+        xs[i] = points[order[i], 0]
+        ys[i] = points[order[i], 1]
+    lo = hi = 0  # the first sorted point of the smallest / largest y
+    for i in range(1, n):
+        if ys[lo] > ys[i]:
+            lo = i
+        if ys[hi] < ys[i]:
+            hi = i
+    if xs[0] == xs[n - 1] and ys[0] == ys[n - 1]:  # one point, maybe repeated
+        out[0] = 0
+        return 1
+    left = np.empty(n + 2, np.int64)
+    right = np.empty(n + 2, np.int64)
+    # upper half (counter-clockwise: the chain from the right end first)
+    nl = _hull_chain(xs, ys, 0, hi, left, -1, 1)
+    nr = _hull_chain(xs, ys, n - 1, hi, right, -1, -1)
+    m = 0
+    for i in range(nr - 1):
+        out[m] = order[right[i]]
+        m += 1
+    for i in range(nl - 1, 0, -1):
+        out[m] = order[left[i]]
+        m += 1
+    stop = left[1] if nl > 2 else (right[nr - 2] if nr > 2 else -1)
+    # lower half
+    nl = _hull_chain(xs, ys, 0, lo, left, 1, -1)
+    nr = _hull_chain(xs, ys, n - 1, lo, right, 1, 1)
+    if stop >= 0:
+        check = left[1] if nl > 2 else (right[2 - nl] if nl + nr > 2 else -1)
+        if check == stop or (check >= 0 and xs[check] == xs[stop] and ys[check] == ys[stop]):
+            nl = min(nl, 2)  # all on one line: the lower half mirrors the upper
+            nr = min(nr, 2)
+    for i in range(nl - 1):
+        out[m] = order[left[i]]
+        m += 1
+    for i in range(nr - 1, 0, -1):
+        out[m] = order[right[i]]
+        m += 1
+    if m >= 3:
+        _monotone_shift(out, m)
+    return m
+
+
+_F0 = np.float32(0.0)
+_F1 = np.float32(1.0)
+_FHALF = np.float32(0.5)
+_FLT_MAX = np.float32(3.4028234663852886e38)
+
+
+@helper
+def _calipers(
+    hx: np.ndarray, hy: np.ndarray, n: int
+) -> tuple[float, float, float, float, float, float]:
+    """OpenCV's ``rotatingCalipers`` (minimum-area mode) over ``n > 2`` hull vertices
+    (float32 coordinates): the rectangle's corner and its two side vectors, float32."""
+    vx = np.empty(n, np.float32)
+    vy = np.empty(n, np.float32)
+    inv = np.empty(n, np.float32)
+    left = bottom = right = top = 0
+    x0, y0 = hx[0], hy[0]
+    left_x = right_x = x0
+    top_y = bottom_y = y0
+    for i in range(n):
+        if x0 < left_x:
+            left_x, left = x0, i
+        if x0 > right_x:
+            right_x, right = x0, i
+        if y0 > top_y:
+            top_y, top = y0, i
+        if y0 < bottom_y:
+            bottom_y, bottom = y0, i
+        j = i + 1 if i + 1 < n else 0
+        dx = np.float64(hx[j] - x0)
+        dy = np.float64(hy[j] - y0)
+        vx[i] = np.float32(dx)
+        vy[i] = np.float32(dy)
+        inv[i] = np.float32(1.0 / np.sqrt(dx * dx + dy * dy))
+        x0, y0 = hx[j], hy[j]
+    orientation = _F0
+    ax, ay = np.float64(vx[n - 1]), np.float64(vy[n - 1])
+    for i in range(n):
+        bx, by = np.float64(vx[i]), np.float64(vy[i])
+        turn = ax * by - ay * bx
+        if turn != 0.0:
+            orientation = _F1 if turn > 0.0 else -_F1
+            break
+        ax, ay = bx, by
+    base_a = orientation
+    base_b = _F0
+    seq = np.empty(4, np.int64)
+    seq[0], seq[1], seq[2], seq[3] = bottom, right, top, left
+    rx = np.empty(4, np.float32)
+    ry = np.empty(4, np.float32)
+    min_area = _FLT_MAX
+    best_left = best_bottom = 0
+    best_a = best_b = best_w = best_h = _F0
+    for _ in range(n):
+        # each caliper's edge turned into the first caliper's frame; the edge at the
+        # smallest angle (the one right of the others) leads
+        rx[0], ry[0] = vx[seq[0]], vy[seq[0]]
+        rx[1], ry[1] = vy[seq[1]], -vx[seq[1]]
+        rx[2], ry[2] = -vx[seq[2]], -vy[seq[2]]
+        rx[3], ry[3] = -vy[seq[3]], vx[seq[3]]
+        lead = 0
+        for i in range(1, 4):
+            if ry[i] * rx[lead] + -rx[i] * ry[lead] < _F0:
+                lead = i
+        p = seq[lead]
+        lx = vx[p] * inv[p]
+        ly = vy[p] * inv[p]
+        if lead == 0:
+            base_a, base_b = lx, ly
+        elif lead == 1:
+            base_a, base_b = ly, -lx
+        elif lead == 2:
+            base_a, base_b = -lx, -ly
+        else:
+            base_a, base_b = -ly, lx
+        seq[lead] = seq[lead] + 1 if seq[lead] + 1 < n else 0
+        dx = hx[seq[1]] - hx[seq[3]]
+        dy = hy[seq[1]] - hy[seq[3]]
+        width = dx * base_a + dy * base_b
+        dx = hx[seq[2]] - hx[seq[0]]
+        dy = hy[seq[2]] - hy[seq[0]]
+        height = -dx * base_b + dy * base_a
+        area = width * height
+        if area <= min_area:
+            min_area = area
+            best_left, best_bottom = seq[3], seq[0]
+            best_a, best_b, best_w, best_h = base_a, base_b, width, height
+    a1, b1 = best_a, best_b
+    a2, b2 = -best_b, best_a
+    c1 = a1 * hx[best_left] + hy[best_left] * b1
+    c2 = a2 * hx[best_bottom] + hy[best_bottom] * b2
+    idet = _F1 / (a1 * b2 - a2 * b1)
+    px = (c1 * b2 - c2 * b1) * idet
+    py = (a1 * c2 - a2 * c1) * idet
+    return px, py, a1 * best_w, b1 * best_w, a2 * best_h, b2 * best_h
+
+
+@helper
+def _min_area_rect(points: np.ndarray) -> tuple[float, float, float, float, float]:
+    """``cv2.minAreaRect`` of (N, 2) int32 points: ``(cx, cy, w, h, angle)``, each the
+    float32 value OpenCV gives (``angle`` in [-90, 0) degrees)."""
+    n = points.shape[0]
+    idx = np.empty(max(n, 1), np.int64)
+    m = hull_ccw(points, idx) if n > 0 else 0
+    hx = np.empty(max(m, 1), np.float32)
+    hy = np.empty(max(m, 1), np.float32)
+    for i in range(m):
+        hx[i] = np.float32(points[idx[i], 0])
+        hy[i] = np.float32(points[idx[i], 1])
+    cx = cy = w = h = _F0
+    angle = 0.0
+    if m > 2:
+        px, py, ux, uy, vx, vy = _calipers(hx, hy, m)
+        cx = px + (ux + vx) * _FHALF
+        cy = py + (uy + vy) * _FHALF
+        w = np.float32(np.sqrt(np.float64(ux) * ux + np.float64(uy) * uy))
+        h = np.float32(np.sqrt(np.float64(vx) * vx + np.float64(vy) * vy))
+        angle = np.arctan2(np.float64(uy), np.float64(ux)) * 180.0 / np.pi
+    elif m == 2:
+        cx = (hx[0] + hx[1]) * _FHALF
+        cy = (hy[0] + hy[1]) * _FHALF
+        dx = np.float64(hx[1] - hx[0])
+        dy = np.float64(hy[1] - hy[0])
+        w = np.float32(np.sqrt(dx * dx + dy * dy))
+        angle = np.arctan2(dy, dx) * 180.0 / np.pi
+    elif m == 1:
+        cx, cy = hx[0], hy[0]
+    while angle >= 0.0:  # into [-90, 0): a quarter turn swaps the sides
+        angle -= 90.0
+        w, h = h, w
+    while angle < -90.0:
+        angle += 90.0
+        w, h = h, w
+    return (
+        np.float64(cx),
+        np.float64(cy),
+        np.float64(w),
+        np.float64(h),
+        np.float64(np.float32(angle)),
+    )
+
+
+@kernel("int64[::1](int32[:, ::1])")
+def convex_hull_ccw(points: np.ndarray) -> np.ndarray:
+    """The indices into (N, 2) int32 ``points`` (N >= 1) of ``cv2.convexHull(points,
+    clockwise=False)``'s vertices, in its order (:func:`hull_ccw`)."""
+    out = np.empty(points.shape[0], np.int64)
+    return out[: hull_ccw(points, out)]
+
+
+@kernel("UniTuple(float64, 5)(int32[:, ::1])")
+def min_area_rect(points: np.ndarray) -> tuple[float, float, float, float, float]:
+    """``cv2.minAreaRect`` of (N, 2) int32 points, bit for bit: ``(cx, cy, w, h,
+    angle)``, each OpenCV's float32 value (see the section's comment)."""
+    return _min_area_rect(points)
+
+
+@kernel(
+    _GROWN + "(int32[:, ::1], int32[:, ::1], float64[:, ::1])",
+)
+def grown_box_of(
+    points: np.ndarray, hull: np.ndarray, corners: np.ndarray
+) -> tuple[float, float, float, float, float]:
+    """:func:`grow_box` of ``points`` with the angle of ``cv2.minAreaRect(hull)``
+    (``hull``: those of them that may lie on their hull, N >= 1), the angle turned into
+    radians as ``math.radians`` does: ``geometry.grown_box`` in one call."""
+    angle = _min_area_rect(hull)[4]
+    t = angle * (np.pi / 180.0)
+    return grow_box(points, np.cos(t), np.sin(t), angle, corners)
 
 
 # --- a part's pixels: runs, specks, crop, contours --------------------------------------
@@ -582,3 +908,20 @@ def fit_mask(
     """:func:`fit_runs` of a mask's non-zero pixels (mask coordinates)."""
     ry, rx0, rx1, n = mask_runs(mask)
     return fit_runs(ry, rx0, rx1, n, min_area, ox, oy)
+
+
+_BOXED = "Tuple((UniTuple(int64, 5), boolean[:, ::1], UniTuple(float64, 5), float64[:, ::1]))"
+
+
+@kernel(_BOXED + "(int32[::1], int32[::1], int32[::1], int64, int64, int64, int64)")
+def fit_runs_box(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, min_area: int, ox: int, oy: int
+) -> tuple[tuple[int, int, int, int, int], np.ndarray, tuple[float, ...], np.ndarray]:
+    """:func:`fit_runs` and the part's box in the same call: ``(info, crop, box,
+    corners)``, ``box`` the canonical ``(cx, cy, length, width, angle_deg)`` and
+    ``corners`` (4, 2) of ``geometry.grown_box(points, hull)`` (all 0: nothing kept)."""
+    info, crop, points, hull = fit_runs(ry, rx0, rx1, n, min_area, ox, oy)
+    corners = np.zeros((4, 2))
+    if info[0] == 0:
+        return info, crop, (0.0, 0.0, 0.0, 0.0, 0.0), corners
+    return info, crop, grown_box_of(points, hull, corners), corners

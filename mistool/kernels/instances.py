@@ -1,7 +1,7 @@
 """One frame's instruments, compiled (:func:`mistool.tracking.observe_frame`): the label
 image's foreground bounds, its row runs of equal values, the instruments' connected
 components from those runs, and Algorithm 1 of a selection of them
-(:func:`mistool.kernels.boxes.fit_runs`).
+(:func:`mistool.kernels.boxes.fit_runs_box`).
 
 Each kernel gives what the OpenCV and numpy steps it replaces gave (tests compare them):
 
@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from mistool.kernels import kernel
-from mistool.kernels.boxes import ctz, fit_runs, join_runs, load8, load8_bytes
+from mistool.kernels.boxes import ctz, fit_runs_box, join_runs, load8, load8_bytes
 
 _BOUNDS = "UniTuple(int64, 4)"
 
@@ -425,11 +425,11 @@ def components(
     return count + 1, label, stats, counts, shaft_counts, border
 
 
-_FIT = "Tuple((UniTuple(int64, 5), boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
+_BOXED = "Tuple((UniTuple(int64, 5), boolean[:, ::1], UniTuple(float64, 5), float64[:, ::1]))"
 
 
 @kernel(
-    _FIT + "(int32[::1], int32[::1], int32[::1], int32[::1], int32[::1], int64, int64, int64, "
+    _BOXED + "(int32[::1], int32[::1], int32[::1], int32[::1], int32[::1], int64, int64, int64, "
     "boolean[::1], int64, int64, int64)"
 )
 def fit_selected(
@@ -445,11 +445,11 @@ def fit_selected(
     min_area: int,
     ox: int,
     oy: int,
-) -> tuple[tuple[int, int, int, int, int], np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`mistool.kernels.boxes.fit_runs` of the pixels of the value runs whose
+) -> tuple[tuple[int, int, int, int, int], np.ndarray, tuple[float, ...], np.ndarray]:
+    """:func:`mistool.kernels.boxes.fit_runs_box` of the pixels of the value runs whose
     value lies in ``[lo, hi]`` and whose ``label`` is one of ``members`` (True at the
     labels wanted; ``members[0]`` with every ``label`` 0 takes all): one part of one
-    instance. Adjacent selected runs of a row are merged first."""
+    instance, its box included. Adjacent selected runs of a row are merged first."""
     sy = np.empty(max(n, 1), np.int32)
     sx0 = np.empty(max(n, 1), np.int32)
     sx1 = np.empty(max(n, 1), np.int32)
@@ -461,7 +461,7 @@ def fit_selected(
             else:
                 sy[m], sx0[m], sx1[m] = ry[i], rx0[i], rx1[i]
                 m += 1
-    return fit_runs(sy, sx0, sx1, m, min_area, ox, oy)
+    return fit_runs_box(sy, sx0, sx1, m, min_area, ox, oy)
 
 
 @kernel("int32[:, ::1](int32[::1], int32[::1], int32[::1], int32[::1], int64, int64, int64)")

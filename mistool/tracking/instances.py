@@ -39,7 +39,7 @@ import numpy as np
 
 from mistool.config import Config
 from mistool.errors import MaskFormatError
-from mistool.geometry import as_cv_labels, fit_part, grown_box
+from mistool.geometry import as_cv_labels, fit_part
 from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
 
 __all__ = [
@@ -316,12 +316,14 @@ def _fit_runs(
     among ``members``: the part's observation and its pixels' sums of x - x0 and y - y0
     (``(x0, y0)``: its crop's offset), or None when no pixel is left."""
     fx, fy = runs.bounds[0], runs.bounds[1]
-    (area, x0, y0, sum_x, sum_y), kept, pts, hull = _kernels().fit_selected(
-        runs.ry, runs.rx0, runs.rx1, runs.rv, label, runs.n, lo, hi, members, min_area, fx, fy
+    (area, x0, y0, sum_x, sum_y), kept, (cx, cy, length, width, angle), corners = (
+        _kernels().fit_selected(
+            runs.ry, runs.rx0, runs.rx1, runs.rv, label, runs.n, lo, hi, members, min_area, fx, fy
+        )
     )
     if area == 0:
         return None
-    box, corners = grown_box(pts, hull)
+    box = RotatedBox(cx=cx, cy=cy, length=length, width=width, angle_deg=angle)
     return PartObservation(part, box, corners, area, kept, (fx + x0, fy + y0)), sum_x, sum_y
 
 
