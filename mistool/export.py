@@ -50,13 +50,21 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
-def _identity(path: Path) -> tuple[int, int] | None:
-    """``(device, inode)`` of an existing file (symlinks followed), else None."""
+def _same_file(source: Path, target: Path, mine: tuple[int, int] | None) -> bool:
+    """Whether the input ``source`` is the output file ``target`` (resolved; ``mine``:
+    its ``(device, inode)``, None when it does not exist yet).
+
+    An input that exists is the same file exactly when its ``(device, inode)`` (symlinks
+    followed) is the output's: a symlink or a hard link to it included, and nothing
+    that exists resolves to an output that does not. Only an input that cannot be
+    stat'ed (a dangling symlink, say) is resolved, to see whether it names the output:
+    one ``stat`` per input, not a path resolution (~40 us each, 0.06 s for 2,500
+    frames before any work)."""
     try:
-        st = path.stat()
+        st = os.stat(source)
     except (OSError, ValueError):
-        return None
-    return st.st_dev, st.st_ino
+        return target == _resolved(source)
+    return mine == (st.st_dev, st.st_ino)
 
 
 def check_output(path: str | Path, inputs: Iterable[str | Path | None] = ()) -> Path:
@@ -110,8 +118,7 @@ def check_output(path: str | Path, inputs: Iterable[str | Path | None] = ()) -> 
         if item is None:
             continue
         source = Path(item)
-        same = (mine is not None and mine == _identity(source)) or target == _resolved(source)
-        if same:
+        if _same_file(source, target, mine):
             raise InputPathError(
                 f"{given}: is an input of this command ({source}); choose another output file name"
             )

@@ -915,19 +915,27 @@ def _array_loader(arr: Any, where: str, colour: bool) -> Callable[[], np.ndarray
 # --- what a command reads, and whether the source agrees with the masks ---------------
 
 
-def input_files(path: Path, config: Config) -> list[Path]:
+def input_files(path: Path, config: Config, frames: Sequence[Path] | None = None) -> list[Path]:
     """Every file a command reads for the sequence at ``path``: its frames (or the mask
     video), ``mistool.toml``, the ``source`` video or its frames, and any other file the
     config names (e.g. a calibration file). Outputs are checked against these
-    (:func:`mistool.export.check_output`)."""
-    files = list_frames(path) if path.is_dir() else [path]
+    (:func:`mistool.export.check_output`).
+
+    ``frames``: the folder's frame files as :func:`list_frames` gives them, when the
+    caller has listed it already (the listing is then passed to :func:`open_sequence`
+    too: a long folder is listed once)."""
+    if frames is None:
+        frames = list_frames(path) if path.is_dir() else [path]
+    files = list(frames)
+    seen = set(files)
     named = [config.path, config.source]
     named += [getattr(config.camera, f, None) for f in _field_names(config.camera)]
     named += [getattr(config, f, None) for f in _field_names(config)]
     for item in named:
-        if not isinstance(item, Path) or item in files:
+        if not isinstance(item, Path) or item in seen:
             continue
         files.append(item)
+        seen.add(item)
         if item.is_dir() and item == config.source:
             files += [p for p in item.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
     return files

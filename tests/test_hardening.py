@@ -235,6 +235,33 @@ def test_symlink_loop_as_output_is_one_line(tmp_path: Path) -> None:
         check_output(tmp_path / "a.csv")
 
 
+def test_an_output_named_by_an_inputs_link_is_refused_whether_or_not_it_exists(
+    tmp_path: Path,
+) -> None:
+    """check_output compares inodes of inputs that exist and resolves only those that
+    cannot be stat'ed: an input that is a dangling link to the output's name, a link or
+    a hard link to an existing output, all refused; an unrelated input, and a link to
+    another file, are not."""
+    out, other = tmp_path / "out.csv", tmp_path / "other.csv"
+    other.write_text("x\n")
+    dangling = tmp_path / "dangling.png"
+    dangling.symlink_to(out)  # names the output, which does not exist yet
+    with pytest.raises(InputPathError, match="is an input"):
+        check_output(out, [other, dangling])
+    assert check_output(out, [other]) == out.resolve()
+    out.write_text("old\n")
+    link, hard = tmp_path / "link.png", tmp_path / "hard.png"
+    link.symlink_to(out)
+    os.link(out, hard)
+    for source in (dangling, link, hard, out):
+        with pytest.raises(InputPathError, match="is an input"):
+            check_output(out, [other, source])
+    other_link = tmp_path / "other_link.png"
+    other_link.symlink_to(other)
+    assert check_output(out, [other, other_link, tmp_path / "gone.png"]) == out.resolve()
+    assert out.read_text() == "old\n"
+
+
 def test_existing_output_keeps_its_mode_and_new_ones_follow_the_umask(tmp_path: Path) -> None:
     old = tmp_path / "old.csv"
     old.write_text("old\n")

@@ -223,10 +223,11 @@ def _run_sequence(args: argparse.Namespace) -> int:
     path, config = sequence.resolve(args.sequence)
     config = with_calibration(config.with_overrides(**_overrides(args)), args.calibration)
     out = None if args.output == STDOUT else Path(args.output or default_output(path))
+    frames = sequence.list_frames(path) if path.is_dir() else None  # listed once
     if out is None:
         stdout_stream()  # closed stdout: say so before tracking
     else:
-        check_output(out, sequence.input_files(path, config))
+        check_output(out, sequence.input_files(path, config, frames))
         table_format(out)
     show_progress = not args.quiet and sys.stderr.isatty()
     pool = _pool(args, local=False)
@@ -234,7 +235,7 @@ def _run_sequence(args: argparse.Namespace) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", api.MistoolWarning)
             result = api.run(
-                path,
+                sequence.open_sequence(path, config, files=frames),
                 config,
                 progress=show_progress,
                 workers=args.workers,
