@@ -213,6 +213,52 @@ def _as_column(name: str, values: Any, n: int | None = None) -> np.ndarray:
     return arr
 
 
+def group_rows(*columns: np.ndarray) -> Iterator[tuple[tuple[Any, ...], np.ndarray]]:
+    """``(key values, row indices)`` for each distinct combination of the columns'
+    values, in order of first row, the rows in their order within each group (int64).
+
+    The key values are the columns' elements as indexing gives them. Text, integer and
+    boolean columns are grouped with ``np.unique``; others (floats: each NaN its own
+    key, as in a dict) row by row."""
+    n = len(columns[0]) if columns else 0
+    if n == 0:
+        return
+    codes = np.zeros(n, dtype=np.int64)
+    span = 1
+    for col in columns:
+        if col.dtype.kind not in "OUSiub":
+            yield from _group_rows_one_by_one(columns)
+            return
+        try:
+            _, inverse = np.unique(col, return_inverse=True)
+        except TypeError:  # objects that do not sort (mixed types)
+            yield from _group_rows_one_by_one(columns)
+            return
+        size = int(inverse.max()) + 1
+        span *= size
+        if span >= 1 << 62:  # (never with a table's few names and parts)
+            yield from _group_rows_one_by_one(columns)
+            return
+        codes = codes * size + inverse.reshape(-1)
+    _, first, group = np.unique(codes, return_index=True, return_inverse=True)
+    group = group.reshape(-1)
+    by_group = np.argsort(group, kind="stable")  # rows of each group in table order
+    members = np.split(by_group, np.cumsum(np.bincount(group))[:-1])
+    for g in np.argsort(first, kind="stable"):
+        idx = members[g].astype(np.int64, copy=False)
+        yield tuple(col[idx[0]] for col in columns), idx
+
+
+def _group_rows_one_by_one(
+    columns: tuple[np.ndarray, ...],
+) -> Iterator[tuple[tuple[Any, ...], np.ndarray]]:
+    seen: dict[tuple[Any, ...], list[int]] = {}
+    for i, key in enumerate(zip(*columns, strict=True)):
+        seen.setdefault(tuple(key), []).append(i)
+    for key, idx in seen.items():
+        yield key, np.asarray(idx, dtype=np.int64)
+
+
 class TrackTable(Mapping[str, np.ndarray]):
     """A sequence's results: equal-length columns, one row per observed
     (frame, instrument, part). An absent part has no row.
@@ -251,7 +297,11 @@ class TrackTable(Mapping[str, np.ndarray]):
             if key in COLUMN_DTYPES and COLUMN_DTYPES[key] is _F:
                 return np.full(self._n, np.nan)
             raise KeyError(key)
-        return TrackTable({c: v[key] for c, v in self._cols.items()})
+        cols = {c: v[key] for c, v in self._cols.items()}
+        n = len(cols["frame"]) if np.ndim(cols["frame"]) == 1 else None
+        if n is None:  # not a row selection: the constructor says what is wrong
+            return TrackTable(cols)
+        return TrackTable._valid(cols, n)
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._cols)
@@ -286,6 +336,15 @@ class TrackTable(Mapping[str, np.ndarray]):
         out._cols = {c: cols[c] for c in known + [c for c in cols if c not in COLUMN_DTYPES]}
         return out
 
+    def without(self, *names: str) -> TrackTable:
+        """A new table without the columns ``names`` (absent ones ignored; the others
+        are the same arrays)."""
+        cols = {c: v for c, v in self._cols.items() if c not in names}
+        for name in ("frame", "instrument", "part"):
+            if name not in cols:
+                raise TableError(f"track table needs a {name!r} column")
+        return TrackTable._valid(cols, self._n)
+
     def full(self) -> TrackTable:
         """A new table holding every known column (NaN, or '' for text, where unknown),
         then the extras."""
@@ -301,9 +360,10 @@ class TrackTable(Mapping[str, np.ndarray]):
         """Rows ordered by (frame, instrument, part order)."""
         if self._n == 0:
             return self
-        part_rank = np.array(
-            [PARTS.index(p) if p in PARTS else len(PARTS) for p in self._cols["part"]]
-        )
+        part = self._cols["part"]
+        part_rank = np.full(self._n, len(PARTS))
+        for k in range(len(PARTS) - 1, -1, -1):  # (PARTS.index: the first)
+            part_rank[part == PARTS[k]] = k
         order = np.lexsort((part_rank, self._cols["instrument"].astype(str), self._cols["frame"]))
         return self[order]
 
@@ -325,19 +385,31 @@ class TrackTable(Mapping[str, np.ndarray]):
                     out[c].append(np.array([""] * t.num_rows, dtype=object))
                 else:
                     out[c].append(np.full(t.num_rows, np.nan))
-        return TrackTable({c: np.concatenate(v) if v else [] for c, v in out.items()})
+        # text columns are tables' already (or ''): only the others are converted
+        joined = {
+            c: np.concatenate(v)
+            if COLUMN_DTYPES.get(c) is object
+            else _as_column(c, np.concatenate(v))
+            for c, v in out.items()
+        }
+        known = [c for c in COLUMN_NAMES if c in joined]
+        extra = [c for c in joined if c not in COLUMN_DTYPES]
+        ordered = {c: joined[c] for c in known + extra}
+        return TrackTable._valid(ordered, sum(t.num_rows for t in tables))
 
     def groups(self, *keys: str) -> Iterator[tuple[tuple[Any, ...], np.ndarray]]:
         """Yield ``(key values, row indices)`` for each distinct combination of ``keys``,
-        rows in their table order within each group."""
-        if self._n == 0:
-            return
-        cols = [self._cols[k] for k in keys]
-        seen: dict[tuple[Any, ...], list[int]] = {}
-        for i, key in enumerate(zip(*cols, strict=True)):
-            seen.setdefault(tuple(key), []).append(i)
-        for key, idx in seen.items():
-            yield key, np.asarray(idx, dtype=np.int64)
+        rows in their table order within each group (:func:`group_rows`)."""
+        return group_rows(*(self._cols[k] for k in keys))
+
+    @staticmethod
+    def _valid(cols: dict[str, np.ndarray], n: int) -> TrackTable:
+        """A table of columns taken from valid tables (rows selected, joined): each
+        already a 1-D array of its column's dtype with ``n`` rows, in table order."""
+        out = TrackTable.__new__(TrackTable)
+        out._n = n
+        out._cols = cols
+        return out
 
     def to_pandas(self) -> Any:
         """A ``pandas.DataFrame`` of the table (pandas is imported only here)."""

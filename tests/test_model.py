@@ -6,9 +6,18 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mistool.errors import TableError
-from mistool.model import COLUMN_NAMES, RotatedBox, TrackTable, empty_table, require_columns
+from mistool.model import (
+    COLUMN_NAMES,
+    RotatedBox,
+    TrackTable,
+    empty_table,
+    group_rows,
+    require_columns,
+)
 
 
 def _shoelace(c: np.ndarray) -> float:
@@ -97,3 +106,55 @@ def test_empty_table_is_typed_and_full() -> None:
     assert e["frame"].dtype == np.int64 and e["cx_px"].dtype == np.float64
     assert e.sorted().num_rows == 0 and TrackTable().full().columns == COLUMN_NAMES
     assert TrackTable.concat([]).num_rows == 0
+
+
+def _groups_by_dict(*columns: np.ndarray) -> list[tuple[tuple, list[int]]]:
+    """The definition: a dict keyed by each row's values, in order of first row."""
+    seen: dict[tuple, list[int]] = {}
+    for i, key in enumerate(zip(*columns, strict=True)):
+        seen.setdefault(tuple(key), []).append(i)
+    return list(seen.items())
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from(["1", "2", "10", "b"]), st.integers(-2, 3)), max_size=40),
+    st.sampled_from(["object", "str", "float"]),
+)
+def test_group_rows_is_the_dict_definition(rows, kind) -> None:
+    """``group_rows`` (np.unique on text, integer and boolean columns) gives the groups
+    of a dict keyed by each row's values: the same keys (value and type), in order of
+    first row, the rows in order; float columns (each NaN its own key) as the dict."""
+    names = np.array([r[0] for r in rows], dtype=object if kind == "object" else str)
+    values = np.array([r[1] for r in rows], dtype=np.int64)
+    if kind == "float":
+        values = np.where(values < 0, np.nan, values.astype(float))
+    got = [(k, idx.tolist()) for k, idx in group_rows(names, values)]
+    want = _groups_by_dict(names, values)
+    assert [idx for _, idx in got] == [idx for _, idx in want]
+    for (k, _), (w, _) in zip(got, want, strict=True):
+        assert [type(v) for v in k] == [type(v) for v in w]
+        assert all(a == b or (a != a and b != b) for a, b in zip(k, w, strict=True))
+    assert all(x.dtype == np.int64 for _, x in group_rows(names, values))
+
+
+def test_concat_and_selection_keep_the_constructors_order_and_types() -> None:
+    """Tables joined or selected without converting their columns again have the
+    columns, order and dtypes the constructor gives the same columns."""
+    a = TrackTable({"frame": [0], "instrument": ["a"], "part": ["shaft"], "extra": [1.0]})
+    b = TrackTable({"frame": [1], "instrument": ["b"], "part": ["wrist"], "cx_px": [2.0]})
+    joined = TrackTable.concat([a, b])
+    again = TrackTable({c: joined[c] for c in joined.columns})
+    assert joined.columns == again.columns == ("frame", "instrument", "part", "cx_px", "extra")
+    for c in joined.columns:
+        assert joined[c].dtype == again[c].dtype
+    assert joined["instrument"].tolist() == ["a", "b"] and np.isnan(joined["cx_px"][0])
+    picked = joined[np.array([1])]
+    assert picked.columns == joined.columns and picked["part"].tolist() == ["wrist"]
+    with pytest.raises(TableError, match="expected a 1-D array"):
+        joined[0]
+    dropped = joined.without("extra", "not_there")
+    assert dropped.columns == ("frame", "instrument", "part", "cx_px")
+    assert dropped["cx_px"] is joined["cx_px"]
+    with pytest.raises(TableError, match="needs a 'part' column"):
+        joined.without("part")

@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from mistool.errors import ConfigError
-from mistool.model import TrackTable
+from mistool.model import COLUMN_DTYPES, TrackTable, group_rows
 from mistool.pose.filtering import MODES, filter_series, noise_scale
 from mistool.pose.measure import AUX_KEYS, MAX_SIGMA_DEG
 from mistool.pose.status import status_column
@@ -56,10 +56,6 @@ def _set3(
 ) -> None:
     for j, n in enumerate(names):
         cols[n][idx] = values[:, j]
-
-
-def _finite(a: float, b: float, c: float) -> bool:
-    return math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
 
 
 def _trocar_fusion(
@@ -102,31 +98,32 @@ def _trocar_fusion(
 def _realign_clasper(
     cols: dict[str, np.ndarray], shaft_idx: np.ndarray, clasper_idx: np.ndarray, frames: np.ndarray
 ) -> None:
-    """Move each clasper row's start (= J) and end with its shaft row's joint.
+    """Move each clasper row's start (= J) and end with its shaft row's joint (the shaft
+    row of the same frame; the last one when a frame has several).
 
-    Plain floats (the same subtractions and additions as on 3-vectors), values read once:
-    the loop writes only the clasper rows, never a shaft row it reads."""
-    by_frame = dict(zip(frames[shaft_idx].tolist(), shaft_idx.tolist(), strict=True))
-    rows = clasper_idx.tolist()
-    shafts = [by_frame.get(f) for f in frames[clasper_idx].tolist()]
-    have = [s is not None for s in shafts]
-    src = np.array([s if s is not None else 0 for s in shafts], dtype=np.int64)
-    J = [cols[n][src].tolist() for n in _END]
-    start = [cols[n][clasper_idx].tolist() for n in _START]
-    tip = [cols[n][clasper_idx].tolist() for n in _END]
-    for r, i in enumerate(rows):
-        if not have[r]:
-            continue
-        j3 = (J[0][r], J[1][r], J[2][r])
-        s3 = (start[0][r], start[1][r], start[2][r])
-        if not (_finite(*j3) and _finite(*s3)):
-            continue
-        for j, n in enumerate(_START):
-            cols[n][i] = j3[j]
-        t3 = (tip[0][r], tip[1][r], tip[2][r])
-        if _finite(*t3):
-            for j, n in enumerate(_END):
-                cols[n][i] = t3[j] + (j3[j] - s3[j])
+    Column arithmetic, element by element the former per-row loop's (the same
+    subtraction then addition per coordinate), every value read before any is written:
+    only clasper rows are written, and no shaft row is one."""
+    if not len(shaft_idx) or not len(clasper_idx):
+        return
+    shaft_frames = frames[shaft_idx]
+    order = np.argsort(shaft_frames, kind="stable")  # equal frames: the last one last
+    ordered = shaft_frames[order]
+    wanted = frames[clasper_idx]
+    at = np.searchsorted(ordered, wanted, side="right") - 1
+    have = at >= 0
+    at[~have] = 0
+    have &= ordered[at] == wanted
+    src = shaft_idx[order[at]]
+    J = np.stack([cols[n][src] for n in _END], axis=1)
+    start = np.stack([cols[n][clasper_idx] for n in _START], axis=1)
+    tip = np.stack([cols[n][clasper_idx] for n in _END], axis=1)
+    ok = have & np.isfinite(J).all(axis=1) & np.isfinite(start).all(axis=1)
+    moved = ok & np.isfinite(tip).all(axis=1)
+    for j, n in enumerate(_START):
+        cols[n][clasper_idx[ok]] = J[ok, j]
+    for j, n in enumerate(_END):
+        cols[n][clasper_idx[moved]] = tip[moved, j] + (J[moved, j] - start[moved, j])
 
 
 def _reliable_trocar(cols: dict[str, np.ndarray], idx: np.ndarray, t: np.ndarray) -> Trocar | None:
@@ -198,9 +195,7 @@ def _smooth(
     fps: float,
 ) -> None:
     """Temporal filtering of end, start and axis per (instrument, part); in place."""
-    for _key, idx in TrackTable({"frame": frames, "instrument": inst, "part": part}).groups(
-        "instrument", "part"
-    ):
+    for _key, idx in group_rows(inst, part):
         idx = idx[np.argsort(frames[idx], kind="stable")]
         t = frames[idx] / fps
         for names, acc, floor in (
@@ -259,4 +254,10 @@ def refine_sequence(table: TrackTable, config: object, smoothing: str = "offline
         for j, n in enumerate(_QUAT):
             cols[n][rows] = quats[:, j]
     cols["pose_status"] = status_column(cols, table.num_rows)
-    return TrackTable({c: v for c, v in cols.items() if c not in AUX_KEYS})
+    # the text columns are the table's (unchanged: not converted again)
+    changed = {
+        c: v
+        for c, v in cols.items()
+        if c not in AUX_KEYS and (COLUMN_DTYPES.get(c) is not object or c == "pose_status")
+    }
+    return table.without(*AUX_KEYS).with_columns(**changed)

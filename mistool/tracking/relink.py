@@ -572,13 +572,25 @@ def swap_heads(table: TrackTable) -> TrackTable:
     """
     if table.num_rows == 0:
         return table
+    # A swap needs two rows of its head part in one frame: only such frames' rows are
+    # looked at (the others' would give no candidate); none (one instrument): no swap.
+    frame = np.asarray(table["frame"]).astype(np.int64)
+    first = int(frame.min())
+    busy = np.zeros(int(frame.max()) - first + 1, dtype=bool)
+    part_of = np.asarray(table["part"])
+    for part in ("wrist", "clasper"):
+        busy |= np.bincount(frame[part_of == part] - first, minlength=len(busy)) >= 2
+    if not busy.any():
+        return table
     rows = _Rows(table)
-    first = int(rows.frame.min())
-    frames: list[dict[tuple[str, str], int]] = [
-        {} for _ in range(int(rows.frame.max()) - first + 1)
-    ]
-    for r, (f, n, p) in enumerate(
-        zip(rows.frame.tolist(), rows.name.tolist(), rows.part.tolist(), strict=True)
+    frames: list[dict[tuple[str, str], int]] = [{} for _ in range(len(busy))]
+    look = np.flatnonzero(busy[frame - first])
+    for r, f, n, p in zip(
+        look.tolist(),
+        rows.frame[look].tolist(),
+        rows.name[look].tolist(),
+        rows.part[look].tolist(),
+        strict=True,
     ):
         frames[f - first][(n, p)] = r
     names = rows.name.copy()
