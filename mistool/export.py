@@ -341,8 +341,11 @@ def write_table_csv(table: TrackTable, out: IO[str]) -> None:
                 floats[:, j] = col
             elif kind == 1:
                 ints[:, j] = col
-            else:
-                texts[:, j] = [encoded.setdefault(format_value(v), len(encoded)) for v in col]
+            else:  # (a str is its own cell text: format_value's last case, not called)
+                put = encoded.setdefault
+                texts[:, j] = [
+                    put(v if type(v) is str else format_value(v), len(encoded)) for v in col
+                ]
         big = np.abs(floats) >= FLOAT_LIMIT
         if big.any() and np.isfinite(floats[big]).any():
             writer.writerows(zip(*[_format_column(col) for col in block], strict=True))

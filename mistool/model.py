@@ -348,13 +348,16 @@ class TrackTable(Mapping[str, np.ndarray]):
     def full(self) -> TrackTable:
         """A new table holding every known column (NaN, or '' for text, where unknown),
         then the extras."""
-        empty = np.full(self._n, "", dtype=object)
         cols = {
-            c: self._cols.get(c, empty) if COLUMN_DTYPES[c] is object else self[c]
+            c: self._cols[c]
+            if c in self._cols
+            else np.full(self._n, "", dtype=object)
+            if COLUMN_DTYPES[c] is object
+            else self[c]
             for c in COLUMN_NAMES
         }
         cols.update({c: v for c, v in self._cols.items() if c not in cols})
-        return TrackTable(cols)
+        return TrackTable._valid(cols, self._n)
 
     def sorted(self) -> TrackTable:
         """Rows ordered by (frame, instrument, part order)."""
