@@ -10,8 +10,10 @@ stage's own time, nested stages excluded):
   foreground bounds, then its runs of equal values; before commit d7072b5 these passes
   were OpenCV's masks inside ``observe_frame``, i.e. in "instances", and the bounds
   outside every stage);
-- boxes: Algorithm 1 per part (``instances._fit_runs`` and ``geometry.fit_part`` called
-  by ``observe_frame``);
+- boxes: Algorithm 1 per part (``instances._fit_instance``: all parts of an instance and
+  its centroid and bounds in one call since 2026-11-27's ninth session; before it,
+  ``instances._fit_runs`` per part, the instance's sums then counted in "instances"; and
+  ``geometry.fit_part`` called by ``observe_frame``);
 - instances: the rest of ``observe_frame`` (components, grouping);
 - identity: ``IdentityTracker.resolve`` (including the blob splits and the boxes of the
   split pieces): the sequential step;
@@ -94,7 +96,7 @@ def profiled_run(seq: Path, out_csv: Path, prof: cProfile.Profile | None) -> Sta
     saved = (
         parallel._load,
         instances.fit_part,
-        instances._fit_runs,
+        instances._fit_instance,
         parallel.scan_labels,
         parallel.tracking.observe_frame,
         IdentityTracker.resolve,
@@ -112,7 +114,7 @@ def profiled_run(seq: Path, out_csv: Path, prof: cProfile.Profile | None) -> Sta
     try:
         parallel._load = clock.wrap("decode", parallel._load)
         instances.fit_part = clock.wrap("boxes", instances.fit_part, inside="identity")
-        instances._fit_runs = clock.wrap("boxes", instances._fit_runs)
+        instances._fit_instance = clock.wrap("boxes", instances._fit_instance)
         parallel.scan_labels = clock.wrap("scan", parallel.scan_labels)
         parallel.tracking.observe_frame = clock.wrap("instances", instances.observe_frame)
         IdentityTracker.resolve = clock.wrap("identity", resolve)  # type: ignore[method-assign]
@@ -125,7 +127,7 @@ def profiled_run(seq: Path, out_csv: Path, prof: cProfile.Profile | None) -> Sta
         (
             parallel._load,
             instances.fit_part,
-            instances._fit_runs,
+            instances._fit_instance,
             parallel.scan_labels,
             parallel.tracking.observe_frame,
             IdentityTracker.resolve,

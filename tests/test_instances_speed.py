@@ -19,6 +19,7 @@ from mistool.config import Config, InstrumentSpec
 from mistool.geometry import fit_part, range_mask
 from mistool.kernels.instances import (
     components,
+    fit_parts,
     fit_selected,
     foreground,
     label_runs,
@@ -202,6 +203,49 @@ def test_fit_of_selected_runs_is_fit_part_of_their_pixels(seed, min_area):
     assert np.array_equal(kept, want.kept)
     ys, xs = np.nonzero(kept)
     assert (info[3], info[4]) == (xs.sum(), ys.sum())
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 20, 300]), st.integers(1, 3))
+def test_fit_parts_is_each_parts_fit_and_make_instance(seed, min_area, n_parts):
+    """fit_parts (one call per instance): each part is fit_selected of its range, and the
+    instance's centroid, area and bounds are make_instance's of those parts, bit for bit."""
+    rng = np.random.default_rng(seed)
+    img = _label_image(rng, np.uint8, [10, 11, 20, 30])
+    bounds = foreground(img)
+    x, y, w, h = bounds
+    if w == 0:
+        return
+    _, ry, rx0, rx1, rv, n = label_runs(img, bounds)
+    label = rng.integers(0, 4, max(n, 1)).astype(np.int32)
+    members = rng.random(4) < 0.6
+    ranges = np.array([sorted(rng.integers(0, 40, 2).tolist()) for _ in range(n_parts)], np.int64)
+    if rng.random() < 0.5:
+        ranges[0] = (10, 11)
+    info, boxes, corners, crops, centroid, got_bounds = fit_parts(
+        ry, rx0, rx1, rv, label, n, ranges, members, min_area, x, y
+    )
+    parts = {}
+    for k, (lo, hi) in enumerate(ranges.tolist()):
+        fit, kept, box, corner = fit_selected(
+            ry, rx0, rx1, rv, label, n, lo, hi, members, min_area, x, y
+        )
+        assert info[k, 0] == fit[0]
+        if fit[0] == 0:
+            assert crops[k].size == 0
+            continue
+        assert (info[k, 1], info[k, 2]) == (x + fit[1], y + fit[2])
+        assert (info[k, 3], info[k, 4]) == kept.shape and np.array_equal(crops[k], kept)
+        assert tuple(boxes[k]) == box and np.array_equal(corners[k], corner)
+        parts[f"p{k}"] = PartObservation(
+            f"p{k}", RotatedBox(*box), corner, int(fit[0]), kept, (x + fit[1], y + fit[2])
+        )
+    if not parts:
+        assert got_bounds[0] == 0
+        return
+    want = make_instance(None, parts)
+    assert got_bounds == (len(parts), want.area_px, *want.bbox_xywh)
+    assert centroid == want.centroid_px
 
 
 # --- observe_frame against the former mask pipeline (commit 3307ee1) ------------------------

@@ -236,38 +236,67 @@ def _monotone_shift(out: np.ndarray, m: int) -> None:
     gap = abs(imax - imin)
     if (gap == 1 or gap == m - 1) and (ups <= 1 or ups >= m - 2):
         ascending = (imax + 1) % m == imin
-        j = imin if ascending else imax
-        if j > 0:
-            shifted = np.empty(m, np.int64)
-            done = 0
-            for i in range(m):
-                shifted[i] = out[j]
-                nj = j + 1 if j + 1 < m else 0
-                done = i + 1
-                if i < m - 1 and ascending != (out[j] < out[nj]):
-                    done = i
-                    break
-                j = nj
-            if done == m:
-                for i in range(m):
-                    out[i] = shifted[i]
+        j0 = imin if ascending else imax
+        if j0 == 0:
+            return
+        j = j0
+        for _ in range(m - 1):  # monotone all the way round from j0?
+            nj = j + 1 if j + 1 < m else 0
+            if ascending != (out[j] < out[nj]):
+                return
+            j = nj
+        _reverse(out, 0, j0)  # rotate left by j0 in place: three reversals
+        _reverse(out, j0, m)
+        _reverse(out, 0, m)
 
 
 @helper
-def hull_ccw(points: np.ndarray, out: np.ndarray) -> int:
-    """``cv2.convexHull(points, clockwise=False, returnPoints=True)`` of (N, 2) integer
-    points, N >= 1, as indices into ``points`` (``out``, (N,) at least): the hull's
-    vertices in OpenCV's order and from its start; returns their number."""
+def _reverse(a: np.ndarray, lo: int, hi: int) -> None:
+    """Reverse ``a[lo:hi]`` in place."""
+    hi -= 1
+    while lo < hi:
+        a[lo], a[hi] = a[hi], a[lo]
+        lo += 1
+        hi -= 1
+
+
+@helper
+def _sort_points(points: np.ndarray, order: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> None:
+    """``order``: the indices of (N, 2) ``points`` sorted by x, then y, equal points in
+    input order (OpenCV's ``CHullCmpPoints``); ``xs``, ``ys``: their coordinates so."""
     n = points.shape[0]
-    key = np.empty(n, np.int64)
-    for i in range(n):  # x, then y (offset: any int32 y keeps the order)
-        key[i] = np.int64(points[i, 0]) * (1 << 32) + (np.int64(points[i, 1]) + (1 << 31))
-    order = np.argsort(key, kind="mergesort")  # stable: equal points in input order
-    xs = np.empty(n, np.int64)
-    ys = np.empty(n, np.int64)
-    for i in range(n):
-        xs[i] = points[order[i], 0]
-        ys[i] = points[order[i], 1]
+    if n <= 48:  # insertion sort by x, then y; equal points keep their input order
+        for i in range(n):
+            x, y = points[i, 0], points[i, 1]
+            j = i
+            while j > 0 and (xs[j - 1] > x or (xs[j - 1] == x and ys[j - 1] > y)):
+                xs[j], ys[j], order[j] = xs[j - 1], ys[j - 1], order[j - 1]
+                j -= 1
+            xs[j], ys[j], order[j] = x, y, i
+    else:
+        key = np.empty(n, np.int64)
+        for i in range(n):  # x, then y (offset: any int32 y keeps the order)
+            key[i] = np.int64(points[i, 0]) * (1 << 32) + (np.int64(points[i, 1]) + (1 << 31))
+        sorted_ = np.argsort(key, kind="mergesort")  # stable: equal points in input order
+        for i in range(n):
+            order[i] = sorted_[i]
+            xs[i] = points[sorted_[i], 0]
+            ys[i] = points[sorted_[i], 1]
+
+
+@helper
+def hull_ccw(points: np.ndarray, out: np.ndarray, work: np.ndarray) -> int:
+    """``cv2.convexHull(points, clockwise=False, returnPoints=True)`` of (N, 2) integer
+    points, N >= 1, as indices into ``points`` (``out``, (N,) at least; ``work``: (5N +
+    4,) int64 scratch): the hull's vertices in OpenCV's order and from its start;
+    returns their number."""
+    n = points.shape[0]
+    order = work[:n]
+    xs = work[n : 2 * n]
+    ys = work[2 * n : 3 * n]
+    left = work[3 * n : 4 * n + 2]
+    right = work[4 * n + 2 : 5 * n + 4]
+    _sort_points(points, order, xs, ys)
     lo = hi = 0  # the first sorted point of the smallest / largest y
     for i in range(1, n):
         if ys[lo] > ys[i]:
@@ -277,8 +306,6 @@ def hull_ccw(points: np.ndarray, out: np.ndarray) -> int:
     if xs[0] == xs[n - 1] and ys[0] == ys[n - 1]:  # one point, maybe repeated
         out[0] = 0
         return 1
-    left = np.empty(n + 2, np.int64)
-    right = np.empty(n + 2, np.int64)
     # upper half (counter-clockwise: the chain from the right end first)
     nl = _hull_chain(xs, ys, 0, hi, left, -1, 1)
     nr = _hull_chain(xs, ys, n - 1, hi, right, -1, -1)
@@ -316,14 +343,12 @@ _FLT_MAX = np.float32(3.4028234663852886e38)
 
 
 @helper
-def _calipers(
-    hx: np.ndarray, hy: np.ndarray, n: int
-) -> tuple[float, float, float, float, float, float]:
-    """OpenCV's ``rotatingCalipers`` (minimum-area mode) over ``n > 2`` hull vertices
-    (float32 coordinates): the rectangle's corner and its two side vectors, float32."""
-    vx = np.empty(n, np.float32)
-    vy = np.empty(n, np.float32)
-    inv = np.empty(n, np.float32)
+def _edges(
+    hx: np.ndarray, hy: np.ndarray, n: int, vx: np.ndarray, vy: np.ndarray, inv: np.ndarray
+) -> tuple[int, int, int, int]:
+    """The calipers' start: each hull edge's vector (``vx``, ``vy``, float32) and its
+    inverse length (``inv``: float32 of the double), and the first vertices of least y,
+    largest x, largest y and least x."""
     left = bottom = right = top = 0
     x0, y0 = hx[0], hy[0]
     left_x = right_x = x0
@@ -344,6 +369,20 @@ def _calipers(
         vy[i] = np.float32(dy)
         inv[i] = np.float32(1.0 / np.sqrt(dx * dx + dy * dy))
         x0, y0 = hx[j], hy[j]
+    return bottom, right, top, left
+
+
+@helper
+def _calipers(
+    hx: np.ndarray, hy: np.ndarray, n: int, work: np.ndarray
+) -> tuple[float, float, float, float, float, float]:
+    """OpenCV's ``rotatingCalipers`` (minimum-area mode) over ``n > 2`` hull vertices
+    (float32 coordinates; ``work``: (3n,) float32 scratch): the rectangle's corner and
+    its two side vectors, float32."""
+    vx = work[:n]
+    vy = work[n : 2 * n]
+    inv = work[2 * n : 3 * n]
+    bottom, right, top, left = _edges(hx, hy, n, vx, vy, inv)
     orientation = _F0
     ax, ay = np.float64(vx[n - 1]), np.float64(vy[n - 1])
     for i in range(n):
@@ -355,46 +394,44 @@ def _calipers(
         ax, ay = bx, by
     base_a = orientation
     base_b = _F0
-    seq = np.empty(4, np.int64)
-    seq[0], seq[1], seq[2], seq[3] = bottom, right, top, left
-    rx = np.empty(4, np.float32)
-    ry = np.empty(4, np.float32)
+    s0, s1, s2, s3 = bottom, right, top, left  # the four calipers' vertices
     min_area = _FLT_MAX
     best_left = best_bottom = 0
     best_a = best_b = best_w = best_h = _F0
     for _ in range(n):
         # each caliper's edge turned into the first caliper's frame; the edge at the
-        # smallest angle (the one right of the others) leads
-        rx[0], ry[0] = vx[seq[0]], vy[seq[0]]
-        rx[1], ry[1] = vy[seq[1]], -vx[seq[1]]
-        rx[2], ry[2] = -vx[seq[2]], -vy[seq[2]]
-        rx[3], ry[3] = -vy[seq[3]], vx[seq[3]]
-        lead = 0
-        for i in range(1, 4):
-            if ry[i] * rx[lead] + -rx[i] * ry[lead] < _F0:
-                lead = i
-        p = seq[lead]
+        # smallest angle (right of the others: a dot product's sign) leads
+        lead, p, ux, uy = 0, s0, vx[s0], vy[s0]
+        wx, wy = vy[s1], -vx[s1]
+        if wy * ux + -wx * uy < _F0:
+            lead, p, ux, uy = 1, s1, wx, wy
+        wx, wy = -vx[s2], -vy[s2]
+        if wy * ux + -wx * uy < _F0:
+            lead, p, ux, uy = 2, s2, wx, wy
+        wx, wy = -vy[s3], vx[s3]
+        if wy * ux + -wx * uy < _F0:
+            lead, p, ux, uy = 3, s3, wx, wy
         lx = vx[p] * inv[p]
         ly = vy[p] * inv[p]
+        nxt = p + 1 if p + 1 < n else 0
         if lead == 0:
-            base_a, base_b = lx, ly
+            base_a, base_b, s0 = lx, ly, nxt
         elif lead == 1:
-            base_a, base_b = ly, -lx
+            base_a, base_b, s1 = ly, -lx, nxt
         elif lead == 2:
-            base_a, base_b = -lx, -ly
+            base_a, base_b, s2 = -lx, -ly, nxt
         else:
-            base_a, base_b = -ly, lx
-        seq[lead] = seq[lead] + 1 if seq[lead] + 1 < n else 0
-        dx = hx[seq[1]] - hx[seq[3]]
-        dy = hy[seq[1]] - hy[seq[3]]
+            base_a, base_b, s3 = -ly, lx, nxt
+        dx = hx[s1] - hx[s3]
+        dy = hy[s1] - hy[s3]
         width = dx * base_a + dy * base_b
-        dx = hx[seq[2]] - hx[seq[0]]
-        dy = hy[seq[2]] - hy[seq[0]]
+        dx = hx[s2] - hx[s0]
+        dy = hy[s2] - hy[s0]
         height = -dx * base_b + dy * base_a
         area = width * height
         if area <= min_area:
             min_area = area
-            best_left, best_bottom = seq[3], seq[0]
+            best_left, best_bottom = s3, s0
             best_a, best_b, best_w, best_h = base_a, base_b, width, height
     a1, b1 = best_a, best_b
     a2, b2 = -best_b, best_a
@@ -411,17 +448,18 @@ def _min_area_rect(points: np.ndarray) -> tuple[float, float, float, float, floa
     """``cv2.minAreaRect`` of (N, 2) int32 points: ``(cx, cy, w, h, angle)``, each the
     float32 value OpenCV gives (``angle`` in [-90, 0) degrees)."""
     n = points.shape[0]
-    idx = np.empty(max(n, 1), np.int64)
-    m = hull_ccw(points, idx) if n > 0 else 0
-    hx = np.empty(max(m, 1), np.float32)
-    hy = np.empty(max(m, 1), np.float32)
+    idx = np.empty(6 * n + 4, np.int64)  # the hull's indices, then the hull's scratch
+    m = hull_ccw(points, idx, idx[n:]) if n > 0 else 0
+    work = np.empty(5 * max(m, 1), np.float32)  # the hull's points, the calipers' scratch
+    hx = work[:m]
+    hy = work[m : 2 * m]
     for i in range(m):
         hx[i] = np.float32(points[idx[i], 0])
         hy[i] = np.float32(points[idx[i], 1])
     cx = cy = w = h = _F0
     angle = 0.0
     if m > 2:
-        px, py, ux, uy, vx, vy = _calipers(hx, hy, m)
+        px, py, ux, uy, vx, vy = _calipers(hx, hy, m, work[2 * m :])
         cx = px + (ux + vx) * _FHALF
         cy = py + (uy + vy) * _FHALF
         w = np.float32(np.sqrt(np.float64(ux) * ux + np.float64(uy) * uy))
@@ -455,8 +493,9 @@ def _min_area_rect(points: np.ndarray) -> tuple[float, float, float, float, floa
 def convex_hull_ccw(points: np.ndarray) -> np.ndarray:
     """The indices into (N, 2) int32 ``points`` (N >= 1) of ``cv2.convexHull(points,
     clockwise=False)``'s vertices, in its order (:func:`hull_ccw`)."""
-    out = np.empty(points.shape[0], np.int64)
-    return out[: hull_ccw(points, out)]
+    n = points.shape[0]
+    out = np.empty(n, np.int64)
+    return out[: hull_ccw(points, out, np.empty(5 * n + 4, np.int64))]
 
 
 @kernel("UniTuple(float64, 5)(int32[:, ::1])")

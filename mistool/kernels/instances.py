@@ -19,6 +19,8 @@ Runs are ``(ry, rx0, rx1, rv)``: run ``i`` covers ``rx0[i] <= x < rx1[i]`` of ro
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from mistool.kernels import kernel
@@ -462,6 +464,86 @@ def fit_selected(
                 sy[m], sx0[m], sx1[m] = ry[i], rx0[i], rx1[i]
                 m += 1
     return fit_runs_box(sy, sx0, sx1, m, min_area, ox, oy)
+
+
+_PARTS = (
+    "Tuple((int64[:, ::1], float64[:, ::1], float64[:, :, ::1], UniTuple(boolean[:, ::1], 3), "
+    "UniTuple(float64, 2), UniTuple(int64, 6)))"
+)
+
+
+@kernel(
+    _PARTS + "(int32[::1], int32[::1], int32[::1], int32[::1], int32[::1], int64, int64[:, ::1], "
+    "boolean[::1], int64, int64, int64)"
+)
+def fit_parts(
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    rv: np.ndarray,
+    label: np.ndarray,
+    n: int,
+    ranges: np.ndarray,
+    members: np.ndarray,
+    min_area: int,
+    ox: int,
+    oy: int,
+) -> tuple[Any, ...]:
+    """:func:`fit_selected` of each of up to three part value ranges (``ranges``, (P, 2)
+    inclusive) and the instance they make, in one call.
+
+    Returns:
+        ``(info, boxes, corners, crops, centroid, bounds)``: ``info`` (P, 5) int64: each
+        part's area (0: no pixel kept), crop offset (x, y) in the image, crop height and
+        width; ``boxes`` (P, 5) and ``corners`` (P, 4, 2): its box (``fit_selected``'s);
+        ``crops``: its kept pixels' crop (three, (0, 0) past P or when empty);
+        ``centroid``: (x, y) of the parts' pixels together, summed as
+        ``tracking.instances.make_instance`` sums them (part by part, in float64);
+        ``bounds``: (parts with pixels, their pixels, x, y, w, h of their crops'
+        union).
+    """
+    p_count = ranges.shape[0]
+    info = np.zeros((p_count, 5), np.int64)
+    boxes = np.zeros((p_count, 5))
+    corners = np.zeros((p_count, 4, 2))
+    crop0 = crop1 = crop2 = np.zeros((0, 0), np.bool_)
+    total = 0
+    sx = sy = 0.0
+    x0 = y0 = 1 << 62
+    x1 = y1 = -(1 << 62)
+    found = 0
+    for k in range(p_count):
+        fit, crop, box, corner = fit_selected(
+            ry, rx0, rx1, rv, label, n, ranges[k, 0], ranges[k, 1], members, min_area, ox, oy
+        )
+        area = fit[0]
+        if area == 0:
+            continue
+        h, w = crop.shape
+        px, py = ox + fit[1], oy + fit[2]
+        info[k, 0], info[k, 1], info[k, 2], info[k, 3], info[k, 4] = area, px, py, h, w
+        for j in range(5):
+            boxes[k, j] = box[j]
+        for a in range(4):
+            corners[k, a, 0] = corner[a, 0]
+            corners[k, a, 1] = corner[a, 1]
+        if k == 0:
+            crop0 = crop
+        elif k == 1:
+            crop1 = crop
+        else:
+            crop2 = crop
+        total += area
+        sx += np.float64(fit[3]) + np.float64(px * area)
+        sy += np.float64(fit[4]) + np.float64(py * area)
+        x0, y0 = min(x0, px), min(y0, py)
+        x1, y1 = max(x1, px + w), max(y1, py + h)
+        found += 1
+    crops = (crop0, crop1, crop2)
+    if found == 0:
+        return info, boxes, corners, crops, (0.0, 0.0), (0, 0, 0, 0, 0, 0)
+    bounds = (found, total, x0, y0, x1 - x0, y1 - y0)
+    return info, boxes, corners, crops, (sx / total, sy / total), bounds
 
 
 @kernel("int32[:, ::1](int32[::1], int32[::1], int32[::1], int32[::1], int64, int64, int64)")

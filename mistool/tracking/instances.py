@@ -299,32 +299,48 @@ def _value_range(rng: tuple[int, int], dtype: np.dtype) -> tuple[int, int]:
 _LIMITS: dict[np.dtype, tuple[int, int]] = {}
 
 
-#: ``fit_selected``'s members for runs all labelled 0: every run.
+#: ``fit_parts``' members for runs all labelled 0: every run.
 _ALL = np.ones(1, np.bool_)
+#: ... and for runs labelled 0 or 1 (one component): every part pixel.
+_BOTH = np.ones(2, np.bool_)
 
 
-def _fit_runs(
+def _fit_instance(
     runs: LabelRuns,
-    part: str,
-    lo: int,
-    hi: int,
+    name: str | None,
+    parts: list[str],
+    ranges: np.ndarray,
     label: np.ndarray,
     members: np.ndarray,
     min_area: int,
-) -> tuple[PartObservation, int, int] | None:
-    """Algorithm 1 of the pixels of ``runs`` with a value in ``[lo, hi]`` and a ``label``
-    among ``members``: the part's observation and its pixels' sums of x - x0 and y - y0
-    (``(x0, y0)``: its crop's offset), or None when no pixel is left."""
+) -> InstanceObservation | None:
+    """Algorithm 1 of the pixels of ``runs`` with a ``label`` among ``members`` and a value
+    in each part's range (``ranges``, (P, 2) for the P <= 3 names ``parts``), and the
+    instance they make (:func:`make_instance`'s centroid and bounds), in one compiled
+    call (:func:`mistool.kernels.instances.fit_parts`); None when no pixel is left."""
     fx, fy = runs.bounds[0], runs.bounds[1]
-    (area, x0, y0, sum_x, sum_y), kept, (cx, cy, length, width, angle), corners = (
-        _kernels().fit_selected(
-            runs.ry, runs.rx0, runs.rx1, runs.rv, label, runs.n, lo, hi, members, min_area, fx, fy
-        )
+    info, boxes, corners, crops, centroid, (found, area, x, y, w, h) = _kernels().fit_parts(
+        runs.ry, runs.rx0, runs.rx1, runs.rv, label, runs.n, ranges, members, min_area, fx, fy
     )
-    if area == 0:
+    if found == 0:
         return None
-    box = RotatedBox(cx=cx, cy=cy, length=length, width=width, angle_deg=angle)
-    return PartObservation(part, box, corners, area, kept, (fx + x0, fy + y0)), sum_x, sum_y
+    fits = {}
+    for k, ((size, px, py, _, _), box) in enumerate(
+        zip(info.tolist(), boxes.tolist(), strict=True)
+    ):
+        if size:
+            part = parts[k]
+            fits[part] = PartObservation(
+                part, RotatedBox(*box), corners[k], size, crops[k], (px, py)
+            )
+    return InstanceObservation(
+        label=name,
+        parts=fits,
+        centroid_px=centroid,
+        area_px=area,
+        bbox_xywh=(x, y, w, h),
+        image_shape=runs.shape,
+    )
 
 
 def _kernels() -> Any:
@@ -342,47 +358,18 @@ def _kernels() -> Any:
 _KERNELS: Any = None
 
 
-def _instance(
-    label: str | None,
-    fits: list[tuple[PartObservation, int, int]],
-    shape: tuple[int, int],
-) -> InstanceObservation:
-    """:func:`make_instance` of part observations whose pixel sums are known."""
-    parts = {obs.part: obs for obs, _, _ in fits}
-    area = sum(obs.area_px for obs, _, _ in fits)
-    sx = sy = 0.0
-    x0 = y0 = math.inf
-    x1 = y1 = -math.inf
-    for obs, sum_x, sum_y in fits:  # (the same float operations as make_instance's)
-        sx += float(sum_x) + obs.offset[0] * obs.area_px
-        sy += float(sum_y) + obs.offset[1] * obs.area_px
-        h, w = obs.mask.shape
-        x0, y0 = min(x0, obs.offset[0]), min(y0, obs.offset[1])
-        x1, y1 = max(x1, obs.offset[0] + w), max(y1, obs.offset[1] + h)
-    return InstanceObservation(
-        label=label,
-        parts=parts,
-        centroid_px=(sx / area, sy / area),
-        area_px=area,
-        bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)),
-        image_shape=shape,
-    )
-
-
 def _own_labels(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
     """One instance per config instrument with a visible part (own label values)."""
     label = np.zeros(max(runs.n, 1), np.int32)
     out = []
     for spec in config.instruments:
-        fits = []
-        for part in PARTS:
-            if part in spec.parts and spec.parts[part][1] > 0:
-                lo, hi = _value_range(spec.parts[part], runs.dtype)
-                got = _fit_runs(runs, part, lo, hi, label, _ALL, config.min_area_px)
-                if got is not None:
-                    fits.append(got)
-        if fits:
-            out.append(_instance(spec.name, fits, runs.shape))
+        names = [p for p in PARTS if p in spec.parts and spec.parts[p][1] > 0]
+        if not names:
+            continue
+        ranges = np.array([_value_range(spec.parts[p], runs.dtype) for p in names], np.int64)
+        inst = _fit_instance(runs, spec.name, names, ranges, label, _ALL, config.min_area_px)
+        if inst is not None:
+            out.append(inst)
     return out
 
 
@@ -454,19 +441,9 @@ def _merged(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
     if n == 1:
         return []
 
-    def fits_of(members: np.ndarray) -> list[tuple[PartObservation, int, int]]:
-        fits = []
-        for p, (lo, hi) in zip(part_names, ranges.tolist(), strict=True):
-            got = _fit_runs(runs, p, lo, hi, label, members, min_area)
-            if got is not None:
-                fits.append(got)
-        return fits
-
     if n == 2:  # one (bridged) component: everything belongs to it
-        fits = fits_of(np.ones(2, np.bool_))
-        if fits and sum(obs.area_px for obs, _, _ in fits) >= max(min_area, 1):
-            return [_instance(None, fits, shape)]
-        return []
+        inst = _fit_instance(runs, None, part_names, ranges, label, _BOTH, min_area)
+        return [inst] if inst is not None and inst.area_px >= max(min_area, 1) else []
     memo: dict[tuple[int, ...], InstanceObservation | None] = {}
 
     def instance_of(group: list[int]) -> InstanceObservation | None:
@@ -474,8 +451,7 @@ def _merged(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
         if key not in memo:
             members = np.zeros(n, np.bool_)
             members[group] = True
-            fits = fits_of(members)
-            memo[key] = _instance(None, fits, shape) if fits else None
+            memo[key] = _fit_instance(runs, None, part_names, ranges, label, members, min_area)
         return memo[key]
 
     def on_axis(piece: list[int], targets: list[list[int]]) -> int | None:
