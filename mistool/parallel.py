@@ -18,8 +18,8 @@ Where the work runs is a :class:`FramePool`:
   workers share with the client; frames of videos and arrays are decoded by the client
   and sent to the workers.
 
-A folder frame is sent as its path (the worker decodes it); other frames are decoded in
-the caller and sent as arrays.
+A folder frame is sent as its absolute path, a string (the worker decodes it); other
+frames are decoded in the caller and sent as arrays.
 """
 
 from __future__ import annotations
@@ -464,9 +464,10 @@ class Batch:
 
     names: tuple[str, ...]
     """Frame names, for error messages (a file name, ``video#i``, ``frame i``)."""
-    items: tuple[Path | np.ndarray | VideoSpan, ...]
-    """Per frame: the label image file (decoded by the worker) or the label array; or
-    one :class:`VideoSpan` for all the names (fewer frames at the end of the video)."""
+    items: tuple[str | Path | np.ndarray | VideoSpan, ...]
+    """Per frame: the label image file's path (decoded by the worker; :func:`batches`
+    gives absolute paths as strings) or the label array; or one :class:`VideoSpan` for
+    all the names (fewer frames at the end of the video)."""
     config: Config
     metric: bool
     lossy: bool
@@ -481,7 +482,7 @@ class Batch:
 _GATES: dict[str, FastPathGate] = {}
 
 
-def _load(item: Path | np.ndarray, config: Config) -> np.ndarray | LabelRuns:
+def _load(item: str | Path | np.ndarray, config: Config) -> np.ndarray | LabelRuns:
     """A frame's label image; an 8-bit grey PNG (grey labels) straight to its runs
     (:func:`mistool.pngdecode.decode_png_runs`: the image itself is never written)."""
     if isinstance(item, np.ndarray):
@@ -503,11 +504,11 @@ def _load(item: Path | np.ndarray, config: Config) -> np.ndarray | LabelRuns:
             got = decode_png_runs(data, config.max_pixels)
             gate.record(got is not None)
             if got is None:  # OpenCV decides (and reports)
-                return read_label_image(item, gate=_OPENCV, max_pixels=config.max_pixels)
+                return read_label_image(Path(path), gate=_OPENCV, max_pixels=config.max_pixels)
             bounds, ry, rx0, rx1, rv, n, shape = got
             return LabelRuns(bounds, ry, rx0, rx1, rv, n, shape, _UINT8)
     return read_label_image(
-        item, colour=config.colour_masks, gate=gate, max_pixels=config.max_pixels
+        Path(path), colour=config.colour_masks, gate=gate, max_pixels=config.max_pixels
     )
 
 
@@ -593,7 +594,7 @@ def observe_batch(batch: Batch) -> list[FrameResult]:
             out.append(observe_labels(labels, batch.config, metric, batch.lossy, below))
             below = _raised(below, out[-1])
         except MistoolError as exc:
-            where = str(item) if isinstance(item, Path) else name
+            where = os.fspath(item) if isinstance(item, (str, Path)) else name
             if where in str(exc):
                 raise
             raise type(exc)(f"{where}: {exc}") from None
@@ -620,7 +621,7 @@ def batches(
     the batch's ``defer_below`` (:func:`observe_labels`); None: 0, never deferred."""
     hint = defer_below or _never
 
-    def batch(names: list[str], items: list[Path | np.ndarray | VideoSpan]) -> Batch:
+    def batch(names: list[str], items: list[str | np.ndarray | VideoSpan]) -> Batch:
         return Batch(tuple(names), tuple(items), seq.config, metric, seq.lossy, hint())
 
     if video_spans and seq.video is not None:  # without end: see above
@@ -630,11 +631,14 @@ def batches(
             span_names = [f"{name}#{i}" for i in range(start, stop)]
             yield span_names, batch(span_names, [VideoSpan(seq.video, start, stop)])
     names: list[str] = []
-    items: list[Path | np.ndarray | VideoSpan] = []
+    items: list[str | np.ndarray | VideoSpan] = []
     folder = seq.path.resolve() if seq.kind == "folder" and seq.path is not None else None
+    # a folder frame's absolute path as a string: no Path made here per frame, none
+    # pickled, none parsed again in the worker (~10 us a frame in all)
+    prefix = os.path.join(folder, "") if folder is not None else None
     for frame in seq.frames():
         names.append(frame.name)
-        items.append(folder / frame.name if folder is not None else frame.load())
+        items.append(prefix + frame.name if prefix is not None else frame.load())
         if len(names) == batch_frames:
             yield names, batch(names, items)
             names, items = [], []
