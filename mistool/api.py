@@ -132,8 +132,9 @@ def _identify(
     instances, names = tracker.resolve(index, result.instances, result.runs)
     if instances is result.instances and not result.deferred:
         return list(names), result
-    metrics = [parallel.measure(inst, result.shape, config, metric) for inst in instances]
-    return list(names), replace(result, instances=list(instances), metrics=metrics, deferred=False)
+    kept = list(instances)
+    metrics = parallel.measure_all(kept, result.shape, config, metric)
+    return list(names), replace(result, instances=kept, metrics=metrics, deferred=False)
 
 
 class _RecentInstances:
@@ -166,7 +167,7 @@ class _Pending:
     names: list[str]
     result: parallel.FrameResult
     waiting: bool = False
-    """Its pose is to be measured in the pool (``result.metrics`` is empty)."""
+    """Its pose is to be measured in the pool (``result.metrics`` is None meanwhile)."""
     metrics: parallel.ResultFuture | None = None
     """The task measuring it (with other frames': its ``slot``); None: not submitted."""
     slot: int = 0
@@ -180,7 +181,7 @@ class _Pending:
     def finish(self) -> tuple[int, list[str], parallel.FrameResult]:
         if self.metrics is None:
             return self.index, self.names, self.result
-        metrics = list(self.metrics.result()[self.slot])
+        metrics = self.metrics.result()[self.slot]
         return self.index, self.names, replace(self.result, metrics=metrics)
 
 
@@ -249,7 +250,9 @@ def identified(
                 recent.add(len(names))
             item = _Pending(index, list(names), result)
             if instances is not result.instances or result.deferred:
-                item.result = replace(result, instances=list(instances), metrics=[], deferred=False)
+                item.result = replace(
+                    result, instances=list(instances), metrics=None, deferred=False
+                )
                 item.waiting = True
                 group.add(item)
             pending.append(item)

@@ -204,9 +204,15 @@ def _drawn(result: FrameResult, measured: bool) -> bool:
     geometry)."""
     if not measured:
         return bool(result.instances)
+    if result.metrics is None:
+        return False
+    from mistool.pose.measure import ROW_KEYS, SLOT_OF
+
+    end_x = result.metrics[:, :, ROW_KEYS.index("end_x_mm")]
     return any(
-        metrics is not None and any(math.isfinite(p["end_x_mm"]) for p in metrics.values())
-        for metrics in result.metrics
+        math.isfinite(end_x[k, SLOT_OF[part]])
+        for k, inst in enumerate(result.instances)
+        for part in inst.parts
     )
 
 

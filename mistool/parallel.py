@@ -47,7 +47,7 @@ from mistool.config import Config
 from mistool.errors import InputPathError, MistoolError
 from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
 from mistool.pngdecode import decode_png_runs, grey8
-from mistool.pose import measure_instance
+from mistool.pose.measure import ROW_LEN, SLOTS, measure_rows
 from mistool.sequence import (
     VIDEO_TOLERANCE,
     FastPathGate,
@@ -101,8 +101,10 @@ class FrameResult:
 
     instances: list[InstanceObservation]
     """``mistool.tracking.observe_frame``'s instances."""
-    metrics: list[dict[str, dict[str, float]] | None]
-    """Per instance: the metric pose per part (None without camera / metric pose)."""
+    metrics: np.ndarray | None
+    """The metric pose, ``(instances, 3, ROW_LEN)`` float64: instance ``k``'s part
+    ``p`` in row ``[k, SLOT_OF[p]]`` (:func:`mistool.pose.measure.measure_rows`); None
+    without camera / metric pose, and while ``deferred``."""
     unknown: np.ndarray
     """Label values present that the config does not know (1-D int64)."""
     shape: tuple[int, int]
@@ -115,7 +117,7 @@ class FrameResult:
     the view), computed here for the caller's identity step (None when that step does
     not need them: every instance labelled)."""
     deferred: bool = False
-    """The metric pose was left to the caller (``metrics`` is empty): it measures the
+    """The metric pose was left to the caller (``metrics`` is None): it measures the
     instances the identity step keeps (:func:`measure_frames`), so the pose of a blob
     that the identity step splits is never measured (see :func:`observe_labels`)."""
 
@@ -138,7 +140,7 @@ class FrameResults(list[FrameResult]):
 
 
 #: Columns of :func:`pack_frames`' integer tables.
-_FRAME_INTS = 7  # instances, H, W, corrupt, deferred, unknown values, border runs given
+_FRAME_INTS = 8  # instances, H, W, corrupt, deferred, unknown values, border runs, poses
 _INST_INTS = 9  # area, bbox x, y, w, h, image shape given, its H, W, parts
 _PART_INTS = 6  # part (index in PARTS), area, offset x, y, mask h, w
 
@@ -147,8 +149,8 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
     """Several frames' results as a few flat values for pickling (a batch sent by a
     worker): every number in one integer and one float table per level (frame,
     instance, part), the masks' bits in one buffer (each frame's from a byte boundary),
-    the unknown values and border runs concatenated; the labels and the metric pose as
-    they are. :func:`unpack_frames` gives the same results back."""
+    the unknown values, border runs and metric poses concatenated; the labels as they
+    are. :func:`unpack_frames` gives the same results back."""
     frames = np.zeros((len(results), _FRAME_INTS), np.int64)
     inst_i: list[tuple[int, ...]] = []
     inst_f: list[tuple[float, float]] = []
@@ -161,6 +163,7 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
     run_lengths: list[int] = []
     run_ends: list[np.ndarray] = []
     unknown = []
+    poses = []
     for k, r in enumerate(results):
         frames[k] = (
             len(r.instances),
@@ -170,8 +173,11 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
             r.deferred,
             len(r.unknown),
             r.runs is not None,
+            -1 if r.metrics is None else len(r.metrics),
         )
         unknown.append(r.unknown)
+        if r.metrics is not None:
+            poses.append(r.metrics)
         bits = 0
         for inst in r.instances:
             shape = inst.image_shape
@@ -209,7 +215,7 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
         np.stack(corners) if corners else np.zeros((0, 4, 2)),
         np.packbits(np.concatenate(masks)) if masks else np.zeros(0, np.uint8),
         labels,
-        [r.metrics for r in results],
+        np.concatenate(poses) if poses else _NO_POSES,
         np.concatenate(unknown).astype(np.int64) if unknown else np.zeros(0, np.int64),
         np.array(run_counts, np.int64),
         np.array(run_lengths, np.int64),
@@ -218,6 +224,7 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
 
 
 _PART_CODE = {name: k for k, name in enumerate(PARTS)}
+_NO_POSES = np.zeros((0, len(SLOTS), ROW_LEN))
 
 
 class MeasureWork(list[tuple[list[InstanceObservation], tuple[int, int]]]):
@@ -227,7 +234,7 @@ class MeasureWork(list[tuple[list[InstanceObservation], tuple[int, int]]]):
     values."""
 
     def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
-        frames = [FrameResult(inst, [], _NO_VALUES, shape) for inst, shape in self]
+        frames = [FrameResult(inst, None, _NO_VALUES, shape) for inst, shape in self]
         return _unpack_work, (pack_frames(frames),)
 
 
@@ -243,14 +250,14 @@ def _unpack_work(
 def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
     """The results :func:`pack_frames` packed (every value, dtype and shape; a mask is a
     bool view of its frame's unpacked bytes)."""
-    frames, inst_i, inst_f, part_i, part_f, corners, bits, labels, metrics, *rest = packed
+    frames, inst_i, inst_f, part_i, part_f, corners, bits, labels, poses, *rest = packed
     unknown, run_counts, run_lengths, run_ends = rest
     inst_rows, inst_xy = inst_i.tolist(), inst_f.tolist()
     part_rows, part_nums = part_i.tolist(), part_f.tolist()
     run_n, run_len = run_counts.tolist(), run_lengths.tolist()
     out = []
-    i = p = u = r = e = b = 0  # next instance, part, unknown value, runs list, run, bit
-    for k, (count, h, w, corrupt, deferred, n_unknown, has_runs) in enumerate(frames.tolist()):
+    i = p = u = r = e = b = m = 0  # next instance, part, unknown, runs list, run, bit, pose
+    for count, h, w, corrupt, deferred, n_unknown, has_runs, n_poses in frames.tolist():
         parts_here = sum(row[8] for row in inst_rows[i : i + count])
         sizes = [row[4] * row[5] for row in part_rows[p : p + parts_here]]
         nbits = sum(sizes)
@@ -287,10 +294,14 @@ def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
                 border.append([(run_ends[e + j], run_len[e + j]) for j in range(run_n[r])])
                 e += run_n[r]
                 r += 1
+        metrics = None
+        if n_poses >= 0:
+            metrics = poses[m : m + n_poses]
+            m += n_poses
         out.append(
             FrameResult(
                 instances,
-                metrics[k],
+                metrics,
                 unknown[u : u + n_unknown],
                 (h, w),
                 bool(corrupt),
@@ -309,32 +320,44 @@ def metric_pose(metric: bool, config: Config) -> bool:
 
 
 def measure(
-    inst: InstanceObservation, shape: tuple[int, int], config: Config, metric: bool
-) -> dict[str, dict[str, float]] | None:
-    """The per-frame metric pose of one instance, or None when the metric pose does not
+    inst: InstanceObservation,
+    shape: tuple[int, int],
+    config: Config,
+    metric: bool,
+    out: np.ndarray | None = None,
+) -> np.ndarray | None:
+    """The per-frame metric pose of one instance (:func:`mistool.pose.measure.measure_rows`:
+    ``(3, ROW_LEN)``, into ``out`` when given), or None when the metric pose does not
     run (see :func:`metric_pose`)."""
     if not metric or config.camera is None:
         return None
     name = inst.label
-    return measure_instance(
+    return measure_rows(
         inst,
         shape,
         config.camera,
         config.shaft_diameter_for(name) if name else config.shaft_diameter_mm,
         config.clasper_length_for(name) if name else config.clasper_length_mm,
+        out,
     )
 
 
 def measure_all(
     instances: list[InstanceObservation], shape: tuple[int, int], config: Config, metric: bool
-) -> list[dict[str, dict[str, float]] | None]:
-    """:func:`measure` of each instance."""
-    return [measure(inst, shape, config, metric) for inst in instances]
+) -> np.ndarray | None:
+    """:func:`measure` of each instance, in one ``(instances, 3, ROW_LEN)`` array
+    (:attr:`FrameResult.metrics`), or None when the metric pose does not run."""
+    if not metric or config.camera is None:
+        return None
+    out = np.empty((len(instances), len(SLOTS), ROW_LEN))
+    for k, inst in enumerate(instances):
+        measure(inst, shape, config, metric, out[k])
+    return out
 
 
 def measure_frames(
     frames: list[tuple[list[InstanceObservation], tuple[int, int]]], config: Config, metric: bool
-) -> list[list[dict[str, dict[str, float]] | None]]:
+) -> list[np.ndarray | None]:
     """:func:`measure_all` of several frames' ``(instances, shape)`` (a task: the pieces
     of the blobs the identity step split and the instances of deferred frames, measured
     in a worker while the caller goes on with the next frames; several frames per task,
@@ -444,8 +467,8 @@ def observe_labels(
         [border_runs(i) for i in instances] if any(i.label is None for i in instances) else None
     )
     if metric and config.camera is not None and 0 < len(instances) < defer_below:
-        return FrameResult(instances, [], unknown, shape, runs=runs_in, deferred=True)
-    metrics = [measure(inst, shape, config, metric) for inst in instances]
+        return FrameResult(instances, None, unknown, shape, runs=runs_in, deferred=True)
+    metrics = measure_all(instances, shape, config, metric)
     return FrameResult(instances, metrics, unknown, shape, runs=runs_in)
 
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from mistool.model import COLUMN_NAMES, PARTS, TrackTable
+from mistool.pose.measure import ROW_KEYS, ROW_LEN, SLOT_OF, SLOTS
 
 #: Rows allocated at first; capacity doubles when full.
 INITIAL_ROWS = 256
@@ -38,6 +39,10 @@ BOX_COLUMNS: tuple[str, ...] = (
 )
 #: Columns every table built here has, in order (the rest come from the metric pose).
 BASE_COLUMNS: tuple[str, ...] = ("frame", "time_s", "instrument", "part", *BOX_COLUMNS)
+
+#: The row of :data:`~mistool.model.PARTS`' ``p``-th part in an instance's metric pose
+#: array (:func:`mistool.pose.measure.measure_rows`).
+_SLOT_OF_PART: tuple[int, ...] = tuple(SLOT_OF[part] for part in PARTS)
 
 
 class RowBuilder:
@@ -103,7 +108,7 @@ class RowBuilder:
         index: int,
         names: Sequence[str],
         instances: Sequence[Any],
-        metrics: Sequence[Mapping[str, Mapping[str, Any]] | None],
+        metrics: np.ndarray | Sequence[Mapping[str, Mapping[str, Any]] | None] | None,
     ) -> None:
         """Add one frame's rows: one per visible part of each named instance.
 
@@ -112,8 +117,16 @@ class RowBuilder:
             names: instrument name per instance.
             instances: ``InstanceObservation`` per instance (``.parts``: part -> obs with
                 ``.box``, ``.corners`` (4, 2) px, ``.area_px``).
-            metrics: per instance, part -> {column: value} of the metric pose, or None.
+            metrics: the metric pose: one ``(instances, 3, ROW_LEN)`` float64 array
+                (:attr:`mistool.parallel.FrameResult.metrics`: each instance's
+                :func:`~mistool.pose.measure.measure_rows`), copied into the columns of
+                :data:`~mistool.pose.measure.ROW_KEYS` in one assignment; or per
+                instance, part -> {column: value} (any columns, numbers or text), or
+                None; None: no metric pose.
         """
+        if metrics is None or isinstance(metrics, np.ndarray):
+            self._add_posed(index, names, instances, metrics)
+            return
         rows: list[tuple[int, int, Any, Any]] = []
         for name, inst, metric in zip(names, instances, metrics, strict=True):
             code = self._code(str(name))
@@ -124,6 +137,45 @@ class RowBuilder:
                     rows.append((code, p, obs, metric.get(part) if metric else None))
         if not rows:
             return
+        i0 = self._rows(index, rows)
+        for i, (_, _, _, metric) in enumerate(rows, i0):
+            if metric:
+                self._add_metric(i, metric)
+
+    def _add_posed(
+        self,
+        index: int,
+        names: Sequence[str],
+        instances: Sequence[Any],
+        poses: np.ndarray | None,
+    ) -> None:
+        """:meth:`add_frame` with the metric pose as one array, or None."""
+        if poses is not None and poses.shape != (len(instances), len(SLOTS), ROW_LEN):
+            raise ValueError(
+                f"metrics: expected shape ({len(instances)}, {len(SLOTS)}, {ROW_LEN}) for "
+                f"{len(instances)} instances, got {poses.shape}"
+            )
+        rows: list[tuple[int, int, Any, Any]] = []
+        picks: list[int] = []  # each row's row in poses.reshape(-1, ROW_LEN)
+        for k, (name, inst) in enumerate(zip(names, instances, strict=True)):
+            code = self._code(str(name))
+            parts = inst.parts
+            for p, part in enumerate(PARTS):
+                obs = parts.get(part)
+                if obs is not None:
+                    rows.append((code, p, obs, None))
+                    picks.append(3 * k + _SLOT_OF_PART[p])
+        if not rows:
+            return
+        i0 = self._rows(index, rows)
+        if poses is not None:
+            plan = self._plans.get(ROW_KEYS)
+            if plan is None:  # before self._num is read: it may grow
+                plan = self._plans[ROW_KEYS] = self._plan(ROW_KEYS)
+            self._num[i0 : i0 + len(rows), plan] = poses.reshape(-1, ROW_LEN)[picks]
+
+    def _rows(self, index: int, rows: list[tuple[int, int, Any, Any]]) -> int:
+        """Write ``rows``' frame, instrument, part and box cells; their first row."""
         i0 = self._n
         i1 = i0 + len(rows)
         if i1 > self._cap:
@@ -139,9 +191,7 @@ class RowBuilder:
             )
         self._box[i0:i1] = box
         self._n = i1
-        for i, (_, _, _, metric) in enumerate(rows, i0):
-            if metric:
-                self._add_metric(i, metric)
+        return i0
 
     def _add_metric(self, i: int, metric: Mapping[str, Any]) -> None:
         """Row ``i``'s metric values: numbers (None: NaN) and text, by column name."""

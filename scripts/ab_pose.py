@@ -70,10 +70,10 @@ def _record(parallel: ModuleType, seq: Path) -> tuple[Any, list[tuple[Any, tuple
     calls: list[tuple[Any, tuple[int, int]]] = []
     real = parallel.measure
 
-    def spy(inst: Any, shape: tuple[int, int], config: Any, metric: bool) -> Any:
+    def spy(inst: Any, shape: tuple[int, int], config: Any, metric: bool, *out: Any) -> Any:
         if metric and config.camera is not None:
             calls.append((inst, shape))
-        return real(inst, shape, config, metric)
+        return real(inst, shape, config, metric, *out)
 
     cfg = load_config(seq)
     parallel.measure = spy
@@ -87,6 +87,20 @@ def _record(parallel: ModuleType, seq: Path) -> tuple[Any, list[tuple[Any, tuple
 
 def _run(parallel: ModuleType, cfg: Any, calls: list[tuple[Any, tuple[int, int]]]) -> list[Any]:
     return [parallel.measure(inst, shape, cfg, True) for inst, shape in calls]
+
+
+def _by_part(
+    parallel: ModuleType, calls: list[tuple[Any, tuple[int, int]]], got: list[Any]
+) -> list[Any]:
+    """``_run``'s answers as part -> {column: value} (a checkout whose ``measure`` gives
+    one array per instance: ``mistool.pose.measure.measure_rows``)."""
+    if not hasattr(parallel, "measure_rows"):
+        return got
+    m = sys.modules[parallel.measure_rows.__module__]
+    return [
+        {p: dict(zip(m.ROW_KEYS, rows[m.SLOT_OF[p]].tolist(), strict=True)) for p in inst.parts}
+        for (inst, _), rows in zip(calls, got, strict=True)
+    ]
 
 
 def _differences(ref: list[Any], got: list[Any], rtol: float) -> tuple[list[str], float]:
@@ -134,7 +148,7 @@ def main() -> int:
         outs = {}
         for k, (par, own) in loaded.items():  # warm up
             _activate(own)
-            outs[k] = _run(par, cfg, calls)
+            outs[k] = _by_part(par, calls, _run(par, cfg, calls))
         bad, worst = _differences(outs["ref"], outs["this"], args.rtol)
         cpu: dict[str, list[float]] = {k: [] for k in versions}
         for _ in range(args.runs):

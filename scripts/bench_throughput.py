@@ -154,7 +154,7 @@ def stages(seq: Path, out: Path) -> dict[str, float]:
         instances, names = tracker.resolve(i, found)
         t3 = clock()
         shape = (labels.shape[0], labels.shape[1])
-        metrics = [parallel.measure(inst, shape, cfg, metric) for inst in instances]
+        metrics = parallel.measure_all(list(instances), shape, cfg, metric)
         t4 = clock()
         rows.add_frame(i, list(names), list(instances), metrics)
         t5 = clock()

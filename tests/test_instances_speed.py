@@ -8,7 +8,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import cv2
 import numpy as np
@@ -519,7 +518,7 @@ def test_the_gap_estimate_is_within_its_bound_of_the_measured_gap(seed):
 def _result_key(r: object) -> tuple:
     return (
         [_key(i) for i in r.instances],  # type: ignore[attr-defined]
-        repr(r.metrics),  # type: ignore[attr-defined]
+        _poses_key(r.metrics),  # type: ignore[attr-defined]
         r.unknown.dtype.str,  # type: ignore[attr-defined]
         r.unknown.tolist(),  # type: ignore[attr-defined]
         r.shape,  # type: ignore[attr-defined]
@@ -529,22 +528,27 @@ def _result_key(r: object) -> tuple:
     )
 
 
-def _metric(rng: np.random.Generator) -> dict[str, dict[str, Any]] | None:
-    """An instance's metric pose as the pose gives it, or an odd one: None, a part
-    with a None or a text value, parts in either order, columns in any order."""
-    kind = int(rng.integers(0, 6))
-    if kind == 0:
+def _poses_key(poses: np.ndarray | None) -> tuple | None:
+    """A frame's metric pose array as its dtype, shape and bits (NaN payloads included)."""
+    if poses is None:
         return None
-    cols = ["end_x_mm", "axis_x", "quality", "aux_status", "qw"][: int(rng.integers(1, 6))]
-    if kind == 1:
-        cols = cols[::-1]
-    out: dict[str, dict[str, Any]] = {}
-    for part in ["shaft", "clasper"] if kind != 2 else ["clasper", "shaft"]:
-        out[part] = {c: float(rng.normal(0, 1e3)) for c in cols}
-    if kind == 3:
-        out["shaft"][cols[0]] = None
-    if kind == 4:
-        out["clasper"]["reason"] = "no camera"
+    return poses.dtype.str, poses.shape, poses.tobytes()
+
+
+def _poses(rng: np.random.Generator, n: int) -> np.ndarray | None:
+    """A frame's metric pose (``FrameResult.metrics``): None, or ``(n, 3, ROW_LEN)``
+    numbers with NaN cells, some of them with a payload of their own."""
+    from mistool.pose.measure import ROW_LEN
+
+    if rng.integers(0, 4) == 0:
+        return None
+    out = rng.normal(0, 1e3, (n, 3, ROW_LEN))
+    out[rng.random(out.shape) < 0.3] = np.nan
+    bits = out.reshape(-1).view(np.uint64)
+    odd = rng.random(bits.shape) < 0.05
+    bits[odd] = np.uint64(0x7FF8000000000000) | rng.integers(1, 2**20, int(odd.sum())).astype(
+        np.uint64
+    )
     return out
 
 
@@ -563,6 +567,7 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
         MeasureWork,
         observe_labels,
     )
+    from mistool.pose.measure import ROW_LEN
 
     rng = np.random.default_rng(seed)
     config = OWN if own else MERGED
@@ -573,12 +578,13 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
         result = observe_labels(img, config, False)
         result.deferred = bool(rng.integers(0, 2))
         result.corrupt = bool(rng.integers(0, 2))
-        if rng.integers(0, 4) == 0:
-            result.metrics = [_metric(rng) for _ in result.instances]
+        if rng.integers(0, 2) == 0:
+            result.metrics = _poses(rng, len(result.instances))
         results.append(result)
     if rng.integers(0, 3) == 0:
+        poses = np.zeros((0, 3, ROW_LEN)) if rng.integers(0, 2) else None
         results.insert(
-            int(rng.integers(0, frames)), FrameResult([], [], np.zeros(0, np.int64), (5, 7))
+            int(rng.integers(0, frames)), FrameResult([], poses, np.zeros(0, np.int64), (5, 7))
         )
     got = pickle.loads(pickle.dumps(results, protocol=pickle.HIGHEST_PROTOCOL))
     assert type(got) is list and len(got) == len(results)
@@ -591,7 +597,7 @@ def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames
                 assert p.corners.dtype == np.float64 and p.corners.shape == (4, 2)
     one = pickle.loads(pickle.dumps(results[-1], protocol=pickle.HIGHEST_PROTOCOL))
     assert isinstance(one, FrameResult) and _result_key(one) == _result_key(results[-1])
-    empty = FrameResult([], [], np.zeros(0, np.int64), (5, 7))
+    empty = FrameResult([], None, np.zeros(0, np.int64), (5, 7))
     assert _result_key(pickle.loads(pickle.dumps(empty))) == _result_key(empty)
     # the caller's measuring tasks (instances and shapes out, metric poses back) too
     work = MeasureWork((r.instances, r.shape) for r in results)

@@ -516,11 +516,25 @@ def _rows_equal(a: dict, b: dict) -> None:
         assert np.array_equal(x, y, equal_nan=True), (name, x, y)
 
 
+def _one_call(
+    parts: dict, shaft: object, K: np.ndarray, radius: float, length: float | None
+) -> dict | None:
+    """``measure._instance_in_one_call``'s rows (the kernel's array) by part, as
+    ``measure_instance`` gives them; None where it leaves the instance to the steps."""
+    rows = np.full((3, measure_mod.ROW_LEN), -7.0)
+    if not measure_mod._instance_in_one_call(parts, shaft, SHAPE, K, radius, length, rows):
+        return None
+    return {
+        name: dict(zip(measure_mod.ROW_KEYS, rows[measure_mod.SLOT_OF[name]].tolist(), strict=True))
+        for name in parts
+    }
+
+
 def _instance_one_call_equals_steps(parts: dict, camera: object, length: float | None) -> bool:
     """``measure._instance_in_one_call`` against ``_instance_in_steps`` (the former
     ``measure_instance``): the same rows where the one call answers; whether it did."""
     K = np.ascontiguousarray(camera.K, dtype=np.float64)  # type: ignore[attr-defined]
-    got = measure_mod._instance_in_one_call(parts, parts["shaft"], SHAPE, K, 4.0, length)
+    got = _one_call(parts, parts["shaft"], K, 4.0, length)
     want = measure_mod._instance_in_steps(
         parts,
         parts["shaft"],
@@ -590,7 +604,7 @@ def test_the_instance_in_one_call_when_the_tip_or_the_shaft_is_not_found() -> No
     tool = {"shaft": part_obs(canvas == 160), "clasper": part_obs(canvas == 70)}
     assert _instance_one_call_equals_steps(tool, PINHOLE, 10.0)
     K = np.ascontiguousarray(PINHOLE.K, dtype=np.float64)
-    rows = measure_mod._instance_in_one_call(tool, tool["shaft"], SHAPE, K, 4.0, 10.0)
+    rows = _one_call(tool, tool["shaft"], K, 4.0, 10.0)
     assert rows is not None and all(np.isnan(row["aux_status"]) for row in rows.values())
     assert np.isfinite(rows["clasper"]["end_z_mm"]) and np.isfinite(rows["shaft"]["quality"])
     ys, xs = np.nonzero(canvas == 160)
@@ -600,12 +614,12 @@ def test_the_instance_in_one_call_when_the_tip_or_the_shaft_is_not_found() -> No
     assert speck.sum() == 2 and not (speck & (canvas == 160)).any()
     tool["clasper"] = part_obs(speck)
     assert _instance_one_call_equals_steps(tool, PINHOLE, None)
-    rows = measure_mod._instance_in_one_call(tool, tool["shaft"], SHAPE, K, 4.0, None)
+    rows = _one_call(tool, tool["shaft"], K, 4.0, None)
     assert rows is not None and rows["clasper"]["aux_status"] == reason_code("tip not found")
     empty = SimpleNamespace(mask=np.zeros((3, 4), bool), offset=(5, 6), box=None)
     none = {"shaft": empty, "clasper": tool["clasper"]}
     assert _instance_one_call_equals_steps(none, PINHOLE, 10.0)
-    rows = measure_mod._instance_in_one_call(none, empty, SHAPE, K, 4.0, 10.0)  # type: ignore[arg-type]
+    rows = _one_call(none, empty, K, 4.0, 10.0)
     assert rows is not None and rows["clasper"]["aux_status"] == reason_code("not visible")
 
 
@@ -619,4 +633,71 @@ def test_the_instance_in_one_call_leaves_other_parts_to_the_steps() -> None:
     )
     K = np.ascontiguousarray(camera.K, dtype=np.float64)
     parts = {"shaft": obs.parts["shaft"], "jaw": obs.parts["clasper"]}
-    assert measure_mod._instance_in_one_call(parts, parts["shaft"], SHAPE, K, 4.0, length) is None
+    assert _one_call(parts, parts["shaft"], K, 4.0, length) is None
+
+
+def _former_measure_instance(
+    parts: dict, camera: object, diameter: float | None, length: float | None
+) -> dict:
+    """``measure.measure_instance`` as it was before the rows became one array (its
+    dicts built part by part; the one call's rows are the steps', tested above)."""
+    shaft = parts.get("shaft")
+    if camera is None or shaft is None or diameter is None or not diameter > 0:
+        out = {name: measure_mod._nan_row() for name in parts}
+        if camera is None:
+            measure_mod._why(out, "no camera")
+        elif shaft is None or not shaft.mask.any():
+            measure_mod._why(out, "not visible")
+        else:
+            measure_mod._why(out, "no shaft diameter")
+        return out
+    K, distorted = measure_mod._camera(camera)  # type: ignore[arg-type]
+    return measure_mod._instance_in_steps(
+        parts,
+        shaft,
+        SHAPE,
+        camera,  # type: ignore[arg-type]
+        K,
+        distorted,
+        0.5 * diameter,
+        length,
+    )
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.sampled_from(["all", "no clasper", "shaft first", "no camera", "no diameter", "empty"]),
+)
+def test_the_rows_array_holds_the_former_dicts_on_every_path(seed: int, variant: str) -> None:
+    """``measure_rows`` (one array, what the workers send) on rendered scenes, lenses with
+    and without distortion (the one call, and the steps copied in), without camera,
+    diameter or shaft pixels: each part's row is the former ``measure_instance``'s
+    dict, cell for cell and in order; ``measure_instance`` is that array by part."""
+    obs, camera, length = scene(seed)
+    parts = dict(obs.parts)
+    diameter: float | None = 8.0
+    if parts.get("shaft") is None:
+        return
+    if variant == "no clasper":
+        parts.pop("clasper", None)
+    elif variant == "shaft first":
+        parts = {"shaft": parts.pop("shaft"), **dict(reversed(list(parts.items())))}
+    elif variant == "no camera":
+        camera = None
+    elif variant == "no diameter":
+        diameter = None if seed % 2 else 0.0
+    elif variant == "empty":
+        shaft = parts["shaft"]
+        parts["shaft"] = SimpleNamespace(mask=np.zeros_like(shaft.mask), offset=shaft.offset)
+    inst = SimpleNamespace(parts=parts)
+    want = _former_measure_instance(parts, camera, diameter, length)
+    out = np.full((3, measure_mod.ROW_LEN), -7.0)
+    got = measure_mod.measure_rows(inst, SHAPE, camera, diameter, length, out)  # type: ignore[arg-type]
+    assert got is out
+    by_part = {
+        name: dict(zip(measure_mod.ROW_KEYS, out[measure_mod.SLOT_OF[name]].tolist(), strict=True))
+        for name in parts
+    }
+    _rows_equal(by_part, want)
+    _rows_equal(measure_mod.measure_instance(inst, SHAPE, camera, diameter, length), want)  # type: ignore[arg-type]

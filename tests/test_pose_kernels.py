@@ -278,9 +278,11 @@ def test_a_synth_sequence_equals_the_former_numpy_pose(tmp_path: Path) -> None:
     calls = []
     real = parallel.measure
 
-    def spy(inst: object, shape: tuple[int, int], config: object, metric: bool) -> object:
+    def spy(
+        inst: object, shape: tuple[int, int], config: object, metric: bool, *out: object
+    ) -> object:
         calls.append((inst, shape))
-        return real(inst, shape, config, metric)  # type: ignore[arg-type]
+        return real(inst, shape, config, metric, *out)  # type: ignore[arg-type]
 
     parallel.measure = spy  # type: ignore[assignment]
     try:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -244,3 +245,78 @@ def test_rows_are_those_of_the_former_definition(frames, takes) -> None:
                 assert np.array_equal(g[c].view(np.int64), w[c].view(np.int64)), c
             else:
                 assert g[c].dtype == w[c].dtype and g[c].tolist() == w[c].tolist(), c
+
+
+def _poses_strategy() -> st.SearchStrategy:
+    """A frame of instances (name, parts) and its metric pose: None, or one number per
+    cell of ``(instances, 3, ROW_LEN)`` (NaN cells, some with a payload of their own)."""
+    from mistool.pose.measure import ROW_LEN
+
+    cell = st.one_of(
+        st.floats(allow_nan=False, allow_infinity=True),
+        st.just(math.nan),
+        st.integers(1, 2**20).map(
+            lambda k: np.uint64(0x7FF8000000000000 | k).view(np.float64).item()
+        ),
+    )
+    instances = st.lists(st.tuples(st.sampled_from("abc"), st.sets(st.sampled_from(PARTS))))
+    return instances.flatmap(
+        lambda insts: st.tuples(
+            st.just(insts),
+            st.one_of(
+                st.none(),
+                st.lists(
+                    cell, min_size=len(insts) * 3 * ROW_LEN, max_size=len(insts) * 3 * ROW_LEN
+                ),
+            ),
+        )
+    )
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(_poses_strategy(), max_size=30), st.integers(0, 3))
+def test_a_frames_metric_pose_array_gives_the_rows_of_its_dicts(frames, takes) -> None:
+    """The metric pose as one array per frame (what the workers send) is copied into the
+    rows as the same values given as a dict per part (``measure_instance``'s view of that
+    array, the former form) are: the same tables, bit for bit (NaN payloads included),
+    with frames without a pose, instances without parts and takes at random points."""
+    from mistool.pose.measure import ROW_KEYS, ROW_LEN, SLOT_OF
+
+    new, old = RowBuilder(fps=7.0), _FormerRowBuilder(fps=7.0)
+    got: list[TrackTable] = []
+    want: list[TrackTable] = []
+    for k, (frame, cells) in enumerate(frames * 8):  # repeated: past the initial capacity
+        insts = [
+            _inst(k + j, tuple(p for p in PARTS if p in ps)) for j, (_, ps) in enumerate(frame)
+        ]
+        names = [n for n, _ in frame]
+        poses = None if cells is None else np.array(cells).reshape(len(frame), 3, ROW_LEN)
+        dicts = [
+            None
+            if poses is None
+            else {
+                p: dict(zip(ROW_KEYS, poses[j, SLOT_OF[p]].tolist(), strict=True))
+                for p in inst.parts
+            }
+            for j, inst in enumerate(insts)
+        ]
+        new.add_frame(k, names, insts, poses)
+        old.add_frame(k, names, insts, dicts)
+        if takes and k % (takes * 17) == 5:
+            got.append(new.take())
+            want.append(old.take())
+    got.append(new.take())
+    want.append(old.take())
+    for g, w in zip(got, want, strict=True):
+        assert g.columns == w.columns
+        for c in g.columns:
+            if g[c].dtype == np.float64:
+                assert np.array_equal(g[c].view(np.int64), w[c].view(np.int64)), c
+            else:
+                assert g[c].dtype == w[c].dtype and g[c].tolist() == w[c].tolist(), c
+
+
+def test_a_metric_pose_array_of_another_shape_is_an_error() -> None:
+    rows = RowBuilder(fps=25.0)
+    with pytest.raises(ValueError, match="metrics: expected shape"):
+        rows.add_frame(0, ["1", "2"], [_inst(0), _inst(1)], np.zeros((1, 3, 28)))

@@ -63,7 +63,18 @@ from mistool.pose.silhouette import (
 )
 from mistool.pose.status import AUX_STATUS, reason_code
 
-__all__ = ["AUX_KEYS", "MAX_SIGMA_DEG", "MAX_SIGMA_MM", "POSE_KEYS", "measure_instance"]
+__all__ = [
+    "AUX_KEYS",
+    "MAX_SIGMA_DEG",
+    "MAX_SIGMA_MM",
+    "POSE_KEYS",
+    "ROW_KEYS",
+    "ROW_LEN",
+    "SLOTS",
+    "SLOT_OF",
+    "measure_instance",
+    "measure_rows",
+]
 
 #: The metric columns :func:`measure_instance` fills for each part.
 POSE_KEYS: tuple[str, ...] = (
@@ -129,7 +140,16 @@ _END_ON_DEG = 30.0
 _FIT_ITERS = 12
 
 
-_NAN_ROW = {k: math.nan for k in POSE_KEYS + AUX_KEYS}
+#: The cells of a part's row, in order (:data:`POSE_KEYS`, then :data:`AUX_KEYS`).
+ROW_KEYS: tuple[str, ...] = POSE_KEYS + AUX_KEYS
+ROW_LEN = len(ROW_KEYS)
+#: The rows of :func:`measure_rows`' array, by part (the order of
+#: :func:`mistool.kernels.pose.instance_from_masks`' answer).
+SLOTS: tuple[str, ...] = ("shaft", "clasper", "wrist")
+SLOT_OF: dict[str, int] = {name: k for k, name in enumerate(SLOTS)}
+_STATUS_CELL = ROW_KEYS.index(AUX_STATUS)
+
+_NAN_ROW = {k: math.nan for k in ROW_KEYS}
 
 #: The shaft row's cells the kernel fills (``mistool.kernels.pose.OUT["row"]`` onward):
 #: the distal flag, the limb lines to the sigmas, then the pose without its quality.
@@ -495,14 +515,8 @@ def measure_instance(
     shaft_diameter_mm: float | None,
     clasper_length_mm: float | None,
 ) -> dict[str, dict[str, float]]:
-    """Metric pose of one instrument in one frame.
-
-    Pure and thread-safe (no shared state; RANSAC uses a fixed table of draws). The steps
-    (see the module docstring): gather the shaft's points (:func:`_shaft_points`), then
-    the kernel :func:`mistool.kernels.pose.shaft_pose` (the shaft's image frame, limb
-    lines, axis, joint, uncertainties, row), the shaft's quality, then the clasper's and
-    the wrist's rows (:func:`_clasper_rows`); all in one kernel call where it can
-    (:func:`_instance_in_one_call`), else in :func:`_instance_in_steps`.
+    """Metric pose of one instrument in one frame, by part name (a view of
+    :func:`measure_rows`' array, for callers that want names: the viewer, tests).
 
     Args:
         instance: an ``InstanceObservation`` (``.parts``: part name -> observation with
@@ -514,36 +528,80 @@ def measure_instance(
             the shaft axis' extension, i.e. assuming no bend out of the image plane).
 
     Returns:
-        Part name -> {column: value} for every part of ``instance``: the columns of
+        Part name -> {column: value} for every part of ``instance`` (of
+        :data:`~mistool.model.PARTS`, the only ones a config can name): the columns of
         :data:`POSE_KEYS` (camera frame, mm, unit axes, quaternion wxyz, quality in [0, 1])
         plus :data:`AUX_KEYS`; NaN where unknown or not trustworthy.
     """
+    rows = measure_rows(instance, image_shape, camera, shaft_diameter_mm, clasper_length_mm)
+    cells = rows.tolist()
+    return {
+        name: dict(zip(ROW_KEYS, cells[SLOT_OF[name]], strict=True))
+        for name in instance.parts
+        if name in SLOT_OF
+    }
+
+
+def measure_rows(
+    instance: InstanceObservation,
+    image_shape: tuple[int, int],
+    camera: Camera | None,
+    shaft_diameter_mm: float | None,
+    clasper_length_mm: float | None,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
+    """Metric pose of one instrument in one frame, as one array (what a worker sends and
+    :class:`mistool.rows.RowBuilder` copies into its columns: no dict per part).
+
+    Pure and thread-safe (no shared state; RANSAC uses a fixed table of draws). The steps
+    (see the module docstring): gather the shaft's points (:func:`_shaft_points`), then
+    the kernel :func:`mistool.kernels.pose.shaft_pose` (the shaft's image frame, limb
+    lines, axis, joint, uncertainties, row), the shaft's quality, then the clasper's and
+    the wrist's rows (:func:`_clasper_rows`); all in one kernel call where it can
+    (:func:`_instance_in_one_call`), else in :func:`_instance_in_steps`.
+
+    Args:
+        instance, image_shape, camera, shaft_diameter_mm, clasper_length_mm: as
+            :func:`measure_instance`.
+        out: where to write the rows ((3, :data:`ROW_LEN`) float64, C-contiguous, e.g. a
+            frame's ``(n, 3, ROW_LEN)`` array's ``[k]``); None: a new array.
+
+    Returns:
+        ``out``: row ``SLOT_OF[part]`` (:data:`SLOTS`: shaft, clasper, wrist) of each of
+        ``instance``'s parts holds its :data:`ROW_KEYS` (:func:`measure_instance`'s
+        values); the rows of parts it does not have are not to be read.
+    """
+    if out is None:
+        out = np.empty((len(SLOTS), ROW_LEN))
     parts = instance.parts
     shaft = parts.get("shaft")
     if camera is None or shaft is None or shaft_diameter_mm is None or not shaft_diameter_mm > 0:
-        out = {name: _nan_row() for name in parts}
+        out[:] = math.nan
         if camera is None:
-            _why(out, "no camera")
+            reason = "no camera"
         elif shaft is None or not shaft.mask.any():
-            _why(out, "not visible")
+            reason = "not visible"
         else:
-            _why(out, "no shaft diameter")
+            reason = "no shaft diameter"
+        code = reason_code(reason)
+        for name in parts:
+            if name in SLOT_OF:
+                out[SLOT_OF[name], _STATUS_CELL] = code
         return out
     K, distorted = _camera(camera)
     radius = 0.5 * float(shaft_diameter_mm)
-    if not distorted:
-        rows = _instance_in_one_call(parts, shaft, image_shape, K, radius, clasper_length_mm)
-        if rows is not None:
-            return rows
-    return _instance_in_steps(
+    if not distorted and _instance_in_one_call(
+        parts, shaft, image_shape, K, radius, clasper_length_mm, out
+    ):
+        return out
+    steps = _instance_in_steps(
         parts, shaft, image_shape, camera, K, distorted, radius, clasper_length_mm
     )
-
-
-#: The cells of a row, in order (:data:`POSE_KEYS`, then :data:`AUX_KEYS`).
-_ROW_KEYS = POSE_KEYS + AUX_KEYS  # (as long as each row: zip without strict, ~0.5 us a row)
-#: Each part's row in :func:`mistool.kernels.pose.instance_from_masks`' answer.
-_ROW_OF = {"shaft": 0, "clasper": 1, "wrist": 2}
+    out[:] = math.nan
+    for name, row in steps.items():
+        if name in SLOT_OF:
+            out[SLOT_OF[name]] = [row[k] for k in ROW_KEYS]
+    return out
 
 
 @functools.cache
@@ -561,22 +619,24 @@ def _instance_in_one_call(
     K: np.ndarray,  # noqa: N803
     radius: float,
     clasper_length_mm: float | None,
-) -> dict[str, dict[str, float]] | None:
+    rows: np.ndarray,
+) -> bool:
     """:func:`measure_instance` in one kernel call for an undistorted camera and a shaft
     with at most a clasper and a wrist (:func:`mistool.kernels.pose.instance_from_masks`:
     :func:`_shaft_in_one_call`'s kernel, then :func:`_tip_in_one_call`'s, the rows written
-    in order with their reasons), or None where :func:`_instance_in_steps` must answer
-    (:func:`_shaft_in_one_call` or :func:`_tip_in_one_call` would ask for the steps, a
-    quality left to OpenCV, other parts)."""
+    in order with their reasons) into ``rows`` (:func:`measure_rows`' ``out``): whether it
+    answered; False where :func:`_instance_in_steps` must (:func:`_shaft_in_one_call` or
+    :func:`_tip_in_one_call` would ask for the steps, a quality left to OpenCV, other
+    parts: ``rows`` is not to be read then)."""
     if len(parts) > 3:
-        return None
+        return False
     m1 = m2 = _NO_MASK
     x1 = y1 = x2 = y2 = clasper = n = 0
     for name, p in parts.items():
         if name == "shaft":
             continue
-        if name not in _ROW_OF:
-            return None
+        if name not in SLOT_OF:
+            return False
         n += 1
         if n == 1:
             m1, x1, y1 = as_mask(p.mask), int(p.offset[0]), int(p.offset[1])
@@ -584,7 +644,6 @@ def _instance_in_one_call(
             m2, x2, y2 = as_mask(p.mask), int(p.offset[0]), int(p.offset[1])
         if name == "clasper":
             clasper = n
-    rows = np.empty((3, len(_ROW_KEYS)))
     H, W = image_shape
     asked = kernels().instance_from_masks(
         as_mask(shaft.mask),
@@ -610,10 +669,7 @@ def _instance_in_one_call(
         _reasons(),
         rows,
     )
-    if asked:
-        return None
-    cells = rows.tolist()
-    return {name: dict(zip(_ROW_KEYS, cells[_ROW_OF[name]])) for name in parts}  # noqa: B905
+    return not asked
 
 
 def _instance_in_steps(
