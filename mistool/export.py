@@ -11,6 +11,7 @@ import contextlib
 import csv
 import errno
 import io
+import itertools
 import math
 import os
 import stat
@@ -67,7 +68,11 @@ def _same_file(source: Path, target: Path, mine: tuple[int, int] | None) -> bool
     return mine == (st.st_dev, st.st_ino)
 
 
-def check_output(path: str | Path, inputs: Iterable[str | Path | None] = ()) -> Path:
+def check_output(
+    path: str | Path,
+    inputs: Iterable[str | Path | None] = (),
+    existing: Iterable[str | Path] = (),
+) -> Path:
     """Check, before any work, that ``path`` can receive a command's output.
 
     The output must be a regular file (or not exist yet) in an existing folder, and must
@@ -80,6 +85,9 @@ def check_output(path: str | Path, inputs: Iterable[str | Path | None] = ()) -> 
     Args:
         path: the output path given by the user (not ``"-"``: the caller writes stdout).
         inputs: the command's input files (None entries are skipped).
+        existing: more input files, that existed a moment ago (a folder's frames, as
+            just listed): when the output does not exist, none of them can be it, and
+            they are not looked at (one ``stat`` each otherwise).
 
     Returns:
         The resolved output path (symlinks followed).
@@ -114,7 +122,7 @@ def check_output(path: str | Path, inputs: Iterable[str | Path | None] = ()) -> 
     if not folder.is_dir():
         raise InputPathError(f"{given}: output folder {given.parent} does not exist")
     mine = (st.st_dev, st.st_ino) if st is not None else None
-    for item in inputs:
+    for item in itertools.chain(inputs, existing if mine is not None else ()):
         if item is None:
             continue
         source = Path(item)

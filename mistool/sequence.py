@@ -923,22 +923,23 @@ def input_files(path: Path, config: Config, frames: Sequence[Path] | None = None
 
     ``frames``: the folder's frame files as :func:`list_frames` gives them, when the
     caller has listed it already (the listing is then passed to :func:`open_sequence`
-    too: a long folder is listed once)."""
+    too: a long folder is listed once). The frames come first, in their order."""
     if frames is None:
         frames = list_frames(path) if path.is_dir() else [path]
-    files = list(frames)
-    seen = set(files)
     named = [config.path, config.source]
     named += [getattr(config.camera, f, None) for f in _field_names(config.camera)]
     named += [getattr(config, f, None) for f in _field_names(config)]
+    added: list[Path] = []
     for item in named:
-        if not isinstance(item, Path) or item in seen:
+        if not isinstance(item, Path) or item in added:
             continue
-        files.append(item)
-        seen.add(item)
+        # (only a file with an image's extension can be one of the frames)
+        if item.suffix.lower() in IMAGE_EXTENSIONS and item in frames:
+            continue
+        added.append(item)
         if item.is_dir() and item == config.source:
-            files += [p for p in item.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
-    return files
+            added += [p for p in item.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
+    return [*frames, *added]
 
 
 def _field_names(obj: object) -> list[str]:

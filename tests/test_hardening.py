@@ -256,6 +256,9 @@ def test_an_output_named_by_an_inputs_link_is_refused_whether_or_not_it_exists(
     for source in (dangling, link, hard, out):
         with pytest.raises(InputPathError, match="is an input"):
             check_output(out, [other, source])
+    for source in (link, hard, out):  # listed inputs: looked at once the output exists
+        with pytest.raises(InputPathError, match="is an input"):
+            check_output(out, [other], existing=[other, source])
     other_link = tmp_path / "other_link.png"
     other_link.symlink_to(other)
     assert check_output(out, [other, other_link, tmp_path / "gone.png"]) == out.resolve()

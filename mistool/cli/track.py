@@ -227,7 +227,9 @@ def _run_sequence(args: argparse.Namespace) -> int:
     if out is None:
         stdout_stream()  # closed stdout: say so before tracking
     else:
-        check_output(out, sequence.input_files(path, config, frames))
+        inputs = sequence.input_files(path, config, frames)
+        listed = len(frames) if frames is not None else 0  # (they come first)
+        check_output(out, inputs[listed:], existing=inputs[:listed])
         table_format(out)
     show_progress = not args.quiet and sys.stderr.isatty()
     pool = _pool(args, local=False)
