@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pose_before as before
 import pytest
-from hypothesis import given, settings
+from hypothesis import given, reject, settings
 from hypothesis import strategies as st
 from test_pose import observe, part_obs, unit
 
@@ -421,12 +421,41 @@ def test_robust_line_fit_as_before(seed: int, n: int, pixels: bool) -> None:
         pts = np.concatenate([p[:: rng.choice([-1, 1])] for p in np.array_split(pts, 4)])
     along = pts @ np.array([math.cos(phi), math.sin(phi)])
     got, ref = fit_line_robust(pts, along), before.fit_line_robust(pts, along)
-    assert (got is None) == (ref is None)
-    if got is not None and ref is not None:
-        assert np.allclose(got[0], ref[0], rtol=1e-9, atol=1e-9)
-        assert np.array_equal(got[1], ref[1])
+    if not _same_fit(got, ref):
+        # On the half-pixel grid a point can lie on RANSAC's inlier threshold itself (its
+        # residual 1.5 px to ~1e-15, seed 168759, n 700): the compiled and the numpy
+        # residuals round either side of it and each fit is right. Only such a tie may
+        # tell them apart; the example is then left out.
+        assert _on_ransac_threshold(pts, along), "the fits differ without a tie"
+        reject()
+
+
+def _same_fit(got: tuple | None, ref: tuple | None) -> bool:  # type: ignore[type-arg]
+    if got is None or ref is None:
+        return got is None and ref is None
+    return (
+        np.allclose(got[0], ref[0], rtol=1e-9, atol=1e-9)
+        and np.array_equal(got[1], ref[1])
         # the residual RMS (px): of an exact fit it is rounding noise (~1e-17 px, seed 130)
-        assert math.isclose(got[2], ref[2], rel_tol=1e-9, abs_tol=1e-12)
+        and math.isclose(got[2], ref[2], rel_tol=1e-9, abs_tol=1e-12)
+    )
+
+
+def _on_ransac_threshold(pts: np.ndarray, along: np.ndarray, thresh: float = 1.5) -> bool:
+    """Whether a point's residual to one of the former fit's RANSAC hypotheses (its
+    fixed draws, on the points it uses) is the inlier threshold to within 1e-9 px."""
+    n = len(pts)
+    if n > before.FIT_MAX_POINTS:
+        keep = before.regular_subsample(n, before.FIT_MAX_POINTS)
+        pts, along, n = before.take_rows(pts, keep), along[keep], before.FIT_MAX_POINTS
+    centred = pts - pts.mean(axis=0)
+    order = np.argsort(along)
+    pick_i, pick_j = before._draw_indices(n, 12)
+    a, b = centred[order[pick_i]], centred[order[pick_j]]
+    normal = np.stack([a[:, 1] - b[:, 1], b[:, 0] - a[:, 0]], axis=1)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    res = np.abs(centred @ normal.T - np.sum(normal * a, axis=1))
+    return bool(np.any(np.abs(res - thresh) < 1e-9))
 
 
 # -- the clasper -------------------------------------------------------------------------
