@@ -38,6 +38,7 @@ import numpy as np
 from mistool import paper, parallel, tracking
 from mistool.config import Config, load_config, preset_hint
 from mistool.errors import ConfigError, MistoolWarning
+from mistool.heap import frozen_heap
 from mistool.model import PARTS, TrackTable
 from mistool.pose import refine_sequence
 from mistool.pose.status import status_column
@@ -356,18 +357,19 @@ def iter_chunks(
     corrupt: list[int] = []
     index, total = 0, 0
     results = enumerate(parallel.ordered_results(work, pool))
-    for index, names, result in identified(results, seq, tracker, measured, pool, recent):
-        total = index + 1
-        if result.corrupt:
-            corrupt.append(index)
-        rows.add_frame(index, names, result.instances, result.metrics)
-        unknown.update(int(v) for v in result.unknown.ravel())
-        count += 1
-        if on_frames is not None:
-            on_frames(1)
-        if count == chunk_frames:
-            yield Chunk(rows.take(), start, count, frozenset(unknown), seq.shape)
-            start, count, unknown, yielded = index + 1, 0, set(), True
+    with frozen_heap():  # no full collection walks the imports (mistool.heap)
+        for index, names, result in identified(results, seq, tracker, measured, pool, recent):
+            total = index + 1
+            if result.corrupt:
+                corrupt.append(index)
+            rows.add_frame(index, names, result.instances, result.metrics)
+            unknown.update(int(v) for v in result.unknown.ravel())
+            count += 1
+            if on_frames is not None:
+                on_frames(1)
+            if count == chunk_frames:
+                yield Chunk(rows.take(), start, count, frozenset(unknown), seq.shape)
+                start, count, unknown, yielded = index + 1, 0, set(), True
     if spans and seq.video is not None:  # the end of the video, as its sequential read ends
         finish_video(seq.video, total, corrupt)
     if count or not yielded:

@@ -24,8 +24,9 @@ LAYERS: list[tuple[str, ...]] = [
     ("geometry", "assignment", "lens", "pngdecode"),
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
     # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools;
-    # worker_signals: imported by its workers' fork server only)
-    ("rows", "parallel", "worker_signals"),
+    # worker_signals: imported by its workers' fork server only); heap: the collector
+    # during a run (gc only)
+    ("rows", "parallel", "worker_signals", "heap"),
     # teaching: skill metrics, the report and the video export (tables and sequences in)
     ("skill", "report", "video"),
     ("api",),
