@@ -71,7 +71,7 @@ def _same_file(source: Path, target: Path, mine: tuple[int, int] | None) -> bool
 def check_output(
     path: str | Path,
     inputs: Iterable[str | Path | None] = (),
-    existing: Iterable[str | Path] = (),
+    existing: Iterable[str | Path | os.DirEntry[str]] = (),
 ) -> Path:
     """Check, before any work, that ``path`` can receive a command's output.
 
@@ -87,7 +87,10 @@ def check_output(
         inputs: the command's input files (None entries are skipped).
         existing: more input files, that existed a moment ago (a folder's frames, as
             just listed): when the output does not exist, none of them can be it, and
-            they are not looked at (one ``stat`` each otherwise).
+            they are not looked at (one ``stat`` each otherwise). Given as the
+            listing's ``os.DirEntry`` objects, one that is not a symlink is the output
+            only if its inode number is the output's (no ``stat``; a file bind-mounted
+            over a frame aside).
 
     Returns:
         The resolved output path (symlinks followed).
@@ -125,6 +128,12 @@ def check_output(
     for item in itertools.chain(inputs, existing if mine is not None else ()):
         if item is None:
             continue
+        if isinstance(item, os.DirEntry):
+            # a listed file that is not a symlink: its inode number came with the listing
+            # (~0.3 us against a stat's ~6: 15 ms for 2,500 frames when the output exists)
+            if mine is not None and not item.is_symlink() and item.inode() != mine[1]:
+                continue
+            item = item.path
         source = Path(item)
         if _same_file(source, target, mine):
             raise InputPathError(

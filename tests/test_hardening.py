@@ -265,6 +265,40 @@ def test_an_output_named_by_an_inputs_link_is_refused_whether_or_not_it_exists(
     assert out.read_text() == "old\n"
 
 
+def test_listed_frames_are_told_apart_from_the_output_by_inode_links_by_stat(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A folder's listing (``os.DirEntry`` objects) given as ``existing``: a frame that is
+    not a symlink is compared by the inode number that came with the listing (no
+    ``stat``); a symlink or a hard link to the existing output is still refused."""
+    out = tmp_path / "out.csv"
+    out.write_text("old\n")
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for i in range(5):
+        (seq / f"{i:03d}.png").write_bytes(b"x")
+    (seq / "005.png").symlink_to(out)
+    os.link(out, seq / "006.png")
+    entries = {e.name: e for e in os.scandir(seq)}
+    plain = [entries[f"{i:03d}.png"] for i in range(5)]
+    stated: list[str] = []
+    real_stat = os.stat
+
+    def counting_stat(path: object, *args: object, **kwargs: object) -> os.stat_result:
+        if os.fspath(path).startswith(os.fspath(seq)):  # type: ignore[call-overload]
+            stated.append(os.fspath(path))  # type: ignore[call-overload]
+        return real_stat(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(os, "stat", counting_stat)
+    assert check_output(out, [], existing=plain) == out.resolve()
+    assert stated == []
+    for name in ("005.png", "006.png"):
+        with pytest.raises(InputPathError, match="is an input"):
+            check_output(out, [], existing=[*plain, entries[name]])
+    monkeypatch.undo()
+    assert out.read_text() == "old\n"
+
+
 def test_existing_output_keeps_its_mode_and_new_ones_follow_the_umask(tmp_path: Path) -> None:
     old = tmp_path / "old.csv"
     old.write_text("old\n")

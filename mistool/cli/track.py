@@ -223,13 +223,14 @@ def _run_sequence(args: argparse.Namespace) -> int:
     path, config = sequence.resolve(args.sequence)
     config = with_calibration(config.with_overrides(**_overrides(args)), args.calibration)
     out = None if args.output == STDOUT else Path(args.output or default_output(path))
-    frames = sequence.list_frames(path) if path.is_dir() else None  # listed once
+    entries = sequence.scan_frames(path) if path.is_dir() else None  # listed once
+    frames = [path / e.name for e in entries] if entries is not None else None
     if out is None:
         stdout_stream()  # closed stdout: say so before tracking
     else:
         inputs = sequence.input_files(path, config, frames)
         listed = len(frames) if frames is not None else 0  # (they come first)
-        check_output(out, inputs[listed:], existing=inputs[:listed])
+        check_output(out, inputs[listed:], existing=entries or ())
         table_format(out)
     show_progress = not args.quiet and sys.stderr.isatty()
     pool = _pool(args, local=False)
