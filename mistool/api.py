@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import collections
 import os
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
@@ -525,14 +526,19 @@ def run(
     except BaseException:
         if own is not None:
             own.close(terminate=True)
-            own = None
         raise
     finally:
-        if own is not None:
-            own.close()
         if bar is not None:
             bar.close()
-    table = refine(TrackTable.concat(chunks), cfg, smoothing)
+    # the workers exit (~10 ms) while the table is refined
+    closing = None if own is None else threading.Thread(target=own.close, name="mistool-close")
+    if closing is not None:
+        closing.start()
+    try:
+        table = refine(TrackTable.concat(chunks), cfg, smoothing)
+    finally:
+        if closing is not None:
+            closing.join()
     return TrackResult(
         table=table,
         num_frames=num_frames,
