@@ -7,7 +7,9 @@ faster than ``cv2.imread`` on label masks (``scripts/bench_decode.py``): zlib-ng
 when the ``zlib_ng`` module exports zlib-ng 2.x's API, else ``decompressobj``) and one
 compiled pass undoes every row's filter (:func:`mistool.kernels.png.unfilter_rows`).
 :func:`decode_png_runs` gives an 8-bit grey file's runs of equal values instead of its
-pixels (what the per-frame work reads), unfiltering only the rows that are not zero.
+pixels (what the per-frame work reads), unfiltering only the rows that are not zero; its
+kernel checks the rows' Adler-32 too (from the non-zero bytes alone), so zlib-ng's
+inflate skips its own pass over them.
 
 **Strict.** It returns None (the caller then decodes with OpenCV, which reports a bad
 file) for anything it does not fully check: every chunk's CRC must be right, chunk types
@@ -64,11 +66,13 @@ class PngImage:
 
 
 def _filtered_rows(
-    data: bytes, max_pixels: int
-) -> tuple[np.ndarray, int, np.ndarray | None] | None:
-    """The checks of :func:`decode_png` up to the inflated rows: ``(rows, bpp, palette)``
-    (``rows``: (H, 1 + W * bpp) filter type then filtered bytes, in the thread's scratch
-    buffer), or None."""
+    data: bytes, max_pixels: int, check: bool = True
+) -> tuple[np.ndarray, int, np.ndarray | None, int] | None:
+    """The checks of :func:`decode_png` up to the inflated rows: ``(rows, bpp, palette,
+    adler)`` (``rows``: (H, 1 + W * bpp) filter type then filtered bytes, in the thread's
+    scratch buffer; ``adler``: the Adler-32 the zlib stream ends with), or None. With
+    ``check`` False the inflate may leave the rows' Adler-32 unchecked: the caller checks
+    it (:func:`mistool.kernels.png.unfilter_runs`)."""
     if len(data) < 57 or data[:8] != _SIGNATURE or data[12:16] != b"IHDR":
         return None
     w, h, depth, ctype, comp, filt, interlace = _HEADER.unpack_from(data, 16)
@@ -82,10 +86,11 @@ def _filtered_rows(
     idat, plte = got
     bpp = depth // 8
     size = h * (w * bpp + 1)  # filtered rows: one filter byte each
-    filtered = _inflate_into(idat, size)
+    filtered = _inflate_into(idat, size, check)
     if filtered is None:
         return None
-    return filtered.reshape(h, w * bpp + 1), bpp, plte
+    # (a stream that inflated ends with its Adler-32, big-endian: nothing follows it)
+    return filtered.reshape(h, w * bpp + 1), bpp, plte, _CRC.unpack_from(idat, len(idat) - 4)[0]
 
 
 #: ``(colour type, bit depth)`` decoded here: 8/16-bit grey, 8-bit palette.
@@ -182,7 +187,7 @@ def decode_png(data: bytes, max_pixels: int) -> PngImage | None:
     got = _filtered_rows(data, max_pixels)
     if got is None:
         return None
-    rows, bpp, plte = got
+    rows, bpp, plte, _ = got
     unfilter_rows = _png_kernels().unfilter_rows
     h, w = rows.shape[0], (rows.shape[1] - 1) // bpp
     unfiltered = np.empty((h, w * bpp), np.uint8)
@@ -239,10 +244,10 @@ def decode_png_runs(data: bytes, max_pixels: int) -> PngRuns | None:
     """
     if not grey8(data):
         return None
-    got = _filtered_rows(data, max_pixels)
+    got = _filtered_rows(data, max_pixels, False)
     if got is None:
         return None
-    rows = got[0]
+    rows, _, _, adler = got
     unfilter_runs = _png_kernels().unfilter_runs
     h, w = rows.shape[0], rows.shape[1] - 1
     scratch = _scratch("rowpair", 2 * w, np.uint8)
@@ -253,12 +258,12 @@ def decode_png_runs(data: bytes, max_pixels: int) -> PngRuns | None:
         rx0 = np.empty(cap, np.int32)
         rx1 = np.empty(cap, np.int32)
         rv = np.empty(cap, np.int32)
-        n = unfilter_runs(rows, scratch, ry, rx0, rx1, rv, bounds)
+        n = unfilter_runs(rows, scratch, ry, rx0, rx1, rv, bounds, adler)
         if n != -1:
             break
         cap *= 4
     if n < 0:
-        return None  # a filter type over 4
+        return None  # a filter type over 4, or a wrong Adler-32
     x, y, bw, bh = bounds.tolist()
     return (x, y, bw, bh), ry, rx0, rx1, rv, n, (h, w)
 
@@ -298,13 +303,15 @@ def _scratch_at(name: str, size: int, dtype: type) -> tuple[np.ndarray, int]:
     return have[:size], getattr(_local, name + "_at")
 
 
-def _inflate_into(idat: bytes, size: int) -> np.ndarray | None:
+def _inflate_into(idat: bytes, size: int, check: bool = True) -> np.ndarray | None:
     """The zlib stream ``idat`` inflated into the thread's scratch buffer (never more
     than ``size`` bytes, so a bomb stops there); None unless it holds exactly ``size``
-    bytes, ends with a correct Adler-32 and nothing follows it. zlib-ng's inflate is
-    called directly when it can be (:class:`_NativeInflate`), else a piece at a time."""
+    bytes, ends with a correct Adler-32 (with ``check`` False, zlib-ng's inflate leaves
+    the Adler-32 to the caller: still there, not compared) and nothing follows it.
+    zlib-ng's inflate is called directly when it can be (:class:`_NativeInflate`), else
+    a piece at a time."""
     out, at = _scratch_at("filtered", size, np.uint8)
-    native = _native_inflate()
+    native = _native_inflate(check)
     if native is not None and size < 1 << 32 and len(idat) < 1 << 32:
         return out if native.inflate(idat, out, at) else None
     inflate = _ZLIB.decompressobj()
@@ -357,12 +364,16 @@ class _NativeInflate:
     one call straight into the scratch buffer (~0.03 ms a 720x576 mask, against ~0.05
     for the pieces ``decompressobj`` returns, each a new bytes object copied over)."""
 
-    def __init__(self, lib: Any) -> None:
+    def __init__(self, lib: Any, check: bool = True) -> None:
+        """``check`` False: the stream's Adler-32 is read, not compared (the caller
+        compares it: ~0.006 ms less a 720x576 mask, the check's pass over the rows)."""
         self._lib = lib
         self._stream = _ZngStream()
         self._ref = ctypes.byref(self._stream)
         if lib.zng_inflateInit2(self._ref, 15) != 0:  # 15: a zlib header, 32 KB window
             raise OSError("zng_inflateInit2 failed")
+        if not check and lib.zng_inflateValidate(self._ref, 0) != 0:  # (kept by a reset)
+            raise OSError("zng_inflateValidate failed")
 
     def inflate(self, data: bytes, out: np.ndarray, out_at: int | None = None) -> bool:
         """Inflate the zlib stream ``data`` into ``out`` (C-contiguous uint8; ``out_at``:
@@ -401,6 +412,7 @@ def _native_library() -> Any:
             ("zng_inflate", [stream, ctypes.c_int32]),
             ("zng_inflateReset", [stream]),
             ("zng_inflateEnd", [stream]),
+            ("zng_inflateValidate", [stream, ctypes.c_int32]),
         ):
             fn = getattr(lib, name)
             fn.argtypes, fn.restype = args, ctypes.c_int32
@@ -412,6 +424,12 @@ def _native_library() -> Any:
             return None
         if check.inflate(packed[:-1], out) or check.inflate(packed + b"x", out):
             return None
+        wrong = packed[:-1] + bytes([packed[-1] ^ 1])  # a wrong Adler-32
+        unchecked = _NativeInflate(lib, check=False)
+        if check.inflate(wrong, out) or not unchecked.inflate(wrong, out):
+            return None
+        if unchecked.inflate(packed[:-1], out):  # (the Adler-32 is still read)
+            return None
     except (OSError, AttributeError):
         return None
     return lib
@@ -420,14 +438,17 @@ def _native_library() -> Any:
 _NATIVE: list[Any] = []
 
 
-def _native_inflate() -> _NativeInflate | None:
-    """The calling thread's :class:`_NativeInflate`, or None (zlib-ng 2.x not there)."""
-    have = getattr(_local, "inflate", None)
+def _native_inflate(check: bool = True) -> _NativeInflate | None:
+    """The calling thread's :class:`_NativeInflate` (that leaving the Adler-32 to the
+    caller with ``check`` False), or None (zlib-ng 2.x not there)."""
+    name = "inflate" if check else "inflate_unchecked"
+    have = getattr(_local, name, None)
     if have is not None:
         return have
     if not _NATIVE:
         _NATIVE.append(_native_library())
     if _NATIVE[0] is None:
         return None
-    _local.inflate = _NativeInflate(_NATIVE[0])
-    return _local.inflate
+    have = _NativeInflate(_NATIVE[0], check)
+    setattr(_local, name, have)
+    return have

@@ -213,10 +213,11 @@ def _raw_png(
 
 
 @st.composite
-def masks(draw: st.DrawFn, top: int = 255) -> np.ndarray:
-    """Label-like images (rectangles, a diagonal band) or, sometimes, noise."""
+def masks(draw: st.DrawFn, top: int = 255, widths: tuple[int, int] = (1, 48)) -> np.ndarray:
+    """Label-like images (rectangles, a diagonal band) or, sometimes, noise; ``widths``:
+    the least and most columns."""
     h = draw(st.integers(1, 48))
-    w = draw(st.integers(1, 48))
+    w = draw(st.integers(*widths))
     if draw(st.integers(0, 5)) == 0:
         seed = draw(st.integers(0, 2**16))
         return np.random.default_rng(seed).integers(0, top + 1, (h, w))
@@ -280,6 +281,22 @@ def test_every_filter_8_bit_grey_straight_to_runs(img: np.ndarray, data: st.Data
     assert got is not None and got[6] == (h, w)
 
 
+@FUZZ
+@given(masks(widths=(60, 400)), st.data())
+def test_straight_to_runs_wide_rows(img: np.ndarray, data: st.DataObject) -> None:
+    """As above with rows of 60 to 400 bytes: the kernel's 64-byte steps (zero
+    stretches, Sub's and Paeth's unchanged stretches, runs of one value, the Adler-32's
+    sums) and their tails."""
+    img = img.astype(np.uint8)
+    h, w = img.shape
+    if data.draw(st.booleans()):
+        img[data.draw(st.integers(0, h)) : data.draw(st.integers(0, h))] = 0
+    filters = data.draw(st.lists(st.integers(0, 4), min_size=h, max_size=h))
+    blob = _raw_png(_filter_rows(img, filters, 1), filters, w, 8, 0)
+    assert _runs_fast(blob) == _runs_of(img)
+    assert decode_png_runs(_wrong_adler(blob), 10**8) is None
+
+
 def test_straight_to_runs_takes_8_bit_grey_only_and_declines_as_decode_png() -> None:
     img = np.zeros((9, 70), np.uint8)
     img[2:7, 5:60] = 160
@@ -305,6 +322,68 @@ def test_straight_to_runs_takes_8_bit_grey_only_and_declines_as_decode_png() -> 
         [],
         0,
     )
+
+
+def _wrong_adler(blob: bytes, flip: int = 1) -> bytes:
+    """The file with its image data's Adler-32 (the stream's last 4 bytes) xor ``flip``
+    (not 0), the chunk's CRC made right again (a single IDAT)."""
+    n = struct.unpack(">I", blob[33:37])[0]
+    body = _idat_body(blob)
+    check = struct.unpack(">I", body[-4:])[0] ^ flip
+    idat = _chunk(b"IDAT", body[:-4] + struct.pack(">I", check))
+    return blob[:33] + idat + blob[41 + n + 4 :]
+
+
+@FUZZ
+@given(masks(), st.data())
+def test_straight_to_runs_checks_the_adler32_itself(img: np.ndarray, data: st.DataObject) -> None:
+    """``decode_png_runs`` inflates with zlib-ng's Adler-32 check off (the stream's
+    check still read, not compared) and compares the rows' Adler-32 in
+    ``unfilter_runs``, from the sums of the bytes and of the bytes times their places:
+    the runs of a right file as before, and every wrong Adler-32 refused as
+    ``decode_png`` (zlib) refuses it, whatever the filters and zero rows."""
+    img = img.astype(np.uint8)
+    h, w = img.shape
+    if data.draw(st.booleans()):
+        img[data.draw(st.integers(0, h)) : data.draw(st.integers(0, h))] = 0
+    filters = data.draw(st.lists(st.integers(0, 4), min_size=h, max_size=h))
+    blob = _raw_png(_filter_rows(img, filters, 1), filters, w, 8, 0)
+    assert _runs_fast(blob) == _runs_of(img)
+    bad = _wrong_adler(blob, data.draw(st.integers(1, 2**32 - 1)))
+    assert decode_png(bad, 10**8) is None and decode_png_runs(bad, 10**8) is None
+    idat = _idat_body(bad)
+    size = h * (w + 1)
+    assert pngdecode._inflate_into(idat, size) is None  # zlib's check
+    assert pngdecode._inflate_into(idat, size, check=False) is not None  # left to the kernel
+    assert pngdecode._inflate_into(idat[:-1], size, check=False) is None  # (still read)
+
+
+def test_unfilter_runs_adler32_against_zlib() -> None:
+    """``unfilter_runs``' Adler-32 is zlib's (RFC 1950): -3 for any other value; rows of
+    every filter with noise (every byte's sums), and rows longer than 2 ** 20 bytes
+    (their sums taken in pieces, reduced between)."""
+    from mistool.kernels.png import unfilter_runs
+
+    rng = np.random.default_rng(3)
+    noise = rng.integers(0, 256, (40, 90)).astype(np.uint8)
+    noise[5:12] = 0
+    wide = np.zeros((3, (1 << 20) + 77), np.uint8)
+    wide[1, 1000:] = 200
+    wide[2, 5:9] = 7
+    wide[2, -3000:] = 255
+    for img, filters in ((noise, [y % 5 for y in range(40)]), (wide, [1, 4, 2])):
+        h, w = img.shape
+        raw = np.concatenate(
+            [np.array(filters, np.uint8)[:, None], _filter_rows(img, filters, 1)], 1
+        )
+        adler = zlib.adler32(raw.tobytes())
+        cap = min(h * w, 4096) + 64  # (every run of the noise)
+        args = (np.empty(2 * w, np.uint8), *(np.empty(cap, np.int32) for _ in range(4)))
+        bounds = np.zeros(4, np.int64)
+        n = unfilter_runs(raw, *args, bounds, adler)
+        assert n == _runs_of(img)[5] and tuple(bounds) == _runs_of(img)[0]
+        for wrong in (adler ^ 1, adler ^ (1 << 16), (adler + 65521) % 2**32):
+            assert unfilter_runs(raw, *args, bounds, wrong) == -3
 
 
 @FUZZ
@@ -577,6 +656,6 @@ def test_zlib_ngs_inflate_called_directly_agrees_with_decompressobj(
         for n in (size, size - 1, size + 1):
             native = pngdecode._inflate_into(stream, n)
             native = None if native is None else native.tobytes()
-            with mock.patch.object(pngdecode, "_native_inflate", lambda: None):
+            with mock.patch.object(pngdecode, "_native_inflate", lambda check=True: None):
                 pieces = pngdecode._inflate_into(stream, n)
             assert native == (None if pieces is None else pieces.tobytes())

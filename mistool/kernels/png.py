@@ -3,11 +3,19 @@
 Plain index loops throughout: numba compiles them to vector code, while a slice
 assignment (``out[y, :] = rows[y, 1:]``) takes a generic path about 15x slower. Along a
 row, a one-byte neighbour is kept in a register: reloaded from ``out``, every byte would
-wait for the store of the one before."""
+wait for the store of the one before. Stretches of 64 bytes (all zero, all one value, or
+equal to the row above's) are tested with one vector load and an or-reduction
+(:func:`or64`, :func:`xor64`, :func:`ne64`: LLVM intrinsics numba does not spell)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from llvmlite import ir  # type: ignore[import-untyped]
+from numba import types
+from numba.core import cgutils
+from numba.core.extending import intrinsic
 
 from mistool.kernels import helper, kernel
 from mistool.kernels.boxes import ctz, load8
@@ -105,14 +113,80 @@ def unfilter_rows(rows: np.ndarray, bpp: int, out: np.ndarray) -> bool:
 _BROADCAST = np.uint64(0x0101010101010101)
 
 
+def _or64_typed(typingctx: object, arr: types.Array, i: types.Integer) -> tuple[object, object]:
+    """The bitwise or of the 64 bytes of a C-contiguous uint8 array from flat index
+    ``i``, folded to one uint64 (one unaligned vector load and an or-reduction: 64
+    bytes in a few instructions; the caller keeps ``i + 64`` within the array)."""
+    sig = types.uint64(arr, types.int64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        return _fold_or(builder, _load64(builder, ary, args[1]))
+
+    return sig, codegen
+
+
+def _xor64_typed(
+    typingctx: object, arr: types.Array, i: types.Integer, j: types.Integer
+) -> tuple[object, object]:
+    """The bitwise or of the 64 bytes from flat index ``i`` xor those from ``j`` (zero
+    exactly when the two stretches are equal), as :func:`or64`."""
+    sig = types.uint64(arr, types.int64, types.int64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        diff = builder.xor(_load64(builder, ary, args[1]), _load64(builder, ary, args[2]))
+        return _fold_or(builder, diff)
+
+    return sig, codegen
+
+
+def _ne64_typed(
+    typingctx: object, arr: types.Array, i: types.Integer, word: types.Integer
+) -> tuple[object, object]:
+    """The bitwise or of the 64 bytes from flat index ``i`` each xor ``word`` (a byte
+    broadcast to a uint64): zero exactly when they all equal that byte."""
+    sig = types.uint64(arr, types.int64, types.uint64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        splat = builder.insert_element(
+            ir.Constant(_VEC64, None), args[2], ir.Constant(ir.IntType(32), 0)
+        )
+        splat = builder.shuffle_vector(
+            splat, splat, ir.Constant(ir.VectorType(ir.IntType(32), 8), None)
+        )
+        return _fold_or(builder, builder.xor(_load64(builder, ary, args[1]), splat))
+
+    return sig, codegen
+
+
+_VEC64 = ir.VectorType(ir.IntType(64), 8)
+
+
+def _load64(builder: ir.IRBuilder, ary: Any, i: object) -> object:
+    """64 bytes of ``ary`` from flat index ``i`` as eight uint64 lanes (unaligned)."""
+    ptr = builder.bitcast(builder.gep(ary.data, [i]), _VEC64.as_pointer())
+    return builder.load(ptr, align=1)
+
+
+def _fold_or(builder: ir.IRBuilder, vec: object) -> object:
+    fnty = ir.FunctionType(ir.IntType(64), [_VEC64])
+    fold = cgutils.get_or_insert_function(builder.module, fnty, "llvm.vector.reduce.or.v8i64")
+    return builder.call(fold, [vec])
+
+
+or64: Any = intrinsic(_or64_typed)
+xor64: Any = intrinsic(_xor64_typed)
+ne64: Any = intrinsic(_ne64_typed)
+
+
 @helper
 def _zero_bytes(buf: np.ndarray, lo: int, hi: int) -> bool:
     """Whether ``buf[lo:hi]`` are all zero (64 bytes at a time)."""
     i = lo
     while i + 64 <= hi:
-        word = load8(buf, i) | load8(buf, i + 8) | load8(buf, i + 16) | load8(buf, i + 24)
-        word |= load8(buf, i + 32) | load8(buf, i + 40) | load8(buf, i + 48) | load8(buf, i + 56)
-        if word != 0:
+        if or64(buf, i) != 0:
             return False
         i += 64
     while i + 8 <= hi:
@@ -124,6 +198,56 @@ def _zero_bytes(buf: np.ndarray, lo: int, hi: int) -> bool:
             return False
         i += 1
     return True
+
+
+#: Adler-32's modulus (RFC 1950, section 9: the largest prime below 2 ** 16).
+_ADLER_BASE = 65521
+_LANES = np.uint64(0x00FF00FF00FF00FF)  # a word's even bytes, as four 16-bit lanes
+_SUM = np.uint64(0x0001000100010001)  # (lanes * _SUM) >> 48: the lanes' sum
+_AT_EVEN = np.uint64(0x0000000200040006)  # ... weighted by the bytes' places 0, 2, 4, 6
+_AT_ODD = np.uint64(0x0001000300050007)  # ... 1, 3, 5, 7
+_TOP = np.uint64(48)
+
+
+@helper
+def _byte_sums(buf: np.ndarray, lo: int, hi: int, s: int, t: int) -> tuple[int, int]:
+    """``(s, t)`` plus the sums over ``buf[lo:hi]`` of the bytes and of each byte times
+    its place in ``buf`` (:func:`_span_sums` :data:`_SUMS_PIECE` bytes at a time)."""
+    while lo < hi:
+        end = min(hi, lo + _SUMS_PIECE)
+        ps, pt = _span_sums(buf, lo, end - lo)
+        s, t = _fold(s, t, lo, ps, pt)
+        lo = end
+    return s, t
+
+
+@helper
+def _fold(s: int, t: int, at: int, ps: np.uint64, pt: np.uint64) -> tuple[int, int]:
+    """Adler-32's two sums (see :func:`unfilter_runs`; modulo :data:`_ADLER_BASE`) plus
+    those of bytes from place ``at``: ``ps`` their sum, ``pt`` that of each byte times
+    its place from ``at``."""
+    pm = np.int64(ps % np.uint64(_ADLER_BASE))
+    s = (s + pm) % _ADLER_BASE
+    t = (t + (at % _ADLER_BASE) * pm + np.int64(pt % np.uint64(_ADLER_BASE))) % _ADLER_BASE
+    return s, t
+
+
+#: The longest stretch whose sums :func:`_span_sums` and the row helpers take in uint64
+#: (bytes): below 2 ** 20 * 255 and 2 ** 40 * 255, nothing wraps.
+_SUMS_PIECE = 1 << 20
+
+
+@helper
+def _adler32(n: int, s: int, t: int) -> int:
+    """Adler-32 (RFC 1950) of ``n`` bytes whose sum is ``s`` and sum of each byte times
+    its place (0-based) is ``t`` (both modulo :data:`_ADLER_BASE`): ``A = 1 + s`` and
+    ``B`` = the sum of A after each byte = ``n + n s - t``."""
+    m = n % _ADLER_BASE
+    a = (1 + s) % _ADLER_BASE
+    b = (m * a - t) % _ADLER_BASE
+    if b < 0:
+        b += _ADLER_BASE
+    return (b << 16) | a
 
 
 @helper
@@ -148,14 +272,9 @@ def _row_runs(
     start = 0
     v = buf[base]
     while True:
-        if x + 32 <= w:  # four words of v: passed over at once
-            vv = np.uint64(v) * _BROADCAST
-            i = base + x
-            same = (load8(buf, i) ^ vv) | (load8(buf, i + 8) ^ vv)
-            same |= (load8(buf, i + 16) ^ vv) | (load8(buf, i + 24) ^ vv)
-            if same == 0:
-                x += 32
-                continue
+        if x + 64 <= w and ne64(buf, base + x, np.uint64(v) * _BROADCAST) == 0:
+            x += 64  # 64 bytes of v: passed over at once
+            continue
         if x + 8 <= w:
             diff = load8(buf, base + x) ^ (np.uint64(v) * _BROADCAST)
             if diff == 0:
@@ -202,13 +321,25 @@ def _add(src: np.ndarray, at: int, out: np.ndarray, up: int, cur: int, w: int) -
         out[c + x] = src[a + x] + out[u + x]
 
 
+#: The row helpers below return the sums of the row's filtered bytes beside it (as
+#: :func:`_span_sums`; exact for rows of at most :data:`_SUMS_PIECE` bytes).
+_ZERO = np.uint64(0)
+
+
 @helper
-def _sub_row(flat: np.ndarray, at: int, w: int, out: np.ndarray, cur: int) -> None:
+def _sub_row(
+    flat: np.ndarray, at: int, w: int, out: np.ndarray, cur: int
+) -> tuple[np.uint64, np.uint64]:
     """Sub: each byte plus the one on its left; where the filtered bytes are zero the
     value stays, so they are passed over 8 at a time and the stretch filled."""
     a = np.uint8(0)
     x = 0
+    ps = pt = _ZERO
     while x < w:
+        if x + 64 <= w and or64(flat, at + x) == 0:
+            _fill(out, cur + x, cur + x + 64, a)
+            x += 64
+            continue
         if x + 8 <= w:
             word = load8(flat, at + x)
             if word == 0:
@@ -218,20 +349,32 @@ def _sub_row(flat: np.ndarray, at: int, w: int, out: np.ndarray, cur: int) -> No
             skip = np.int64(ctz(word) >> np.uint64(3))
             _fill(out, cur + x, cur + x + skip, a)
             x += skip
-        a = np.uint8(flat[at + x] + a)
+        f = flat[at + x]
+        ps += np.uint64(f)
+        pt += np.uint64(x) * np.uint64(f)
+        a = np.uint8(f + a)
         out[cur + x] = a
         x += 1
+    return ps, pt
 
 
 @helper
-def _paeth_row(flat: np.ndarray, at: int, w: int, out: np.ndarray, cur: int, up: int) -> None:
+def _paeth_row(
+    flat: np.ndarray, at: int, w: int, out: np.ndarray, cur: int, up: int
+) -> tuple[np.uint64, np.uint64]:
     """Paeth, the row above (``out[up:up + w]``) not zero. Where the row above does not
     change (b == c) the predictor is the left byte (pa = 0), so where moreover the
     filtered byte is zero the value stays: such stretches are passed over 8 at a time."""
-    a = np.int32(np.uint8(flat[at] + out[up]))  # left and upper-left are 0: the byte above
+    f = flat[at]
+    ps, pt = np.uint64(f), _ZERO
+    a = np.int32(np.uint8(f + out[up]))  # left and upper-left are 0: the byte above
     out[cur] = a
     x = 1
     while x < w:
+        if x + 64 <= w and (or64(flat, at + x) | xor64(out, up + x, up + x - 1)) == 0:
+            _fill(out, cur + x, cur + x + 64, np.uint8(a))
+            x += 64
+            continue
         if x + 8 <= w:
             word = load8(flat, at + x) | (load8(out, up + x) ^ load8(out, up + x - 1))
             if word == 0:
@@ -252,9 +395,13 @@ def _paeth_row(flat: np.ndarray, at: int, w: int, out: np.ndarray, cur: int, up:
             pred = b
         else:
             pred = c
-        a = np.int32(np.uint8(flat[at + x] + pred))
+        f = flat[at + x]
+        ps += np.uint64(f)
+        pt += np.uint64(x) * np.uint64(f)
+        a = np.int32(np.uint8(f + pred))
         out[cur + x] = a
         x += 1
+    return ps, pt
 
 
 @helper
@@ -267,22 +414,56 @@ def _unfilter_row(
     cur: int,
     up: int,
     up_zero: bool,
-) -> None:
+) -> tuple[np.uint64, np.uint64]:
     """Row ``flat[at:at + w]`` of filter ``kind`` (1 to 4; Up and Paeth with a row above
     that is not zero) unfiltered into ``out[cur:cur + w]``; the row above is
-    ``out[up:up + w]``, or zero (``up_zero``)."""
+    ``out[up:up + w]``, or zero (``up_zero``). Returns the row's sums (see
+    :func:`_span_sums`)."""
     if kind == 1:
-        _sub_row(flat, at, w, out, cur)
-    elif kind == 2:
+        return _sub_row(flat, at, w, out, cur)
+    if kind == 2:
         _add(flat, at, out, up, cur, w)
-    elif kind == 3:
+        return _span_sums(flat, at, w)
+    if kind == 3:
         left = np.int32(0)
+        ps = pt = _ZERO
         for x in range(w):
+            f = flat[at + x]
+            ps += np.uint64(f)
+            pt += np.uint64(x) * np.uint64(f)
             above = 0 if up_zero else np.int32(out[up + x])
-            left = np.int32(np.uint8(flat[at + x] + ((left + above) >> 1)))
+            left = np.int32(np.uint8(f + ((left + above) >> 1)))
             out[cur + x] = left
-    else:
-        _paeth_row(flat, at, w, out, cur, up)
+        return ps, pt
+    return _paeth_row(flat, at, w, out, cur, up)
+
+
+@helper
+def _span_sums(buf: np.ndarray, lo: int, n: int) -> tuple[np.uint64, np.uint64]:
+    """The sums of ``buf[lo:lo + n]`` (``n`` at most :data:`_SUMS_PIECE`): of the bytes,
+    and of each byte times its place from ``lo``. Zero bytes add nothing: stretches of
+    them are passed over 64 and 8 bytes at a time, and a word's eight bytes are summed
+    at once (16-bit lanes and a multiplication; no lane reaches 2 ** 16)."""
+    ps = pt = _ZERO
+    i = 0
+    while i + 8 <= n:
+        if i + 64 <= n and or64(buf, lo + i) == 0:
+            i += 64
+            continue
+        word = load8(buf, lo + i)
+        if word != 0:
+            even = word & _LANES
+            odd = (word >> np.uint64(8)) & _LANES
+            ws = ((even + odd) * _SUM) >> _TOP
+            ps += ws
+            pt += np.uint64(i) * ws + ((even * _AT_EVEN) >> _TOP) + ((odd * _AT_ODD) >> _TOP)
+        i += 8
+    while i < n:
+        c = np.uint64(buf[lo + i])
+        ps += c
+        pt += np.uint64(i) * c
+        i += 1
+    return ps, pt
 
 
 @helper
@@ -308,7 +489,8 @@ def _to_bounds(
 
 
 @kernel(
-    "int64(uint8[:, ::1], uint8[::1], int32[::1], int32[::1], int32[::1], int32[::1], int64[::1])"
+    "int64(uint8[:, ::1], uint8[::1], int32[::1], int32[::1], int32[::1], int32[::1],"
+    " int64[::1], int64)"
 )
 def unfilter_runs(
     rows: np.ndarray,
@@ -318,21 +500,27 @@ def unfilter_runs(
     rx1: np.ndarray,
     rv: np.ndarray,
     bounds: np.ndarray,
+    adler: int,
 ) -> int:
     """The runs of equal non-zero values of an 8-bit grey image given as its filtered
     rows (``rows`` (H, 1 + W), as :func:`unfilter_rows` takes them, ``bpp`` 1), without
     writing the image: ``mistool.kernels.instances.label_runs`` of
-    ``unfilter_rows``' output, bit for bit.
+    ``unfilter_rows``' output, bit for bit; and the rows' Adler-32 (RFC 1950: the zlib
+    stream's check, which the inflate then need not compute) checked against ``adler``.
 
     A row of zero bytes under a zero row (or the first) is zero whatever its filter, so
-    the background is passed over 64 bytes at a time; a None row (or Up under a zero
-    row) is read where it lies; the other rows are unfiltered into ``scratch`` ((2 W,):
-    this row and the one above), Sub and Paeth passing over the stretches where the
-    value stays 8 bytes at a time (mask rows are long runs).
+    the background is passed over 64 bytes at a time; a None
+    row (or Up under a zero row) is read where it lies; the other rows are unfiltered
+    into ``scratch`` ((2 W,): this row and the one above), Sub and Paeth passing over
+    the stretches where the value stays 8 bytes at a time (mask rows are long runs).
+
+    Adler-32 from two sums: that of the bytes and that of each byte times its place,
+    to which zero bytes add nothing (:func:`_adler32`): a zero row adds its filter byte.
 
     Returns the number of runs (raster order; coordinates then relative to ``bounds``,
     which gets their ``(x, y, w, h)``, ``(0, 0, 0, 0)`` for none), -1 when the run
-    arrays are full (call again with longer ones), -2 at a filter type over 4."""
+    arrays are full (call again with longer ones), -2 at a filter type over 4, -3 when
+    the rows' Adler-32 is not ``adler``."""
     h, stride = rows.shape
     w = stride - 1
     flat = rows.reshape(-1)
@@ -340,19 +528,24 @@ def unfilter_runs(
     up_zero = True  # the row above is zero (the first row's is)
     slot = 0  # the half of scratch the next row goes to
     n = 0
+    s = np.int64(0)  # the bytes' sum and the sum of each byte times its place (Adler-32)
+    t = np.int64(0)
     for y in range(h):
         at = y * stride + 1
-        kind = flat[at - 1]
+        raw = flat[at - 1]
+        kind = raw
         if kind > 4:
             return -2
         if up_zero:
+            if _zero_bytes(flat, at, at + w):  # zero whatever the filter
+                s, t = _fold(s, t, at - 1, np.uint64(raw), _ZERO)  # (its filter byte)
+                continue
             if kind == 2:  # Up under zero: None
                 kind = 0
             elif kind == 4:  # Paeth under zero: Sub (a = left; b = c = 0)
                 kind = 1
-            if _zero_bytes(flat, at, at + w):  # zero whatever the filter
-                continue
         if kind == 0:
+            s, t = _byte_sums(flat, at - 1, at + w, s, t)
             m = _row_runs(flat, at, w, y, ry, rx0, rx1, rv, n)
             if m < 0:
                 return -1
@@ -364,7 +557,12 @@ def unfilter_runs(
                 slot = 1 - slot
             continue
         cur = slot * w
-        _unfilter_row(flat, at, w, kind, scratch, cur, up, up_zero)
+        ps, pt = _unfilter_row(flat, at, w, kind, scratch, cur, up, up_zero)
+        if w > _SUMS_PIECE:  # (the row's sums may have overflowed)
+            s, t = _byte_sums(flat, at - 1, at + w, s, t)
+        else:  # the filter byte, then the row's bytes
+            s, t = _fold(s, t, at - 1, np.uint64(raw), _ZERO)
+            s, t = _fold(s, t, at, ps, pt)
         m = _row_runs(scratch, cur, w, y, ry, rx0, rx1, rv, n)
         if m < 0:
             return -1
@@ -372,5 +570,7 @@ def unfilter_runs(
         n = m
         up = cur
         slot = 1 - slot
+    if _adler32(h * stride, s, t) != adler:
+        return -3
     _to_bounds(ry, rx0, rx1, n, bounds)
     return n
