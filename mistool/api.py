@@ -31,7 +31,7 @@ import threading
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -136,7 +136,7 @@ def _identify(
         return list(names), result
     kept = list(instances)
     metrics = parallel.measure_all(kept, result.shape, config, metric)
-    return list(names), replace(result, instances=kept, metrics=metrics, deferred=False)
+    return list(names), result.replaced(instances=kept, metrics=metrics, deferred=False)
 
 
 class _RecentInstances:
@@ -184,7 +184,7 @@ class _Pending:
         if self.metrics is None:
             return self.index, self.names, self.result
         metrics = self.metrics.result()[self.slot]
-        return self.index, self.names, replace(self.result, metrics=metrics)
+        return self.index, self.names, self.result.replaced(metrics=metrics)
 
 
 class _MeasureGroup:
@@ -252,8 +252,8 @@ def identified(
                 recent.add(len(names))
             item = _Pending(index, list(names), result)
             if instances is not result.instances or result.deferred:
-                item.result = replace(
-                    result, instances=list(instances), metrics=None, deferred=False
+                item.result = result.replaced(
+                    instances=list(instances), metrics=None, deferred=False
                 )
                 item.waiting = True
                 group.add(item)

@@ -47,7 +47,9 @@ def linear_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
     return sorted(zip(rows.tolist(), cols.tolist(), strict=True))
 
 
-def gated_assignment(cost: np.ndarray, max_cost: float) -> list[tuple[int, int]]:
+def gated_assignment(
+    cost: np.ndarray | list[list[float]], max_cost: float
+) -> list[tuple[int, int]]:
     """Pairs ``(row, col)`` minimising the total cost, where a pair costing more than
     ``max_cost`` (or non-finite) is never made and each unmatched row or column costs
     ``max_cost``.
@@ -58,12 +60,20 @@ def gated_assignment(cost: np.ndarray, max_cost: float) -> list[tuple[int, int]]
     "column unmatched" costs.
 
     Args:
-        cost: (n, m) costs; ``inf`` where a pair is impossible.
+        cost: (n, m) costs; ``inf`` where a pair is impossible. Also as rows of Python
+            floats (a list of n lists of m): the same answer as their array, and a small
+            problem is solved without making one.
         max_cost: the gate, > 0.
 
     Returns:
         The pairs made, sorted by row.
     """
+    if isinstance(cost, list):
+        n, m = len(cost), len(cost[0]) if cost else 0
+        if n == 0 or m == 0:
+            return []
+        if n <= ENUMERATE_MAX and m <= ENUMERATE_MAX:
+            return _enumerated(cost, max_cost)
     c = np.asarray(cost, dtype=np.float64)
     n, m = c.shape
     if n == 0 or m == 0:

@@ -329,3 +329,36 @@ def test_the_assignment_from_terms_computed_once_is_the_former_one(seed, n_track
     want = _match_before(tracker, fr)
     tracker._match(fr)
     assert fr.owner == want
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 4), st.integers(0, 4))
+def test_the_costs_from_one_hypot_call_per_frame_are_those_of_each_pair(seed, n_tracks, n_insts):
+    """IdentityTracker._costs (every pair's distances from one vectorised np.hypot call)
+    gives each pair's track_cost bit for bit, inf where the far-head or shrunk tests
+    forbid the pair, for lost, hidden and coasting tracks with and without entries."""
+    rng = np.random.default_rng(seed)
+    tracker = identity.IdentityTracker(_config())
+    tracks = [_track(rng) for _ in range(n_tracks)]
+    frame = max([t.last_frame for t in tracks], default=0) + int(rng.integers(1, 8))
+    insts = [_instance(rng, shaft=bool(rng.random() < 0.7)) for _ in range(n_insts)]
+    fr = identity._Frame(frame, insts, tracks)
+    # border runs as a worker sends them: one (a shaft entering: an entry), none or two
+    runs = [[(rng.uniform(0, 700, (3, 2)), 9)] * int(rng.integers(0, 3)) for _ in insts]
+    tracker._runs = {id(i): (i, r) for i, r in zip(insts, runs, strict=True)}
+    entries = [identity._one_entry(r) for r in runs]
+    want = []
+    for t in tracks:
+        row = []
+        for inst, entry in zip(insts, entries, strict=True):
+            if identity._far_head(t, inst, frame, tracker._entry_reach(inst)) or identity._shrunk(
+                t, inst, frame
+            ):
+                row.append(math.inf)
+            else:
+                row.append(_track_cost_before(t, inst, frame, tracker._weights, 25.0, entry))
+        want.append(row)
+    got = tracker._costs(fr)
+    assert np.array(got).reshape(n_tracks, n_insts).view(np.int64).tolist() == (
+        np.array(want).reshape(n_tracks, n_insts).view(np.int64).tolist()
+    )

@@ -809,3 +809,27 @@ def test_a_batch_defers_a_frame_with_fewer_instances_than_an_earlier_frame_of_it
     assert not parallel.observe_batch(first)[0].deferred  # nothing earlier in its batch
     never = parallel.Batch(("a", "b"), (two, one), cfg, True, False)  # (defer_below 0)
     assert [r.deferred for r in parallel.observe_batch(never)] == [False, False]
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {},
+        {"metrics": None},
+        {"instances": [], "metrics": np.zeros((0, 3, 28)), "deferred": False},
+        {"corrupt": True, "runs": [[]], "shape": (3, 4)},
+    ],
+)
+def test_a_frame_result_replaced_is_dataclasses_replace(changes) -> None:
+    """FrameResult.replaced (the caller's copy of a split or deferred frame's result)
+    gives what dataclasses.replace gives: every field, the changed ones new, a new
+    object; an unknown field is an error naming it."""
+    r = parallel.FrameResult([], None, np.zeros(2, np.int64), (5, 6), deferred=True)
+    got, want = r.replaced(**changes), dataclasses.replace(r, **changes)
+    assert got is not r and type(got) is parallel.FrameResult
+    assert [f.name for f in dataclasses.fields(got)] == [f.name for f in dataclasses.fields(want)]
+    for f in dataclasses.fields(want):
+        assert getattr(got, f.name) is getattr(want, f.name), f.name
+    assert r.deferred and r.metrics is None and r.shape == (5, 6)  # the original unchanged
+    with pytest.raises(TypeError, match="'metric'"):
+        r.replaced(metric=None)

@@ -320,6 +320,20 @@ def _pair_cost(
 ) -> float:
     """:func:`track_cost` of precomputed terms (the same operations in the same order:
     the same bits)."""
+    # (plain floats, numpy's values; np.hypot: the C library's, which math.hypot is not)
+    dist = float(np.hypot(i.cx - t.px, i.cy - t.py))
+    moved = 0.0
+    if i.entry is not None and t.entry is not None and i.diag is not None:
+        moved = float(np.hypot(i.entry[0] - t.entry[0], i.entry[1] - t.entry[1]))
+    return _cost_of(t, i, weights, fps, dist, moved)
+
+
+def _cost_of(
+    t: _TrackTerms, i: _InstanceTerms, weights: CostWeights, fps: float, dist: float, moved: float
+) -> float:
+    """:func:`_pair_cost` given its distances: ``dist`` from the track's prediction to
+    the instance's centroid, ``moved`` between their shafts' entries (0.0 unless both
+    have one and the image's shape is known)."""
     gap = t.gap
     lost = t.lost
     # scale: the instrument's full size, also when it was last seen only partly
@@ -328,15 +342,12 @@ def _pair_cost(
         if i.diag is not None:  # from where it left, whatever its size
             scale = min(scale, weights.lost_scale_frac * i.diag)
         scale *= 1.0 + weights.lost_search_growth * (gap - LOST_AFTER_FRAMES) / fps
-    # (plain floats, numpy's values; np.hypot: the C library's, which math.hypot is not)
-    dist = float(np.hypot(i.cx - t.px, i.cy - t.py))
-    moved = 0.0
-    if i.entry is not None and t.entry is not None and i.diag is not None:
-        moved = float(np.hypot(i.entry[0] - t.entry[0], i.entry[1] - t.entry[1]))
-        if lost and moved <= weights.entry_scale_frac * i.diag:
-            # a tool comes back through its trocar: its shaft enters where it left (its
-            # centroid, predicted on from its exit, lies outside the view)
-            dist = min(dist, moved)
+    # (the image's diagonal when both shafts enter the view: ``moved`` is measured)
+    diag = i.diag if i.entry is not None and t.entry is not None else None
+    if diag is not None and lost and moved <= weights.entry_scale_frac * diag:
+        # a tool comes back through its trocar: its shaft enters where it left (its
+        # centroid, predicted on from its exit, lies outside the view)
+        dist = min(dist, moved)
     cost = dist / scale
     angle, elong = i.angle, i.elongation
     # an instrument coming back shows its head first: its direction is no shaft's
@@ -348,8 +359,8 @@ def _pair_cost(
     cost += weights.gap * (gap - 1)
     if t.state is TrackState.HIDDEN:  # a shared blob keeps its name: no flapping
         cost += weights.hidden_penalty
-    if i.entry is not None and t.entry is not None and i.diag is not None:
-        cost += weights.entry * moved / (weights.entry_scale_frac * i.diag)
+    if diag is not None:
+        cost += weights.entry * moved / (weights.entry_scale_frac * diag)
     return cost
 
 
@@ -417,11 +428,21 @@ def _far_head_terms(t: _TrackTerms, i: _InstanceTerms, entry_reach: float) -> bo
     if not (track.in_blob or t.state.coasting) or i.has_shaft:
         return False
     cx, cy = i.cx, i.cy
-    if float(np.hypot(cx - t.px, cy - t.py)) <= FAR_HEAD_SIZES * t.size:
+    near = None if t.entry is None else float(np.hypot(cx - t.entry[0], cy - t.entry[1]))
+    return _far_head_of(t, i, entry_reach, float(np.hypot(cx - t.px, cy - t.py)), near)
+
+
+def _far_head_of(
+    t: _TrackTerms, i: _InstanceTerms, entry_reach: float, dist: float, near: float | None
+) -> bool:
+    """:func:`_far_head_terms` given its distances from the instance's centroid: to the
+    track's prediction (``dist``) and to where its shaft last entered (``near``; None:
+    it has no entry)."""
+    if not (t.track.in_blob or t.state.coasting) or i.has_shaft:
         return False
-    near_entry = (
-        t.entry is not None and float(np.hypot(cx - t.entry[0], cy - t.entry[1])) <= entry_reach
-    )
+    if dist <= FAR_HEAD_SIZES * t.size:
+        return False
+    near_entry = near is not None and near <= entry_reach
     return not (near_entry and _touches_border(i.inst))
 
 
@@ -619,25 +640,54 @@ class IdentityTracker:
 
     def _match(self, fr: _Frame) -> None:
         """One gated assignment of live tracks to instances."""
+        fr.owner = {b: a for a, b in gated_assignment(self._costs(fr), self._weights.max_cost)}
+
+    def _costs(self, fr: _Frame) -> list[list[float]]:
+        """The assignment's costs, a row per live track (:func:`_pair_cost`; ``inf``: an
+        impossible pair, :func:`_far_head_terms` or :func:`_shrunk`). Every pair's
+        distances come from one ``np.hypot`` call over the frame's pairs (the same
+        values as one call per pair: numpy's loop calls the C library's ``hypot`` on
+        each element)."""
         frame, weights, fps = fr.index, self._weights, self._config.fps
         insts = [_InstanceTerms(inst, _one_entry(self._runs_of(inst))) for inst in fr.instances]
+        tracks = [_TrackTerms(t, frame) for t in fr.live]
+        xs: list[float] = []
+        ys: list[float] = []
+        for tt in tracks:
+            px, py, entry = tt.px, tt.py, tt.entry
+            for i in insts:
+                xs.append(i.cx - px)
+                ys.append(i.cy - py)
+                if entry is not None:  # (the far-head test's distance to the entry)
+                    xs.append(i.cx - entry[0])
+                    ys.append(i.cy - entry[1])
+                    if i.entry is not None and i.diag is not None:
+                        xs.append(i.entry[0] - entry[0])
+                        ys.append(i.entry[1] - entry[1])
+        hyp = np.hypot(np.array(xs, np.float64), np.array(ys, np.float64)).tolist()
         reach = [self._entry_reach(inst) for inst in fr.instances]
         cost = []
-        for t in fr.live:
-            tt = _TrackTerms(t, frame)
+        k = 0
+        for tt in tracks:
+            t = tt.track
             row = []
             for b, i in enumerate(insts):
-                if _far_head_terms(tt, i, reach[b]) or _shrunk(t, i.inst, frame):
+                dist = hyp[k]
+                near = None
+                moved = 0.0
+                k += 1
+                if tt.entry is not None:
+                    near = hyp[k]
+                    k += 1
+                    if i.entry is not None and i.diag is not None:
+                        moved = hyp[k]
+                        k += 1
+                if _far_head_of(tt, i, reach[b], dist, near) or _shrunk(t, i.inst, frame):
                     row.append(math.inf)
                 else:
-                    row.append(_pair_cost(tt, i, frame, weights, fps))
+                    row.append(_cost_of(tt, i, weights, fps, dist, moved))
             cost.append(row)
-        fr.owner = {
-            b: a
-            for a, b in gated_assignment(
-                np.array(cost, np.float64).reshape(len(fr.live), len(insts)), weights.max_cost
-            )
-        }
+        return cost
 
     def _entry_reach(self, inst: InstanceObservation) -> float:
         """How far (px) from where a shaft last entered the view it may enter now
@@ -762,6 +812,8 @@ class IdentityTracker:
         """Entry handler: a blob with more shafts entering from the border than tracks
         known in it (instruments touching since they came into view), split on those
         shafts; the known tracks take the pieces, the others are new."""
+        if all(len(self._runs_of(inst)) < 2 for inst in fr.instances):
+            return  # (no blob with two shafts entering: the usual frame)
         used = set(fr.owner.values()) | {
             a for b, hidden in fr.blob_of.items() if b in fr.pieces for a in hidden
         }
@@ -981,23 +1033,29 @@ class IdentityTracker:
             t.area = float(inst.area_px)
             t.size = max(t.size, math.sqrt(t.area))
             t.angle, t.elongation = _appearance(inst)
+            parts = inst.parts
+            runs = self._runs_of(inst)
             # a split piece is no reference shape, nor a blob of two shafts entering
             if apart:
-                t.shaftless = 0 if "shaft" in inst.parts else t.shaftless + 1
-            if apart and "shaft" in inst.parts and len(self._runs_of(inst)) <= 1:
-                t.boxes = reference_boxes(inst, self._runs_of(inst))
+                t.shaftless = 0 if "shaft" in parts else t.shaftless + 1
+            if apart and "shaft" in parts and len(runs) <= 1:
+                t.boxes = reference_boxes(inst, runs)
                 t.boxes_frame = frame
-            self._set_entry(t, inst)
+            self._set_entry(t, inst, runs)
             for p in HEAD_PARTS:
-                if p in inst.parts:
-                    t.heads[p] = (inst.parts[p].box, frame)
+                if p in parts:
+                    t.heads[p] = (parts[p].box, frame)
             t.state = TrackState.TRACKED
         t.last_frame = frame
         t.seen += 1
 
-    def _set_entry(self, t: Track, inst: InstanceObservation) -> None:
+    def _set_entry(
+        self, t: Track, inst: InstanceObservation, runs: list[tuple[np.ndarray, int]]
+    ) -> None:
+        """Whether the track touched the border, and where its one shaft entered the view
+        (``runs``: the instance's :meth:`_runs_of`)."""
         t.at_border = t.at_border or _touches_border(inst)
-        entry = _one_entry(self._runs_of(inst))
+        entry = _one_entry(runs)
         if entry is not None:  # one shaft entering: this instrument's (not a blob's)
             t.entry = entry
 
@@ -1023,10 +1081,11 @@ class IdentityTracker:
             first_frame=frame,
         )
         t.shaftless = 0 if "shaft" in inst.parts else 1
+        runs = self._runs_of(inst)
         if "shaft" in inst.parts:
-            t.boxes = reference_boxes(inst, self._runs_of(inst))
+            t.boxes = reference_boxes(inst, runs)
             t.boxes_frame = frame
-        self._set_entry(t, inst)
+        self._set_entry(t, inst, runs)
         t.heads = {p: (inst.parts[p].box, frame) for p in HEAD_PARTS if p in inst.parts}
         self._next += 1
         self._tracks.append(t)
