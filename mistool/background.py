@@ -403,7 +403,7 @@ def _child(spec: JobSpec, conn: Any) -> None:
     own children; the flag is cleared here, in the child only, so that ``spec.workers > 1``
     can start its worker pool. The workers exit by themselves when this child is gone
     (:func:`mistool.parallel.LocalPool`)."""
-    from mistool.parallel import forget_inherited_fork_server
+    from mistool.forkserver import forget_inherited_fork_server
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us
     multiprocessing.current_process().daemon = False

@@ -34,8 +34,6 @@ import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
-from multiprocessing import context as mp_context
-from multiprocessing import spawn as mp_spawn
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -45,6 +43,7 @@ import numpy as np
 from mistool import tracking
 from mistool.config import Config
 from mistool.errors import InputPathError, MistoolError
+from mistool.forkserver import default_workers, worker_context
 from mistool.model import PARTS, InstanceObservation, PartObservation, RotatedBox
 from mistool.pngdecode import decode_png_runs, grey8
 from mistool.pose.measure import ROW_LEN, SLOTS, measure_rows
@@ -82,14 +81,6 @@ PENDING_FRAMES_PER_WORKER = 32
 #: ``defer_below`` value that leaves every frame's metric pose to the caller (in-process
 #: runs: the pose is measured once the identity step has run, never for a blob it splits).
 DEFER_ALWAYS = 1 << 30
-
-
-def default_workers() -> int:
-    """The CPU cores this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return max(1, os.cpu_count() or 1)
 
 
 # --- the per-frame work -------------------------------------------------------------------
@@ -742,91 +733,6 @@ def _exit_with_parent() -> None:
         return
     connection.wait([parent.sentinel])
     os._exit(1)
-
-
-def _without_main(prepare: Callable[[str], dict[str, Any]]) -> Callable[[str], dict[str, Any]]:
-    def data(name: str) -> dict[str, Any]:
-        d = prepare(name)
-        d.pop("init_main_from_path", None)
-        d.pop("init_main_from_name", None)
-        return d
-
-    return data
-
-
-_LAUNCH_LOCK = threading.Lock()
-try:
-    from multiprocessing import popen_forkserver as _mp_popen_forkserver
-
-    _Popen: Any = _mp_popen_forkserver.Popen
-    _ForkServerProcess: Any = mp_context.ForkServerProcess
-except (ImportError, AttributeError):  # Windows: no fork server (spawn is used)
-    _Popen = _ForkServerProcess = None
-
-
-if _Popen is not None:
-
-    class _NoMainPopen(_Popen):
-        """A forkserver process start that leaves the caller's ``__main__`` out (see
-        :func:`worker_context`)."""
-
-        def _launch(self, process_obj: Any) -> None:
-            with _LAUNCH_LOCK:  # the module attribute is swapped while this process starts
-                original = mp_spawn.get_preparation_data
-                patched: Any = _without_main(original)
-                mp_spawn.get_preparation_data = patched
-                try:
-                    super()._launch(process_obj)
-                finally:
-                    mp_spawn.get_preparation_data = original
-
-    class _NoMainProcess(_ForkServerProcess):
-        @staticmethod
-        def _Popen(process_obj: Any) -> Any:  # noqa: N802 - multiprocessing's name
-            return _NoMainPopen(process_obj)
-
-
-def worker_context() -> Any:
-    """A ``forkserver`` multiprocessing context whose processes do not re-run the
-    caller's ``__main__``.
-
-    multiprocessing's spawn and forkserver processes import the parent's main script
-    again, so a user's script calling ``mistool.track`` at top level (without an
-    ``if __name__ == "__main__":`` guard) would run again in every worker. Our workers
-    need only :func:`observe_batch`, so the main module is left out of the data each
-    worker is prepared with. The fork server imports the per-frame code once; each
-    worker forks from it (no thread of the caller is forked)."""
-    if _Popen is None:  # pragma: no cover - Windows
-        return mp_context.SpawnContext()
-    ctx: Any = mp_context.ForkServerContext()
-    ctx.Process = _NoMainProcess
-    # worker_signals: Ctrl+C ignored from each worker's first instant (its docstring)
-    ctx.set_forkserver_preload(
-        ["mistool.worker_signals", "mistool.parallel", "mistool.kernels._all"]
-    )
-    return ctx
-
-
-def forget_inherited_fork_server() -> None:
-    """Make a process started by ``fork`` start its own fork server for its workers.
-
-    multiprocessing's fork server is per-process state, and a forked child inherits its
-    parent's: it would ask the parent's server for its worker processes, which then are
-    not its children (waiting for them fails with "No child processes"). Call it first
-    thing in a forked child that may start a :class:`LocalPool`
-    (:mod:`mistool.background`). The child's copy of the parent server's keep-alive pipe is
-    closed: that server is the parent's to stop."""
-    try:
-        from multiprocessing import forkserver
-    except ImportError:  # pragma: no cover - Windows: no fork server
-        return
-    server: Any = getattr(forkserver, "_forkserver", None)
-    if server is None or getattr(server, "_forkserver_pid", None) is None:
-        return
-    with contextlib.suppress(OSError, TypeError):
-        os.close(server._forkserver_alive_fd)
-    server._forkserver_address = server._forkserver_alive_fd = server._forkserver_pid = None
-    server._lock = threading.Lock()
 
 
 def _unblock_results(results: Any) -> None:

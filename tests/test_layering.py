@@ -25,8 +25,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("sequence", "tracking", "paper", "pose", "synth", "evaluation"),
     # rows (growing numpy columns) and parallel (per-frame work, process / Dask pools;
     # worker_signals: imported by its workers' fork server only); heap: the collector
-    # during a run (gc only)
-    ("rows", "parallel", "worker_signals", "heap"),
+    # during a run (gc only); forkserver: the workers' fork server (multiprocessing only)
+    ("rows", "parallel", "worker_signals", "heap", "forkserver"),
     # teaching: skill metrics, the report and the video export (tables and sequences in)
     ("skill", "report", "video"),
     ("api",),

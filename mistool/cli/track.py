@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 import time
 import warnings
@@ -205,13 +206,50 @@ def _pool(args: argparse.Namespace, local: bool) -> Any:
 
 def run_track(args: argparse.Namespace) -> int:
     """Run ``mistool track``; returns the exit code."""
-    from mistool import dataset
-
     _check_options(args)
     path = Path(args.sequence).expanduser()
+    if _pool_likely(args, path):
+        from mistool import forkserver
+
+        forkserver.start()  # loading while the rest of mistool is imported and inputs read
+    from mistool import dataset
+
     if dataset.is_dataset(path):
         return _run_dataset(args, path)
     return _run_sequence(args)
+
+
+#: ``mistool.api.POOL_MIN_FRAMES`` (not imported here: that import is what the early
+#: start overlaps; a test keeps the two equal).
+_POOL_MIN_FRAMES = 1000
+
+
+def _pool_likely(args: argparse.Namespace, path: Path) -> bool:
+    """Whether this run will start local worker processes: ``--workers`` above 1, or by
+    default with more than one core on a folder of at least ``POOL_MIN_FRAMES`` files
+    with an image's extension (a plain count, stopped there; a mask video or a dataset:
+    no early start)."""
+    from mistool.forkserver import default_workers
+
+    if args.dask is not None:
+        return False
+    if args.workers is not None:
+        return args.workers > 1
+    if default_workers() < 2:
+        return False
+    from mistool.sequence import IMAGE_EXTENSIONS  # (OpenCV: imported by the run anyway)
+
+    count = 0
+    try:
+        with os.scandir(path) as entries:
+            for entry in entries:
+                if os.path.splitext(entry.name)[1].lower() in IMAGE_EXTENSIONS:
+                    count += 1
+                    if count >= _POOL_MIN_FRAMES:
+                        return True
+    except OSError:  # not a folder, or not readable: the run says what is wrong
+        return False
+    return False
 
 
 def _run_sequence(args: argparse.Namespace) -> int:

@@ -35,14 +35,14 @@ import os
 import pkgutil
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import ModuleType
 from typing import Any, TypeVar, cast
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-__all__ = ["cache_is_fresh", "helper", "kernel", "load", "renew_stale_cache", "warm"]
+__all__ = ["cache_is_fresh", "helper", "kernel", "load", "load_named", "renew_stale_cache", "warm"]
 
 _LOADING = threading.RLock()
 
@@ -94,6 +94,18 @@ def load(module: ModuleType) -> int:
     n = 0
     for value in vars(module).values():
         if getattr(value, "mistool_signatures", None) and value.__module__ == module.__name__:
+            _load(value)
+            n += 1
+    return n
+
+
+def load_named(module: ModuleType, names: Iterable[str]) -> int:
+    """Load the kernels of ``module`` with these names now; how many (a name that is not
+    one of its kernels is skipped: the others still load)."""
+    n = 0
+    for name in names:
+        value = getattr(module, name, None)
+        if getattr(value, "mistool_signatures", None):
             _load(value)
             n += 1
     return n
