@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import functools
 import itertools
 import os
 import signal
@@ -252,7 +253,8 @@ def _unpack_work(
 
 def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
     """The results :func:`pack_frames` packed (every value, dtype and shape; a mask is a
-    bool view of its frame's unpacked bytes)."""
+    C-contiguous bool array, unpacked here, except the shafts of frames not deferred:
+    unpacked when first read, :class:`_SentPart`)."""
     frames, inst_i, inst_f, part_i, part_f, corners, bits, labels, poses, *rest = packed
     unknown, run_counts, run_lengths, run_ends = rest
     inst_rows, inst_xy = inst_i.tolist(), inst_f.tolist()
@@ -264,20 +266,29 @@ def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
         parts_here = sum(row[8] for row in inst_rows[i : i + count])
         sizes = [row[4] * row[5] for row in part_rows[p : p + parts_here]]
         nbits = sum(sizes)
-        flat = np.unpackbits(bits[b // 8 :], count=nbits).view(np.bool_)
-        b += -(-nbits // 8) * 8
+        # a deferred frame's masks are all read (its pose is measured in the pool, its
+        # blob likely split): unpacked here at once, as are the head parts of every
+        # frame (the heads' hand-over reads them); the others' shafts when first read
+        flat = np.unpackbits(bits[b // 8 :], count=nbits).view(np.bool_) if deferred else None
         instances = []
-        at = 0
+        at = b0 = b  # the frame's first bit (from a byte boundary)
+        b += -(-nbits // 8) * 8
         for area, x, y, bw, bh, given, sh, sw, n_parts in inst_rows[i : i + count]:
             own = {}
             for _ in range(n_parts):
                 code, parea, ox, oy, mh, mw = part_rows[p]
-                box = RotatedBox(*part_nums[p])
-                mask = flat[at : at + mh * mw].reshape(mh, mw)
+                name, box = PARTS[code], RotatedBox(*part_nums[p])
+                if flat is None and code == _SHAFT:
+                    own[name] = _sent_part(
+                        name, box, corners[p], parea, (ox, oy), bits, at, (mh, mw)
+                    )
+                else:
+                    if flat is not None:
+                        mask = flat[at - b0 : at - b0 + mh * mw].reshape(mh, mw)
+                    else:
+                        mask = _part_mask(bits, at, (mh, mw))
+                    own[name] = PartObservation(name, box, corners[p], parea, mask, (ox, oy))
                 at += mh * mw
-                own[PARTS[code]] = PartObservation(
-                    PARTS[code], box, corners[p], parea, mask, (ox, oy)
-                )
                 p += 1
             instances.append(
                 InstanceObservation(
@@ -314,6 +325,55 @@ def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
         )
         u += n_unknown
     return out
+
+
+class _SentPart(PartObservation):
+    """A shaft as a worker sent it in a frame not deferred: its mask's bits are unpacked
+    at its first use (the caller's identity step reads the masks of a blob it splits,
+    mostly in deferred frames, and of the heads it may hand over; the shaft of an
+    instrument seen apart, most of a frame's bits, never). Otherwise a
+    :class:`~mistool.model.PartObservation` with the same values; pickled as one."""
+
+    @functools.cached_property
+    def mask(self) -> np.ndarray:
+        """(h, w) bool crop of the part's pixels, unpacked now (then kept)."""
+        return _part_mask(*self.__dict__.pop("_packed"))
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return PartObservation, (
+            self.part, self.box, self.corners, self.area_px, self.mask, self.offset,
+        )  # fmt: skip
+
+
+_SHAFT = PARTS.index("shaft")
+
+
+def _part_mask(bits: np.ndarray, at: int, shape: tuple[int, int]) -> np.ndarray:
+    """The (h, w) bool mask of the ``h * w`` bits of ``bits`` from bit ``at`` on."""
+    n = shape[0] * shape[1]
+    flat = np.unpackbits(bits[at // 8 : -(-(at + n) // 8)]).view(np.bool_)
+    return flat[at % 8 : at % 8 + n].reshape(shape)
+
+
+def _sent_part(
+    part: str,
+    box: RotatedBox,
+    corners: np.ndarray,
+    area: int,
+    offset: tuple[int, int],
+    bits: np.ndarray,
+    at: int,
+    shape: tuple[int, int],
+) -> PartObservation:
+    """A :class:`_SentPart` whose mask is the ``shape[0] * shape[1]`` bits of ``bits``
+    from bit ``at`` on, row by row (the dataclass's checks are not needed: the worker
+    made the values as a PartObservation)."""
+    obj = object.__new__(_SentPart)
+    obj.__dict__.update(
+        part=part, box=box, corners=corners, area_px=area, offset=offset,
+        _packed=(bits, at, shape),
+    )  # fmt: skip
+    return obj
 
 
 def metric_pose(metric: bool, config: Config) -> bool:

@@ -23,7 +23,7 @@ from mistool import parallel
 from mistool.api import iter_track, refine, run, track
 from mistool.config import Config, InstrumentSpec
 from mistool.errors import InputPathError, MaskFormatError
-from mistool.model import TrackTable
+from mistool.model import InstanceObservation, PartObservation, RotatedBox, TrackTable
 from mistool.sequence import open_sequence
 from mistool.synth import synthesize
 
@@ -833,3 +833,44 @@ def test_a_frame_result_replaced_is_dataclasses_replace(changes) -> None:
     assert r.deferred and r.metrics is None and r.shape == (5, 6)  # the original unchanged
     with pytest.raises(TypeError, match="'metric'"):
         r.replaced(metric=None)
+
+
+def test_a_shaft_not_deferred_has_its_mask_unpacked_at_its_first_use() -> None:
+    """The caller unpacks the mask bits of a shaft in a frame not deferred only when the
+    mask is read (the identity step seldom reads one), the others at once: read in any
+    order, each mask equals the one the worker had (bool, C-contiguous, its shape); a
+    shaft pickled or replaced unread is a plain PartObservation of the same values."""
+    import pickle
+
+    rng = np.random.default_rng(5)
+    sent = []
+    for n, deferred in ((2, False), (0, False), (3, True), (1, False)):
+        parts = {}
+        for name in ("clasper", "shaft", "wrist")[: 1 + n % 3]:
+            h, w = (int(v) for v in rng.integers(1, 13, 2))
+            box = RotatedBox(5.0, 6.0, 9.0, 2.0, 30.0)
+            mask = rng.random((h, w)) < 0.5
+            parts[name] = PartObservation(name, box, box.corners(), 7, mask, (3, 4))
+        inst = InstanceObservation(None, parts, (1.0, 2.0), 7, (3, 4, 5, 6), (40, 50))
+        empty = np.zeros(0, np.int64)
+        sent.append(parallel.FrameResult([inst] * n, None, empty, (40, 50), deferred=deferred))
+    got = parallel.unpack_frames(parallel.pack_frames(sent))
+    pairs = [
+        (p, q, s.deferred)
+        for g, s in zip(got, sent, strict=True)
+        for gi, si in zip(g.instances, s.instances, strict=True)
+        for p, q in zip(gi.parts.values(), si.parts.values(), strict=True)
+    ]
+    lazy = [p.part == "shaft" and not deferred for p, _, deferred in pairs]
+    assert any(lazy) and not all(lazy)
+    assert [("mask" not in p.__dict__) for p, _, _ in pairs] == lazy  # not unpacked yet
+    shafts = [(p, q) for (p, q, _), k in zip(pairs, lazy, strict=True) if k]
+    plain = pickle.loads(pickle.dumps(shafts[0][0]))
+    assert type(plain) is PartObservation and np.array_equal(plain.mask, shafts[0][1].mask)
+    moved = dataclasses.replace(shafts[1][0], offset=(0, 0))
+    assert np.array_equal(moved.mask, shafts[1][1].mask) and moved.offset == (0, 0)
+    for p, q, _ in reversed(pairs):
+        assert p.mask.dtype == np.bool_ and p.mask.flags.c_contiguous
+        assert p.mask.shape == q.mask.shape and np.array_equal(p.mask, q.mask)
+        assert (p.part, p.box, p.area_px, p.offset) == (q.part, q.box, q.area_px, q.offset)
+        assert p.mask is p.mask  # unpacked once
