@@ -455,9 +455,11 @@ def unknown_values(
         if labels is not None:
             labels = labels[y : y + h, x : x + w]
     if labels is None or (labels.dtype == np.uint8 and labels.ndim == 2):
-        if runs is not None:
-            hist = _value_counts()(runs.rv, runs.rx0, runs.rx1, runs.n)
-        elif labels is not None:
+        if runs is not None:  # (the values counted and picked in one compiled pass)
+            least = max(config.min_area_px, 1) if lossy else 1
+            lut = _unknown_u8(config, lossy)
+            return _values_present()(runs.rv, runs.rx0, runs.rx1, runs.n, lut, least)
+        if labels is not None:
             hist = cv2.calcHist([labels], [0], None, [256], [0, 256]).ravel()
         else:
             raise ValueError("unknown_values: give the labels or their runs")
@@ -469,17 +471,17 @@ def unknown_values(
     return np.asarray(tracking.unknown_values(labels, config))
 
 
-def _value_counts() -> Any:
-    """``kernels.instances.value_counts``, imported at the first 8-bit frame's runs
+def _values_present() -> Any:
+    """``kernels.instances.values_present``, imported at the first 8-bit frame's runs
     (an import statement in the function: ~0.7 us a frame)."""
-    if not _VALUE_COUNTS:
-        from mistool.kernels.instances import value_counts
+    if not _VALUES_PRESENT:
+        from mistool.kernels.instances import values_present
 
-        _VALUE_COUNTS.append(value_counts)
-    return _VALUE_COUNTS[0]
+        _VALUES_PRESENT.append(values_present)
+    return _VALUES_PRESENT[0]
 
 
-_VALUE_COUNTS: list[Any] = []
+_VALUES_PRESENT: list[Any] = []
 
 
 def _unknown_u8(config: Config, lossy: bool) -> np.ndarray:

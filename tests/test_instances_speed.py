@@ -23,6 +23,8 @@ from mistool.kernels.instances import (
     foreground,
     label_runs,
     paint_components,
+    value_counts,
+    values_present,
 )
 from mistool.model import InstanceObservation, PartObservation, RotatedBox
 from mistool.tracking import instances
@@ -109,6 +111,23 @@ def test_label_runs_are_the_images_runs_of_equal_values(seed, dtype):
     assert got_runs[4] == n
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2, 5, 40]))
+def test_values_present_are_the_counted_values_wanted(seed, least):
+    """values_present (the frame's unknown values in one pass) is the former
+    ``np.flatnonzero`` of value_counts at least ``least`` where wanted: values 1..255 in
+    runs of 1-30 pixels (a few values, or many), any table of wanted values."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(0, 300))
+    rv = rng.integers(1, int(rng.choice([4, 256])), max(n, 1)).astype(np.int32)
+    rx0 = rng.integers(0, 600, max(n, 1)).astype(np.int32)
+    rx1 = (rx0 + rng.integers(1, 31, max(n, 1))).astype(np.int32)
+    wanted = rng.random(256) < rng.random()
+    got = values_present(rv, rx0, rx1, n, wanted, least)
+    want = np.flatnonzero((value_counts(rv, rx0, rx1, n) >= least) & wanted)
+    assert got.dtype == np.int64 and got.tolist() == want.tolist()
+
+
 def _components_before(crop: np.ndarray, ranges: np.ndarray) -> tuple:
     """The former definition: part masks by ``range_mask``, their union dilated by a 3x3
     square, ``cv2.connectedComponentsWithStats`` (labels, bounds), pixel counts by
@@ -138,9 +157,11 @@ def test_components_equal_opencvs_labels_bounds_and_counts(seed, dtype, threads)
     if w == 0:
         return
     _, ry, rx0, rx1, rv, n = label_runs(img, bounds)
-    got_n, label, stats, counts, shaft_counts, border = components(
+    got_n, label, table = components(
         ry, rx0, rx1, rv, n, ranges, 0, x, y, w, h, img.shape[1], img.shape[0]
     )
+    stats, counts, shaft_counts, border = table[:, :4], table[:, 4], table[:, 5], table[:, 6]
+    assert table.shape == (got_n, 7) and set(np.unique(border)) <= {0, 1}
     crop = img[y : y + h, x : x + w]
     saved = cv2.getNumThreads()
     cv2.setNumThreads(threads)
@@ -482,7 +503,7 @@ def test_the_gap_estimate_is_within_its_bound_of_the_measured_gap(seed):
         return
     _, ry, rx0, rx1, rv, n = label_runs(img, bounds)
     ranges = np.array([[10, 10], [20, 20], [30, 30]], np.int64)
-    count, label, stats, *_ = components(
+    count, label, stats = components(
         ry, rx0, rx1, rv, n, ranges, 0, x, y, w, h, img.shape[1], img.shape[0]
     )
     if count < 3:

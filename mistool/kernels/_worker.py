@@ -20,7 +20,7 @@ from mistool.kernels import load_named
 WORKER_KERNELS: dict[str, tuple[str, ...]] = {
     "png": ("unfilter_runs",),
     "boxes": ("fit_mask", "grown_box_of"),
-    "instances": ("chamfer_gap", "components", "fit_parts", "mask_sums", "value_counts"),
+    "instances": ("chamfer_gap", "components", "fit_parts", "mask_sums", "values_present"),
     "pose": (
         "instance_from_masks",
         "one_cut_shaft",

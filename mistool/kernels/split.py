@@ -38,6 +38,7 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from mistool.kernels import helper, kernel
+from mistool.kernels.boxes import ctz, load8
 
 __all__ = [
     "DOT_SERIAL_MAX",
@@ -795,9 +796,31 @@ def _border_xy(i: int, ww: int, hh: int, out: np.ndarray, j: int, k: int) -> Non
     out[j, k, 0], out[j, k, 1] = 0, hh - 1 - i
 
 
+_BOOL_ONES = np.uint64(0x0101010101010101)
+
+
+@helper
+def _next_at(on: np.ndarray, lo: int, hi: int, want: bool) -> int:
+    """The first index ``i`` in ``[lo, hi)`` with ``on[i] == want``, else ``hi``: eight
+    items at a time (a bool is one byte, 0 or 1), the item from the word's trailing
+    zeros."""
+    skip = np.uint64(0) if want else _BOOL_ONES  # a word of eight items without `want`
+    i = lo
+    while i + 8 <= hi:
+        word = load8(on, i) ^ skip
+        if word != 0:
+            return i + np.int64(ctz(word) >> np.uint64(3))
+        i += 8
+    while i < hi:
+        if on[i] == want:
+            return i
+        i += 1
+    return hi
+
+
 @kernel(
-    "int64(uint8[:, ::1], int64, int64, int64, int64, int64, int64, int64[:, ::1],"
-    " float64[:, :, ::1])"
+    "Tuple((float64[:, :, ::1], int64[::1]))(uint8[:, ::1], int64, int64, int64, int64, int64,"
+    " int64)"
 )
 def border_runs(
     mask: np.ndarray,
@@ -807,58 +830,58 @@ def border_runs(
     ww: int,
     min_px: int,
     max_gap: int,
-    out: np.ndarray,
-    ends: np.ndarray,
-) -> int:
+) -> tuple[np.ndarray, np.ndarray]:
     """``split.border_runs``' runs of a shaft crop (``mask`` at (x0, y0)) in an (hh, ww)
     image: the image border walked as a loop (top, right, bottom, left; index 0 the top
     left pixel), where the shaft's pixels touch it; runs closer than ``max_gap`` px
     joined, those of at least ``min_px`` kept, walking from the first border pixel off
-    the shaft. ``out`` (at least n / 2 + 1, 2): each run's first index (from that
-    pixel: not reduced modulo n) and length; ``ends`` (as many, 3, 2): the (x, y) px of
-    its first, middle and last pixel; how many. None (0) when fewer than ``min_px``
-    border pixels are the shaft's or all are."""
+    the shaft. Returns ``(ends, lengths)``: (k, 3, 2) the (x, y) px of each run's first,
+    middle and last pixel, (k,) its length; none when fewer than ``min_px`` border
+    pixels are the shaft's or all are. The loop is walked a stretch at a time
+    (:func:`_next_at`: mostly no pixel of the shaft), from its first pixel off the shaft
+    to the end and then from index 0 to there (a run across index 0 is one run)."""
     on = _border_touch(mask, x0, y0, hh, ww)
     n = on.shape[0]
-    total = 0
-    start = -1
-    for i in range(n):
-        if on[i]:
-            total += 1
-        elif start < 0:
-            start = i
-    if total < min_px or start < 0:
-        return 0
+    start = _next_at(on, 0, n, False)
+    cap = n // 2 + 1
+    out = np.empty((cap, 2), np.int64)  # each run's first index (from start) and length
     m = 0
-    i = 0
-    at = start  # (start + i) modulo n, without a division per pixel
-    while i < n:  # runs of the loop rolled to start there (on[start] is off)
-        if not on[at]:
-            i += 1
-            at = at + 1 if at + 1 < n else 0
-            continue
-        a = i
-        while i < n and on[at]:
-            i += 1
-            at = at + 1 if at + 1 < n else 0
-        if m > 0 and a - (out[m - 1, 0] + out[m - 1, 1]) <= max_gap:
-            out[m - 1, 1] = i - out[m - 1, 0]
-        else:
-            out[m, 0] = a
-            out[m, 1] = i - a
-            m += 1
+    total = 0
+    for part in range(2):
+        at, hi = (start, n) if part == 0 else (0, start)
+        shift = -start if part == 0 else n - start  # to indices from start
+        while True:
+            a = _next_at(on, at, hi, True)
+            if a == hi:
+                break
+            b = _next_at(on, a, hi, False)
+            total += b - a
+            a += shift
+            if m > 0 and a - (out[m - 1, 0] + out[m - 1, 1]) <= max(max_gap, 0):
+                out[m - 1, 1] = b + shift - out[m - 1, 0]
+            else:
+                out[m, 0] = a
+                out[m, 1] = b + shift - a
+                m += 1
+            at = b
+    if total < min_px or start == n:
+        return np.empty((0, 3, 2)), np.empty(0, np.int64)
+    k = 0
+    for j in range(m):
+        k += out[j, 1] >= min_px
+    ends = np.empty((k, 3, 2))
+    lengths = np.empty(k, np.int64)
     k = 0
     for j in range(m):
         if out[j, 1] >= min_px:
             first = out[j, 0] + start
             length = out[j, 1]
-            out[k, 0] = first
-            out[k, 1] = length
+            lengths[k] = length
             _border_xy(first, ww, hh, ends, k, 0)
             _border_xy(first + length // 2, ww, hh, ends, k, 1)
             _border_xy(first + length - 1, ww, hh, ends, k, 2)
             k += 1
-    return k
+    return ends, lengths
 
 
 # heads handed over (mistool.tracking.heads) --------------------------------------------

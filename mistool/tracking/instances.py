@@ -411,19 +411,33 @@ class _LazyLabels:
         return self._img[key]
 
 
+def _merged_parts(config: Config, dtype: np.dtype) -> tuple[list[str], np.ndarray, int]:
+    """The parts merged masks show (their names, their value ranges as
+    :func:`_value_range` clips them to ``dtype``, (P, 2) int64; the shaft's index or -1),
+    kept for the last config and dtype asked (a sequence's frames share them)."""
+    global _MERGED_PARTS
+    have = _MERGED_PARTS  # (one read: another thread may replace it)
+    if have[0] is config and have[1] == dtype:
+        return have[2]
+    names = [p for p in PARTS if p in config.parts and config.parts[p][1] > 0]
+    ranges = np.array([_value_range(config.parts[p], dtype) for p in names], np.int64)
+    got = (names, ranges.reshape(-1, 2), names.index("shaft") if "shaft" in names else -1)
+    _MERGED_PARTS = (config, dtype, got)
+    return got
+
+
+_MERGED_PARTS: tuple[Any, Any, Any] = (None, None, None)
+
+
 def _merged(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
     """Instances of merged masks (see the module docstring), largest first."""
-    from mistool.kernels.instances import components
-
     min_area = config.min_area_px
-    part_names = [p for p in PARTS if p in config.parts and config.parts[p][1] > 0]
+    part_names, ranges, shaft = _merged_parts(config, runs.dtype)
     if not part_names:
         return []
-    ranges = np.array([_value_range(config.parts[p], runs.dtype) for p in part_names], np.int64)
-    shaft = part_names.index("shaft") if "shaft" in part_names else -1
     fx, fy, fw, fh = runs.bounds
     shape = runs.shape
-    n, label, stats, counts, shaft_counts, border = components(
+    n, label, table = _kernels().components(
         runs.ry,
         runs.rx0,
         runs.rx1,
@@ -444,6 +458,10 @@ def _merged(runs: LabelRuns, config: Config) -> list[InstanceObservation]:
     if n == 2:  # one (bridged) component: everything belongs to it
         inst = _fit_instance(runs, None, part_names, ranges, label, _BOTH, min_area)
         return [inst] if inst is not None and inst.area_px >= max(min_area, 1) else []
+    k = _kernels()
+    stats = table[:, : k.STAT_H + 1]
+    counts, shaft_counts = table[:, k.STAT_COUNT], table[:, k.STAT_SHAFT]
+    border = table[:, k.STAT_BORDER]
     memo: dict[tuple[int, ...], InstanceObservation | None] = {}
 
     def instance_of(group: list[int]) -> InstanceObservation | None:
@@ -616,7 +634,7 @@ def group_components(
             ``cv2.connectedComponentsWithStats``' stats.
         min_area: specks and shafts below this many pixels.
         cc: (H, W) component label image (or one painted when first sliced).
-        border: (n,) True where a component touches the image border.
+        border: (n,) True (non-zero) where a component touches the image border.
         prefer: see above (``observe_frame``: the shaft whose distal extension the head
             lies on, :func:`_head_host`).
 

@@ -154,12 +154,10 @@ def border_runs(inst: InstanceObservation) -> list[tuple[np.ndarray, int]]:
     h, w = shaft.mask.shape
     if x0 > 0 and y0 > 0 and x0 + w < ww and y0 + h < hh:
         return []
-    out = np.empty((hh + ww, 2), np.int64)  # (at most n / 2 runs)
-    ends = np.empty((hh + ww, 3, 2), np.float64)  # (their first, middle and last pixels)
-    m = kernels.border_runs(
-        _mask_u8(shaft.mask), int(x0), int(y0), hh, ww, ENTRY_MIN_PX, ENTRY_MAX_GAP_PX, out, ends
+    ends, lengths = kernels.border_runs(
+        _mask_u8(shaft.mask), int(x0), int(y0), hh, ww, ENTRY_MIN_PX, ENTRY_MAX_GAP_PX
     )
-    return list(zip(ends[:m].copy(), out[:m, 1].tolist(), strict=True))
+    return list(zip(ends, lengths.tolist(), strict=True)) if len(lengths) else []
 
 
 #: The direction of a shaft entering the view is fitted on at most about this many of
