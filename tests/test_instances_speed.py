@@ -678,3 +678,55 @@ def test_make_instance_sums_the_masks_as_before(seed, nparts, strided):
     want = _make_instance_before(None, parts, (9000, 9000))
     assert got.centroid_px == want.centroid_px
     assert (got.area_px, got.bbox_xywh) == (want.area_px, want.bbox_xywh)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.sampled_from(["polygon", "ellipse", "rectangle", "line", "noise"]),
+    st.sampled_from([0, 1, 5, 40]),
+)
+def test_a_part_box_without_its_contour_is_the_contours(seed, shape, min_area):
+    """fit_runs_box's box of one kept component from its rows' hull (no contour traced)
+    is the box of its traced contour (fit_runs + grown_box_of), bit for bit: convex
+    polygons, ellipses, rectangles at 0, 45, 90, 135 deg or any angle (45 deg: the
+    traced contour's box), with bites and specks, thin lines (one-pixel necks: traced),
+    noise (several components: traced), at any offset."""
+    from mistool.kernels.boxes import fit_runs, fit_runs_box, grown_box_of, mask_runs
+
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(1, 90)), int(rng.integers(1, 90))
+    mask = np.zeros((h, w), np.uint8)
+    if shape == "polygon":
+        pts = rng.integers(-5, max(h, w) + 5, (int(rng.integers(3, 9)), 2)).astype(np.int32)
+        cv2.fillPoly(mask, [pts], 1)
+    elif shape == "ellipse":
+        axes = (int(rng.integers(0, 45)), int(rng.integers(0, 45)))
+        centre = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        cv2.ellipse(mask, centre, axes, float(rng.integers(0, 180)), 0, 360, 1, -1)
+    elif shape == "rectangle":
+        angle = float(rng.choice([0, 45, 90, 135, float(rng.uniform(0, 180))]))
+        size = (float(rng.integers(1, 60)), float(rng.integers(1, 60)))
+        centre = (float(rng.uniform(0, w)), float(rng.uniform(0, h)))
+        corners = np.round(cv2.boxPoints((centre, size, angle))).astype(np.int32)
+        cv2.fillPoly(mask, [corners], 1)
+    elif shape == "line":
+        a, b = rng.integers(-5, max(h, w) + 5, 2), rng.integers(-5, max(h, w) + 5, 2)
+        cv2.line(mask, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 1, int(rng.integers(1, 5)))
+    else:
+        mask[:] = rng.random((h, w)) < rng.random()
+    if rng.random() < 0.3:  # bites and specks
+        mask[rng.random((h, w)) < 0.03] = 0
+        mask[rng.random((h, w)) < 0.01] = 1
+    ry, rx0, rx1, n = mask_runs(mask)
+    ox, oy = int(rng.integers(0, 700)), int(rng.integers(0, 500))
+    info, crop, box, corners = fit_runs_box(ry, rx0, rx1, n, min_area, ox, oy)
+    want_info, want_crop, points, hull = fit_runs(ry, rx0, rx1, n, min_area, ox, oy)
+    assert info == want_info and np.array_equal(crop, want_crop)
+    if want_info[0] == 0:
+        assert box == (0.0,) * 5 and not corners.any()
+        return
+    want_corners = np.zeros((4, 2))
+    want_box = grown_box_of(points, hull, want_corners)
+    assert np.array_equal(np.array(box).view(np.int64), np.array(want_box).view(np.int64))
+    assert np.array_equal(corners.view(np.int64), want_corners.view(np.int64))

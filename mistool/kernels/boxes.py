@@ -489,6 +489,19 @@ def _min_area_rect(points: np.ndarray) -> tuple[float, float, float, float, floa
     )
 
 
+@helper
+def _hull_angle(hx: np.ndarray, hy: np.ndarray, m: int, work: np.ndarray) -> float:
+    """:func:`_min_area_rect`'s angle of a hull already in ``convexHull``'s order and
+    from its start (``m > 2`` float32 vertices; ``work``: (3m,) float32 scratch)."""
+    _, _, ux, uy, _, _ = _calipers(hx, hy, m, work)
+    angle = np.arctan2(np.float64(uy), np.float64(ux)) * 180.0 / np.pi
+    while angle >= 0.0:
+        angle -= 90.0
+    while angle < -90.0:
+        angle += 90.0
+    return np.float64(np.float32(angle))
+
+
 @kernel("int64[::1](int32[:, ::1])")
 def convex_hull_ccw(points: np.ndarray) -> np.ndarray:
     """The indices into (N, 2) int32 ``points`` (N >= 1) of ``cv2.convexHull(points,
@@ -854,49 +867,35 @@ def hull_rows(lo: np.ndarray, hi: np.ndarray, on_lo: np.ndarray, on_hi: np.ndarr
 _FIT = "Tuple((UniTuple(int64, 5), boolean[:, ::1], int32[:, ::1], int32[:, ::1]))"
 
 
-@kernel(_FIT + "(int32[::1], int32[::1], int32[::1], int64, int64, int64, int64)")
-def fit_runs(
-    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, min_area: int, ox: int, oy: int
-) -> tuple[tuple[int, int, int, int, int], np.ndarray, np.ndarray, np.ndarray]:
-    """A part's pixels given as ``n`` runs in raster order (see :func:`mask_runs`): its
-    8-connected components of fewer than ``min_area`` pixels dropped, then
-
-    - ``info``: (area, x0, y0, sum of x - x0, sum of y - y0) of the kept pixels, ``(x0,
-      y0)`` the top-left of their bounds (all 0: nothing kept);
-    - ``crop``: the kept pixels' (h, w) bool crop at ``(x0, y0)``;
-    - ``points``: (N, 2) int32 external contour points of the kept components, in
-      ``cv2.findContours``' order (see the module docstring), run coordinates plus
-      ``(ox, oy)``;
-    - ``hull``: those of ``points`` that may lie on their convex hull's boundary, every
-      occurrence, in their order: ``cv2.minAreaRect(hull)`` is ``cv2.minAreaRect(points)``
-      bit for bit (``convexHull`` keeps only hull vertices and starts them at the one
-      that comes first in its input): the rows' extremes on the hull's boundary
-      (:func:`hull_rows`; every hull point is one, since the contours' hull is the
-      pixels'), and every point of the first and last rows.
-    """
+@helper
+def _kept_crop(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, min_area: int
+) -> tuple[Any, ...]:
+    """:func:`fit_runs`' first steps: the runs' 8-connected components (``parent``, each
+    root's ``area``), the kept ones' pixels painted in a crop with a background row above
+    and below and a pixel before and after (``store``: for the trace; the crop itself is
+    a contiguous view of it), their bounds, sums and each row's extremes. Returns
+    ``(parent, area, kept, total, x0, y0, kh, kw, store, lo, hi, sx, sy)`` (``kept``:
+    how many components are kept; ``total`` 0: none)."""
     parent = np.empty(max(n, 1), np.int32)
     join_runs(ry, rx0, rx1, parent, n, 1)
     area = np.zeros(max(n, 1), np.int64)  # per root
     for i in range(n):
         area[parent[i]] += rx1[i] - rx0[i]
+    kept = 0
     total = 0
     x0 = y0 = 1 << 30
     x1 = y1 = -1
     for i in range(n):
         if area[parent[i]] >= min_area:
+            kept += parent[i] == i
             total += rx1[i] - rx0[i]
             x0 = min(x0, rx0[i])
             x1 = max(x1, rx1[i])
             y0 = min(y0, ry[i])
             y1 = max(y1, ry[i] + 1)
-    if total == 0:
-        empty = np.zeros((0, 2), np.int32)
-        return (0, 0, 0, 0, 0), np.zeros((0, 0), np.bool_), empty, empty
-    kh, kw = y1 - y0, x1 - x0
-    # the crop with a background row above and below and a pixel before and after, for
-    # the trace; the crop itself a contiguous view of it
+    kh, kw = max(y1 - y0, 0), max(x1 - x0, 0)
     store = np.zeros((kh + 2) * kw + 2, np.bool_)
-    crop = store[kw + 1 : (kh + 1) * kw + 1].reshape(kh, kw)
     paint = store
     lo = np.empty(kh, np.int64)  # each row's extremes
     hi = np.empty(kh, np.int64)
@@ -914,6 +913,28 @@ def fit_runs(
             sy += y * (b - a)
             lo[y] = min(lo[y], a)
             hi[y] = max(hi[y], b - 1)
+    return parent, area, kept, total, x0, y0, kh, kw, store, lo, hi, sx, sy
+
+
+@helper
+def _traced(
+    store: np.ndarray,
+    kw: int,
+    kh: int,
+    rx0: np.ndarray,
+    ry: np.ndarray,
+    parent: np.ndarray,
+    area: np.ndarray,
+    min_area: int,
+    n: int,
+    x0: int,
+    y0: int,
+    ox: int,
+    oy: int,
+    lo: np.ndarray,
+    hi: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_runs`' ``points`` and ``hull`` from :func:`_kept_crop`'s crop."""
     cap = 4 * n + 16
     m = -1
     while m < 0:  # (a new array per attempt, never inside the loop below: see mask_runs)
@@ -937,7 +958,40 @@ def fit_runs(
             hull[j, 0] = points[k, 0]
             hull[j, 1] = points[k, 1]
             j += 1
-    return (total, x0, y0, sx, sy), crop, points[:m], hull
+    return points[:m], hull
+
+
+@kernel(_FIT + "(int32[::1], int32[::1], int32[::1], int64, int64, int64, int64)")
+def fit_runs(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, min_area: int, ox: int, oy: int
+) -> tuple[tuple[int, int, int, int, int], np.ndarray, np.ndarray, np.ndarray]:
+    """A part's pixels given as ``n`` runs in raster order (see :func:`mask_runs`): its
+    8-connected components of fewer than ``min_area`` pixels dropped, then
+
+    - ``info``: (area, x0, y0, sum of x - x0, sum of y - y0) of the kept pixels, ``(x0,
+      y0)`` the top-left of their bounds (all 0: nothing kept);
+    - ``crop``: the kept pixels' (h, w) bool crop at ``(x0, y0)``;
+    - ``points``: (N, 2) int32 external contour points of the kept components, in
+      ``cv2.findContours``' order (see the module docstring), run coordinates plus
+      ``(ox, oy)``;
+    - ``hull``: those of ``points`` that may lie on their convex hull's boundary, every
+      occurrence, in their order: ``cv2.minAreaRect(hull)`` is ``cv2.minAreaRect(points)``
+      bit for bit (``convexHull`` keeps only hull vertices and starts them at the one
+      that comes first in its input): the rows' extremes on the hull's boundary
+      (:func:`hull_rows`; every hull point is one, since the contours' hull is the
+      pixels'), and every point of the first and last rows.
+    """
+    parent, area, _, total, x0, y0, kh, kw, store, lo, hi, sx, sy = _kept_crop(
+        ry, rx0, rx1, n, min_area
+    )
+    if total == 0:
+        empty = np.zeros((0, 2), np.int32)
+        return (0, 0, 0, 0, 0), np.zeros((0, 0), np.bool_), empty, empty
+    crop = store[kw + 1 : (kh + 1) * kw + 1].reshape(kh, kw)
+    points, hull = _traced(
+        store, kw, kh, rx0, ry, parent, area, min_area, n, x0, y0, ox, oy, lo, hi
+    )
+    return (total, x0, y0, sx, sy), crop, points, hull
 
 
 @kernel(_FIT + "(uint8[:, ::1], int64, int64, int64)")
@@ -952,15 +1006,109 @@ def fit_mask(
 _BOXED = "Tuple((UniTuple(int64, 5), boolean[:, ::1], UniTuple(float64, 5), float64[:, ::1]))"
 
 
+@helper
+def _ring_arcs(store: np.ndarray, kw: int, x: int, y: int) -> int:
+    """The runs of part pixels among the 8 neighbours of crop pixel (x, y), walked round
+    (:func:`_kept_crop`'s ``store``; outside the crop's columns is background)."""
+    arcs = 0
+    base = (y + 1) * kw + 1 + x
+    last = False
+    for k in range(9):  # (the ring from SE round to SE again: the first item's predecessor)
+        d = (k + 7) & 7
+        xx = x + _DX[d]
+        on = 0 <= xx < kw and store[base + _DX[d] + _DY[d] * kw]
+        if k > 0 and on and not last:
+            arcs += 1
+        last = on
+    return arcs
+
+
+@helper
+def _row_chains(lo: np.ndarray, hi: np.ndarray, kh: int, hv: np.ndarray) -> int:
+    """The strict convex hull of a crop whose rows ``0 .. kh - 1`` all hold pixels (row
+    ``y``'s extremes ``lo[y]``, ``hi[y]``), into ``hv`` ((2 kh + 2, 2) at least): its
+    vertices in ``cv2.convexHull(clockwise=False)``'s order, the top row's first pixel
+    last (the order in which ``minAreaRect`` sees the hull of a single component's
+    contour, whose first point that pixel is: see :func:`fit_runs_box`); how many."""
+    right = np.empty(kh, np.int64)  # the right chain's rows, top to bottom
+    nr = 0
+    for r in range(kh):  # pop while the turn is not strictly convex (collinear too)
+        while nr >= 2:
+            o, a = right[nr - 2], right[nr - 1]
+            if (hi[a] - hi[o]) * (r - o) - (a - o) * (hi[r] - hi[o]) > 0:
+                break
+            nr -= 1
+        right[nr] = r
+        nr += 1
+    left = np.empty(kh, np.int64)
+    nl = 0
+    for r in range(kh):
+        while nl >= 2:
+            o, a = left[nl - 2], left[nl - 1]
+            if (lo[a] - lo[o]) * (r - o) - (a - o) * (lo[r] - lo[o]) < 0:
+                break
+            nl -= 1
+        left[nl] = r
+        nl += 1
+    m = 0
+    for t in range(0 if hi[0] != lo[0] else 1, nr):  # from the top row's last pixel down
+        hv[m, 0], hv[m, 1] = hi[right[t]], right[t]
+        m += 1
+    bottom = kh - 1
+    for t in range(nl - 1 if lo[bottom] != hi[bottom] else nl - 2, -1, -1):  # and up
+        hv[m, 0], hv[m, 1] = lo[left[t]], left[t]
+        m += 1
+    return m
+
+
 @kernel(_BOXED + "(int32[::1], int32[::1], int32[::1], int64, int64, int64, int64)")
 def fit_runs_box(
     ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, min_area: int, ox: int, oy: int
 ) -> tuple[tuple[int, int, int, int, int], np.ndarray, tuple[float, ...], np.ndarray]:
     """:func:`fit_runs` and the part's box in the same call: ``(info, crop, box,
     corners)``, ``box`` the canonical ``(cx, cy, length, width, angle_deg)`` and
-    ``corners`` (4, 2) of ``geometry.grown_box(points, hull)`` (all 0: nothing kept)."""
-    info, crop, points, hull = fit_runs(ry, rx0, rx1, n, min_area, ox, oy)
+    ``corners`` (4, 2) of ``geometry.grown_box(points, hull)`` (all 0: nothing kept).
+
+    One kept component whose hull vertices each have one run of part pixels round them
+    (so its outer contour passes each of them once, in the hull's order) needs no
+    contour: ``convexHull`` of its contour is its pixels' strict hull starting after its
+    first pixel (:func:`_row_chains`, from the rows' extremes), and the box's sides are
+    pushed to the same extremes over the hull's vertices as over the contour's points,
+    except for a side at 45 deg (``minAreaRect``'s angle -45: there the rounded
+    projections of a side's points tie within an ulp, and a point the contour leaves
+    out can round farther): that box, and every other part, is fitted from the traced
+    contour (tests/test_instances_speed.py compares both ways)."""
+    parent, area, kept, total, x0, y0, kh, kw, store, lo, hi, sx, sy = _kept_crop(
+        ry, rx0, rx1, n, min_area
+    )
     corners = np.zeros((4, 2))
-    if info[0] == 0:
-        return info, crop, (0.0, 0.0, 0.0, 0.0, 0.0), corners
+    if total == 0:
+        empty = np.zeros((0, 0), np.bool_)
+        return (0, 0, 0, 0, 0), empty, (0.0, 0.0, 0.0, 0.0, 0.0), corners
+    info = (total, x0, y0, sx, sy)
+    crop = store[kw + 1 : (kh + 1) * kw + 1].reshape(kh, kw)
+    if kept == 1:
+        hv = np.empty((2 * kh + 2, 2), np.int32)
+        m = _row_chains(lo, hi, kh, hv)
+        safe = m >= 3
+        for k in range(m):
+            if safe and _ring_arcs(store, kw, hv[k, 0], hv[k, 1]) != 1:
+                safe = False
+        if safe:
+            work = np.empty(5 * m, np.float32)  # the hull's points, the calipers' scratch
+            hx = work[:m]
+            hy = work[m : 2 * m]
+            for k in range(m):
+                hv[k, 0] += x0 + ox
+                hv[k, 1] += y0 + oy
+                hx[k] = np.float32(hv[k, 0])
+                hy[k] = np.float32(hv[k, 1])
+            angle = _hull_angle(hx, hy, m, work[2 * m :])
+            if angle != -45.0:
+                t = angle * (np.pi / 180.0)
+                box = grow_box(hv[:m], np.cos(t), np.sin(t), angle, corners)
+                return info, crop, box, corners
+    points, hull = _traced(
+        store, kw, kh, rx0, ry, parent, area, min_area, n, x0, y0, ox, oy, lo, hi
+    )
     return info, crop, grown_box_of(points, hull, corners), corners
