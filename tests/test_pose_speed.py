@@ -59,3 +59,134 @@ def _pixel_rays_before(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
 def test_pixel_rays_as_before(uv: np.ndarray, f: float, aspect: float) -> None:
     K = np.array([[f, 0.0, 359.5], [0.0, f * aspect, 287.5], [0.0, 0.0, 1.0]])
     assert _same(pixel_rays(uv, K), _pixel_rays_before(uv, K))
+
+
+# -- the compiled kernels' faster pieces (tenth session) against their former code -------
+
+
+def _kth(v: np.ndarray, k: int) -> float:
+    """``mistool.kernels.pose._kth`` (a helper: called from a kernel) on a copy of ``v``."""
+    import numba
+
+    from mistool.kernels.pose import _kth as kth
+
+    call = numba.njit(lambda buf, n, k: kth(buf, n, k))
+    buf = np.empty(2 * len(v))
+    buf[: len(v)] = v
+    return float(call(buf, len(v), k))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2, 3, 5, 8, 81, 192, 900]))
+def test_kth_equals_numpy_and_the_former_select(seed: int, n: int) -> None:
+    """The branch-free selection of the line fit's scale gives the element of rank k, as
+    the quickselect it replaces: ties, runs, sorted and reversed input, all equal."""
+    from mistool.kernels import pose as kp
+
+    rng = np.random.default_rng(seed)
+    v = np.abs(rng.normal(size=n))
+    kind = int(rng.integers(5))
+    if kind == 1:
+        v = np.round(v * 3.0)  # many ties
+    elif kind == 2:
+        v = np.sort(v)[:: rng.choice([-1, 1])]
+    elif kind == 3:
+        v = np.full(n, 0.7)
+    elif kind == 4:
+        v = np.concatenate([np.sort(p)[:: rng.choice([-1, 1])] for p in np.array_split(v, 4)])
+    for k in {0, n - 1, n // 2, int(rng.integers(n))}:
+        got = _kth(v, k)
+        assert got == np.partition(v, k)[k] == kp._select(v.copy(), k)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([8, 9, 30, 191, 192]), st.booleans())
+def test_fit_line_as_before_bit_for_bit(seed: int, n: int, pixels: bool) -> None:
+    """``fit_line`` with the branch-free scale selection: the same line, RMS and inliers
+    as the former kernel, bit for bit."""
+    import pose_kernels_before as before_k
+
+    from mistool.kernels import pose as kp
+
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.uniform(0.0, 300.0, n))
+    phi = rng.uniform(0.0, np.pi)
+    pts = np.stack([100 + t * np.cos(phi), 200 + t * np.sin(phi)], axis=1)
+    pts += rng.normal(0.0, rng.choice([0.05, 0.4, 1.5]), pts.shape)
+    out = rng.random(n) < 0.2
+    pts[out] += rng.normal(0.0, 8.0, (int(out.sum()), 2))  # outliers
+    if pixels:
+        pts = np.round(2.0 * pts) / 2.0
+    along = pts @ np.array([np.cos(phi), np.sin(phi)])
+    px, py = pts[:, 0].copy(), pts[:, 1].copy()
+    got, ref = np.full(4, np.nan), np.full(4, np.nan)
+    gi, ri = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    k_got = kp.fit_line(px, py, along, 1.5, 12, got, gi)
+    k_ref = before_k.fit_line(px, py, along, 1.5, 12, ref, ri)
+    assert k_got == k_ref
+    assert got.tobytes() == ref.tobytes()
+    assert np.array_equal(gi[: max(k_got, 0)], ri[: max(k_ref, 0)])
+
+
+@st.composite
+def _jaw_case(draw: st.DrawFn) -> tuple:  # type: ignore[type-arg]
+    """A clasper-like crop (blobs and lines, some noise), a pixel of it, a disc radius
+    and a direction."""
+    import cv2
+
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    h, w = (int(v) for v in rng.integers(1, 120, 2))
+    m = np.zeros((h, w), np.uint8)
+    for _ in range(int(rng.integers(1, 4))):
+        a = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        b = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        if rng.random() < 0.5:
+            cv2.line(m, a, b, 1, int(rng.integers(1, 12)))
+        else:
+            axes = (int(rng.integers(1, w + 1)), int(rng.integers(1, h + 1)))
+            cv2.ellipse(m, a, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+    if rng.random() < 0.3:
+        m ^= (rng.random((h, w)) < 0.15).astype(np.uint8)
+    cx, cy = int(rng.integers(-5, w + 5)), int(rng.integers(-5, h + 5))
+    rad = float(rng.choice([0.5, 1.0, rng.uniform(1.0, 80.0)]))
+    u = rng.normal(size=2)
+    off = (int(rng.integers(0, 600)), int(rng.integers(0, 500)))
+    return m.view(bool), off, cx, cy, rad, float(u[0]), float(u[1]), float(rng.uniform(1, 30))
+
+
+@settings(max_examples=400, deadline=None)
+@given(_jaw_case())
+def test_jaw_axis_as_before_bit_for_bit(case: tuple) -> None:  # type: ignore[type-arg]
+    """A jaw's axis from the disc's pixels as row runs (its extents from each run's two
+    ends): the same end, direction and half-width as the former pixel-by-pixel kernel."""
+    import pose_kernels_before as before_k
+
+    from mistool.kernels import pose as kp
+
+    mask, (ox, oy), cx, cy, rad, ux, uy, width = case
+    got, ref = np.full(5, np.nan), np.full(5, np.nan)
+    a = kp._jaw_axis(mask, ox, oy, cx, cy, rad, ux, uy, width, got)
+    b = before_k.jaw_axis(mask, ox, oy, cx, cy, rad, ux, uy, width, ref)
+    assert a == b
+    assert got.tobytes() == ref.tobytes()
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2]))
+def test_iou_count_as_before(seed: int, st_: int) -> None:
+    """The IoU's byte counts eight bytes at a time: the same counts as the former loops
+    (canvas and mask of any sizes and overlaps, both strides)."""
+    import pose_kernels_before as before_k
+
+    from mistool.kernels import pose as kp
+
+    rng = np.random.default_rng(seed)
+    hc, wc = (int(v) for v in rng.integers(0, 300, 2))
+    rend = (rng.random((hc, wc)) < rng.uniform(0, 1)).astype(np.uint8)
+    mh, mw = (int(v) for v in rng.integers(1, 400, 2))
+    mask = rng.random((mh, mw)) < rng.uniform(0, 1)
+    x0, y0 = (int(v) for v in rng.integers(0, 200, 2))
+    ox, oy = x0 + int(rng.integers(-150, 150)), y0 + int(rng.integers(-150, 150))
+    got = kp.iou_count(rend, mask, ox, oy, x0, y0, st_)
+    ref = before_k.iou_count(rend, mask, ox, oy, x0, y0, st_)
+    assert np.float64(got).tobytes() == np.float64(ref).tobytes()

@@ -39,7 +39,8 @@ from typing import Any, TypeVar, cast
 import numpy as np
 
 from mistool.kernels import helper, kernel
-from mistool.kernels.contours import external_contours, outer_contour
+from mistool.kernels.boxes import load8 as _load8
+from mistool.kernels.contours import _next_change, external_contours, outer_contour
 from mistool.kernels.polygon import convex_hull, fill_convex
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -225,6 +226,40 @@ def _select(v: np.ndarray, k: int) -> float:
         else:
             break
     return v[k]
+
+
+@helper
+def _kth(v: np.ndarray, n: int, k: int) -> float:
+    """The element of rank ``k`` of ``v[:n]`` (no NaN; ``v``, of at least ``2 n``
+    elements, is scratch): the value :func:`_select` gives, found without a branch per
+    element. Each pass copies the range into the other half of ``v``, the elements below
+    the pivot (a median of three) from its start and those above it from its end, every
+    element written to both ends and kept at the end it belongs to; the elements equal
+    to the pivot are left out (the gap between the two), so the range shrinks by at
+    least one per pass. (Unsigned indices: no wrap-around checks.)"""
+    one = np.uint64(1)
+    lo, hi, kk = np.uint64(0), np.uint64(n), np.uint64(k)
+    src, dst = np.uint64(0), np.uint64(n)
+    while True:
+        p0, p2 = v[src + lo], v[src + hi - one]
+        p1 = v[src + lo + ((hi - lo) >> one)]
+        p = max(min(p0, p1), min(max(p0, p1), p2))
+        a, b = dst + lo, dst + hi - one
+        for i in range(src + lo, src + hi):
+            x = v[i]
+            v[a] = x
+            v[b] = x
+            a += np.uint64(x < p)
+            b -= np.uint64(x > p)
+        a -= dst
+        b -= dst
+        if kk < a:
+            hi = a
+        elif kk > b:
+            lo = b + one
+        else:
+            return p
+        src, dst = dst, src
 
 
 @kernel("int64[::1](float64[::1])")
@@ -679,10 +714,17 @@ def _tls(
 
 @helper
 def _irls_step(
-    x: np.ndarray, y: np.ndarray, r: np.ndarray, line: np.ndarray, scale: float, thresh: float
+    x: np.ndarray,
+    y: np.ndarray,
+    r: np.ndarray,
+    line: np.ndarray,
+    scale: float,
+    thresh: float,
+    core: np.ndarray,
 ) -> float:
     """One Tukey-weighted refit: ``line`` and the residuals ``r`` updated in place; the new
-    scale, or -1 (nothing changed) when the weights sum below 6."""
+    scale, or -1 (nothing changed) when the weights sum below 6. ``core``: scratch of
+    ``2 len(x)`` elements."""
     n = len(x)
     f = 1.0 / (2.5 * scale)
     m00 = m01 = m02 = m11 = m12 = sw = 0.0
@@ -701,7 +743,6 @@ def _irls_step(
     if sw < 6:
         return -1.0
     _tls(m00, m01, m02, m11, m12, sw, line)
-    core = np.empty(n)
     k = 0
     lim = 2.5 * scale
     for t in range(n):
@@ -711,7 +752,7 @@ def _irls_step(
             core[k] = ra
             k += 1
     if k:
-        scale = min(max(1.4826 * _select(core[:k], k // 2), 0.3), thresh)
+        scale = min(max(1.4826 * _kth(core, k, k // 2), 0.3), thresh)
     return scale
 
 
@@ -833,8 +874,9 @@ def fit_line(
     for t in range(n):
         r[t] = line[0] * x[t] + line[1] * y[t] + line[2]
     scale = thresh
+    core = np.empty(2 * n)
     for _ in range(2):
-        step = _irls_step(x, y, r, line, scale, thresh)
+        step = _irls_step(x, y, r, line, scale, thresh, core)
         if step < 0:
             break
         scale = step
@@ -2089,6 +2131,88 @@ def _jaw_picks(
     return n_picks
 
 
+@helper
+def _disc_spans(
+    flat: np.ndarray,
+    w: int,
+    cx: int,
+    cy: int,
+    rad: float,
+    x0: int,
+    y0: int,
+    x1: int,
+    y1: int,
+    spans: np.ndarray,
+) -> tuple[int, int, int]:
+    """The crop's (``flat``: its bytes, rows of ``w``) pixels within ``rad`` of ``(cx,
+    cy)`` and within ``[x0, x1) x [y0, y1)``: each row's span of the disc into ``spans``
+    (``|x - cx| <= dxm``, exactly; empty rows ``(0, 0)``), and the set pixels' count and
+    coordinate sums (exact integers), over their row runs."""
+    r2 = rad * rad
+    cnt = sx = sy = 0
+    for y in range(y0, y1):
+        rem = r2 - (y - cy) * (y - cy)
+        xa = xb = 0
+        if rem >= 0:
+            dxm = int(math.sqrt(rem))
+            while dxm * dxm > rem:
+                dxm -= 1
+            while (dxm + 1) * (dxm + 1) <= rem:
+                dxm += 1
+            xa, xb = max(cx - dxm, x0), min(cx + dxm + 1, x1)
+        spans[y - y0, 0], spans[y - y0, 1] = xa, xb
+        base = y * w
+        x = xa
+        while x < xb:
+            a = _next_change(flat, base + x, base + xb, False) - base
+            if a >= xb:
+                break
+            x = _next_change(flat, base + a, base + xb, True) - base
+            n = x - a
+            cnt += n
+            sx += (a + x - 1) * n // 2
+            sy += y * n
+    return cnt, sx, sy
+
+
+@helper
+def _disc_extents(
+    flat: np.ndarray,
+    w: int,
+    spans: np.ndarray,
+    y0: int,
+    ox: int,
+    oy: int,
+    mx: float,
+    my: float,
+    e0: float,
+    e1: float,
+) -> tuple[float, float, float]:
+    """The largest coordinate along ``(e0, e1)`` and the extent across it (its least and
+    largest) of the set pixels of :func:`_disc_spans`' ``spans``, about ``(mx, my)``:
+    within a row both are rounded linear functions of x, monotone, so a run's extremes
+    are at its two ends (the values of the pixel-by-pixel maxima and minima; a zero's
+    sign may differ, and does not reach :func:`_jaw_axis`'s end)."""
+    along = -math.inf
+    lo, hi = math.inf, -math.inf
+    for r in range(len(spans)):
+        y = y0 + r
+        base = y * w
+        dy = float(y + oy) - my
+        x, xb = spans[r, 0], spans[r, 1]
+        while x < xb:
+            a = _next_change(flat, base + x, base + xb, False) - base
+            if a >= xb:
+                break
+            x = _next_change(flat, base + a, base + xb, True) - base
+            for k in (a, x - 1):
+                dx = float(k + ox) - mx
+                along = max(along, dx * e0 + dy * e1)
+                across = dx * -e1 + dy * e0
+                lo, hi = min(lo, across), max(hi, across)
+    return along, lo, hi
+
+
 @kernel(
     "boolean(boolean[:, ::1], int64, int64, int64, int64, float64, float64, float64, float64,"
     " float64[::1])"
@@ -2113,48 +2237,32 @@ def _jaw_axis(
     h, w = mask.shape
     x0, y0 = max(int(math.floor(cx - rad)), 0), max(int(math.floor(cy - rad)), 0)
     x1, y1 = min(int(math.ceil(cx + rad)) + 1, w), min(int(math.ceil(cy + rad)) + 1, h)
-    r2 = rad * rad
-    xs = np.empty(max((x1 - x0) * (y1 - y0), 0), np.int64)
-    ys = np.empty_like(xs)
+    spans = np.empty((max(y1 - y0, 0), 2), np.int64)
     flat = mask.view(np.uint8).ravel()
-    cnt = sx = sy = 0
-    for y in range(y0, y1):  # row-major, as np.nonzero
-        rem = r2 - (y - cy) * (y - cy)
-        if rem < 0:
-            continue
-        dxm = int(math.sqrt(rem))  # the row's pixels in the disc: |x - cx| <= dxm, exactly
-        while dxm * dxm > rem:
-            dxm -= 1
-        while (dxm + 1) * (dxm + 1) <= rem:
-            dxm += 1
-        base = y * w
-        for x in range(max(cx - dxm, x0), min(cx + dxm + 1, x1)):
-            # written always, kept when the pixel is set: no branch on the mask
-            v = np.int64(flat[base + x])
-            xs[cnt], ys[cnt] = x, y
-            cnt += v
-            sx += x * v
-            sy += y * v
+    cnt, sx, sy = _disc_spans(flat, w, cx, cy, rad, x0, y0, x1, y1, spans)
     if cnt < 3:
         return False
     mx, my = (sx + cnt * ox) / cnt, (sy + cnt * oy) / cnt
     c00 = c01 = c11 = 0.0
-    for k in range(cnt):
-        dx, dy = float(xs[k] + ox) - mx, float(ys[k] + oy) - my
-        c00 += dx * dx
-        c01 += dx * dy
-        c11 += dy * dy
+    for y in range(y0, y1):  # the same pixels in the same order (row-major, np.nonzero's)
+        base = y * w
+        dy = float(y + oy) - my
+        x, xb = spans[y - y0, 0], spans[y - y0, 1]
+        while x < xb:
+            a = _next_change(flat, base + x, base + xb, False) - base
+            if a >= xb:
+                break
+            x = _next_change(flat, base + a, base + xb, True) - base
+            for k in range(a, x):
+                dx = float(k + ox) - mx
+                c00 += dx * dx
+                c01 += dx * dy
+                c11 += dy * dy
     phi = 0.5 * math.atan2(2.0 * c01, c00 - c11)
     e0, e1 = math.cos(phi), math.sin(phi)
     if e0 * ux + e1 * uy < 0:
         e0, e1 = -e0, -e1
-    along = -math.inf
-    lo, hi = math.inf, -math.inf
-    for k in range(cnt):
-        dx, dy = float(xs[k] + ox) - mx, float(ys[k] + oy) - my
-        along = max(along, dx * e0 + dy * e1)
-        across = dx * -e1 + dy * e0
-        lo, hi = min(lo, across), max(hi, across)
+    along, lo, hi = _disc_extents(flat, w, spans, y0, ox, oy, mx, my, e0, e1)
     end[0], end[1] = mx + (along + 0.5) * e0, my + (along + 0.5) * e1
     end[2], end[3] = e0, e1
     end[4] = min(0.5 * (hi - lo) + 0.5, width)
@@ -2739,20 +2847,59 @@ def instance_from_masks(
     return INSTANCE_MEASURED
 
 
+_BYTES_LOW = np.uint64(0x00FF00FF00FF00FF)
+_LANES16 = np.uint64(0x0001000100010001)
+
+
+@helper
+def _ones(a: np.ndarray, i: int, n: int) -> int:
+    """The sum of the 0/1 bytes ``a[i:i + n]`` (``a``: flat uint8), eight at a time: up to
+    255 words summed into one word's byte lanes, then the lanes added (exact)."""
+    tot = 0
+    t = 0
+    while n - t >= 8:
+        m = min((n - t) // 8, 255)
+        acc = np.uint64(0)
+        for q in range(m):
+            acc += _load8(a, i + t + 8 * q)
+        lanes = (acc & _BYTES_LOW) + ((acc >> np.uint64(8)) & _BYTES_LOW)
+        tot += np.int64((lanes * _LANES16) >> np.uint64(48))
+        t += 8 * m
+    for q in range(t, n):
+        tot += a[i + q]
+    return tot
+
+
+@helper
+def _ones_and(a: np.ndarray, i: int, b: np.ndarray, j: int, n: int) -> int:
+    """The sum of ``a[i + t] & b[j + t]`` over ``t < n`` (0/1 bytes), as :func:`_ones`."""
+    tot = 0
+    t = 0
+    while n - t >= 8:
+        m = min((n - t) // 8, 255)
+        acc = np.uint64(0)
+        for q in range(m):
+            acc += _load8(a, i + t + 8 * q) & _load8(b, j + t + 8 * q)
+        lanes = (acc & _BYTES_LOW) + ((acc >> np.uint64(8)) & _BYTES_LOW)
+        tot += np.int64((lanes * _LANES16) >> np.uint64(48))
+        t += 8 * m
+    for q in range(t, n):
+        tot += a[i + q] & b[j + q]
+    return tot
+
+
 @kernel("float64(uint8[:, ::1], boolean[:, ::1], int64, int64, int64, int64, int64)")
 def iou_count(
     rend: np.ndarray, mask: np.ndarray, ox: int, oy: int, x0: int, y0: int, st: int
 ) -> float:
     """IoU of a filled canvas (``rend``: 0 or 1, its pixel ``(i, j)`` at the image's
     ``(x0 + st j, y0 + st i)``) with a mask crop at ``(ox, oy)`` sampled on the same
-    pixels; NaN when both are empty. (Flat arrays and unsigned indices: no wrap-around
-    checks, so the byte sums become vector code.)"""
+    pixels; NaN when both are empty. (The byte counts eight bytes at a time,
+    :func:`_ones`; a canvas of step 2 samples every other mask byte, one at a time.)"""
     hc, wc = rend.shape
     mh, mw = mask.shape
     rflat = rend.ravel()
-    n_rend = 0
-    for i in range(np.uint64(hc * wc)):
-        n_rend += rflat[i]
+    n_rend = _ones(rflat, 0, hc * wc)
     ia, ja = max(0, -(-(oy - y0) // st)), max(0, -(-(ox - x0) // st))
     ib, jb = min(hc, -(-(oy + mh - y0) // st)), min(wc, -(-(ox + mw - x0) // st))
     m8 = mask.view(np.uint8).ravel()
@@ -2762,9 +2909,8 @@ def iou_count(
         r0 = np.uint64(i * wc + ja)
         row_obs = row_inter = 0
         if st == 1:
-            for j in range(np.uint64(jb - ja)):
-                row_obs += m8[m0 + j]
-                row_inter += m8[m0 + j] & rflat[r0 + j]
+            row_obs = _ones(m8, np.int64(m0), jb - ja)
+            row_inter = _ones_and(m8, np.int64(m0), rflat, np.int64(r0), jb - ja)
         else:
             for j in range(np.uint64(jb - ja)):
                 row_obs += m8[m0 + 2 * j]
