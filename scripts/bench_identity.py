@@ -74,8 +74,10 @@ def _serve(root: Path) -> int:
     """``--serve ROOT``: the child's loop over the parent's requests (pickled on stdin,
     answers pickled on stdout): ``("frames", cfg, frames)``, ``("run",)`` -> ``(CPU
     seconds, digests)``, ``("quit",)``."""
-    import mistool.kernels._all  # noqa: F401  (every kernel loaded before timing)
     import mistool.tracking as tracking
+    from mistool.kernels import warm
+
+    warm()  # every kernel loaded before timing
 
     assert Path(str(tracking.__file__)).is_relative_to(root), tracking.__file__
     out = sys.stdout.buffer
@@ -246,8 +248,10 @@ def main() -> int:
     if args.serve is not None:
         return _serve(args.serve)
     sys.path.insert(0, str(HERE))  # this checkout: the observations, --pieces, --cprofile
-    import mistool.kernels._all  # noqa: F401
     import mistool.tracking as this
+    from mistool.kernels import warm
+
+    warm()  # every kernel loaded before timing
 
     assert Path(str(this.__file__)).is_relative_to(HERE), this.__file__
     children = {}
