@@ -20,9 +20,7 @@ import math
 import multiprocessing
 import os
 import signal
-import threading
 import time
-import weakref
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -31,6 +29,7 @@ from typing import TYPE_CHECKING, Any, overload
 from mistool.cache import CacheEntry, Progress
 from mistool.config import Config
 from mistool.errors import MistoolError
+from mistool.forksafe import fork_is_safe as fork_is_safe  # (the command line's too)
 from mistool.model import TrackTable
 from mistool.sequence import MaskSequence
 
@@ -426,21 +425,6 @@ def _child(spec: JobSpec, conn: Any) -> None:
 
 
 # -- the parent ---------------------------------------------------------------------------
-#: Threads a fork may leave behind: they hold no lock the forked child could need (they
-#: only copy bytes between file descriptors, e.g. the command line's stderr filter,
-#: :func:`mistool.cli.quiet_native_stderr`, which adds itself here).
-FORK_SAFE_THREADS: weakref.WeakSet[threading.Thread] = weakref.WeakSet()
-
-
-def fork_is_safe() -> bool:
-    """Whether this process may fork its tracking child: it runs in the main thread, and
-    every other thread is in :data:`FORK_SAFE_THREADS`."""
-    me = threading.current_thread()
-    if me is not threading.main_thread():
-        return False
-    return all(t is me or t in FORK_SAFE_THREADS for t in threading.enumerate())
-
-
 class TrackingJob:
     """A child process tracking into a cache entry; :meth:`stop` kills it at any time."""
 

@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from mistool.errors import ConfigError
-from mistool.model import PARTS
+from mistool.parts import PARTS
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -168,7 +168,7 @@ class InstrumentSpec:
     name: str
     """Instrument name, as written in the motion table's ``instrument`` column."""
     parts: dict[str, ValueRange]
-    """Part name -> inclusive label value range; parts in :data:`~mistool.model.PARTS`."""
+    """Part name -> inclusive label value range; parts in :data:`~mistool.parts.PARTS`."""
     shaft_diameter_mm: float | None = None
     """Shaft diameter (mm), needed for metric 3D."""
     clasper_length_mm: float | None = None

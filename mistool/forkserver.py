@@ -1,10 +1,11 @@
 """The worker processes' fork server: its context, and its start ahead of the pool.
 
 mistool's worker processes fork from a ``forkserver`` that has imported the per-frame
-code and loaded its compiled kernels once (~1.4 s in a new process: imports ~0.35 s,
-kernels ~1.0 s). :func:`start` launches that server without waiting for it, so that a
-command can have it loading while it imports and lists its own inputs; the pool made
-later (:class:`mistool.parallel.LocalPool`) then forks its workers from it. This module
+code and loaded its compiled kernels once (~0.95 s in a new process: imports ~0.35 s,
+kernels ~0.57 s, of which numba's first load ~0.27 s with its import of scipy.linalg).
+:func:`start` launches that server without waiting for it, so that a command can have
+it loading while it imports and lists its own inputs; the pool made later
+(:class:`mistool.parallel.LocalPool`) then forks its workers from it. This module
 imports only :mod:`multiprocessing`: calling :func:`start` first thing costs ~5 ms.
 """
 

@@ -22,9 +22,7 @@ from typing import Any
 import numpy as np
 
 from mistool.errors import TableError
-
-#: Instrument parts, proximal to distal. ``wrist`` exists only where the labels have one.
-PARTS: tuple[str, ...] = ("shaft", "wrist", "clasper")
+from mistool.parts import PARTS as PARTS  # (defined there: no numpy)
 
 
 @dataclass(frozen=True)

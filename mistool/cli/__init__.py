@@ -247,7 +247,7 @@ def quiet_native_stderr() -> Iterator[None]:
     pump = threading.Thread(
         target=_pump, args=(read_end, saved, done), name=PUMP_THREAD, daemon=True
     )
-    from mistool.background import FORK_SAFE_THREADS
+    from mistool.forksafe import FORK_SAFE_THREADS
 
     FORK_SAFE_THREADS.add(pump)  # so mistool serve still forks its tracking process
     pump.start()
