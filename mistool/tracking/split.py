@@ -16,9 +16,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mistool.geometry import grown_box
 from mistool.kernels import split as kernels
-from mistool.kernels.boxes import fit_runs, mask_runs
+from mistool.kernels.boxes import fit_runs_box, mask_runs
 from mistool.kernels.split import DOT_SERIAL_MAX
 from mistool.model import InstanceObservation, PartObservation, RotatedBox
 from mistool.tracking.instances import unit_vector
@@ -987,7 +986,7 @@ def _measure_runs(
 ) -> list[_Measured | None]:
     """Part ``name`` of each piece from its row runs (``(ry, rx0, rx1, count)`` per
     piece, crop coordinates at ``offset``): Algorithm 1 of the runs
-    (:func:`mistool.kernels.boxes.fit_runs`, as :func:`geometry.fit_part` of their
+    (:func:`mistool.kernels.boxes.fit_runs_box`, as :func:`geometry.fit_part` of their
     mask), None when no pixel is kept."""
     ry, rx0, rx1, count = runs
     ox, oy = int(offset[0]), int(offset[1])
@@ -996,14 +995,15 @@ def _measure_runs(
         if not n:
             out.append(None)
             continue
-        # (geometry.fit_of's steps without its PartFit)
-        (area, x0, y0, sx, sy), kept, pts, hull = fit_runs(
+        # (geometry.fit_of's steps without its PartFit; the box from the rows' hull
+        # without tracing the outline where that gives the traced box's bits)
+        (area, x0, y0, sx, sy), kept, (cx, cy, length, width, angle), corners = fit_runs_box(
             ry[j], rx0[j], rx1[j], n, min_area_px, ox, oy
         )
         if area == 0:
             out.append(None)
             continue
-        box, corners = grown_box(pts, hull)
+        box = RotatedBox(cx=cx, cy=cy, length=length, width=width, angle_deg=angle)
         origin = (ox + x0, oy + y0)
         obs = PartObservation(name, box, corners, area, kept, origin)
         out.append(_Measured(obs, sx + area * origin[0], sy + area * origin[1]))
