@@ -462,18 +462,47 @@ def _centred_direction_before(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     return c, r, np.array([math.cos(t), math.sin(t)])
 
 
+def _shared_before(pts: np.ndarray, ax: Any, lab: np.ndarray) -> np.ndarray:
+    """(N,) bool, the points labelled ``j`` lying within another axis ``k``'s half-width
+    and behind its distal end, where ``k``'s points lie on both sides of ``j``'s line
+    farther than ``split.SPLIT_THROUGH_RADII`` of ``j``'s half-widths (numpy, the
+    coordinates of ``_segment_d2_before``)."""
+    from mistool.tracking import split
+
+    k = len(ax.dirs)
+    nrm = np.stack([-ax.dirs[:, 1], ax.dirs[:, 0]], 1)
+    coords = pts @ np.concatenate([ax.dirs, nrm]).T
+    coords -= np.concatenate([(ax.ends * ax.dirs).sum(1), (ax.ends * nrm).sum(1)])
+    along, perp = coords[:, :k], coords[:, k:]
+    d2 = _segment_d2_before(pts, ax.ends, ax.dirs, ax.back, ax.radius)
+    shared = np.zeros(len(pts), bool)
+    for j in range(k):
+        thr = split.SPLIT_THROUGH_RADII * ax.radius[j]
+        for o in range(k):
+            across = perp[lab == o, j]
+            if o == j or min(0.0, across.min(initial=0.0)) >= -thr:
+                continue
+            if max(0.0, across.max(initial=0.0)) <= thr:
+                continue
+            shared |= (lab == j) & (d2[:, o] < 1.0) & (along[:, o] < 0.0)
+    return shared
+
+
 def _refit_before(
     ax: Any, pts: np.ndarray, weight: int, min_area_px: int, contiguous: bool
 ) -> bool:
-    """``split._refit`` as it was (commit 3fc5814)."""
+    """``split._refit`` as it was (commit 3fc5814), with the reach cut where another
+    shaft passes through (fits of ``split.SPLIT_THROUGH_AXES`` axes or more)."""
     from mistool.tracking import split
 
+    through = len(ax.dirs) >= split.SPLIT_THROUGH_AXES
     prev: np.ndarray | None = None
     for _ in range(split.SPLIT_REFIT_ROUNDS):
         lab = _nearest_before(pts, ax)
         if prev is not None and np.array_equal(lab, prev):
             break
         prev = lab
+        shared = _shared_before(pts, ax, lab) if through else None
         for j in range(len(ax.dirs)):
             q = pts[lab == j]
             if len(q) < 3 or len(q) * weight < min_area_px:
@@ -484,6 +513,10 @@ def _refit_before(
             limit = float((ax.limit_end[j] + ax.margin[j] * ax.dirs[j] - c) @ ax.dirs[j])
             proj = r @ ax.dirs[j]
             reach = float(proj.max())
+            if shared is not None and not shared[lab == j].all():
+                own = float(proj[~shared[lab == j]].max())
+                if reach - own > split.SPLIT_THROUGH_CUT_RADII * ax.radius[j]:
+                    reach = own
             if contiguous:
                 sp = np.sort(proj)
                 gaps = np.flatnonzero(np.diff(sp) > split.SPLIT_CONTIGUOUS_GAP * ax.radius[j])

@@ -338,10 +338,24 @@ def nearest_labels(
     _labels(xs, ys, _frames(ends, dirs, back, radius), keep_d2, keep, p.shape[0] == 1, out)
 
 
+@helper
+def _own_reach(lab: np.ndarray, j: int, shared: np.ndarray, proj: np.ndarray) -> float:
+    """The largest ``proj`` (over the points labelled ``j``, in order) of a point not
+    ``shared``; -inf when every one is."""
+    own = -math.inf
+    k = 0
+    for i in range(lab.shape[0]):
+        if lab[i] == j:
+            if not shared[i] and proj[k] > own:
+                own = proj[k]
+            k += 1
+    return own
+
+
 @kernel(
     "boolean(float64[:, ::1], int64[::1], int64, float64[:, ::1], float64[::1],"
     " float64[:, ::1], float64[:, ::1], float64[::1], float64[:, ::1], float64[:, ::1],"
-    " float64[::1], int64, int64, boolean, float64, float64)"
+    " float64[::1], int64, int64, boolean, float64, float64, boolean[::1], float64)"
 )
 def _refit_axis(
     pts: np.ndarray,
@@ -360,9 +374,13 @@ def _refit_axis(
     contiguous: bool,
     turn_cos: float,
     gap_radii: float,
+    shared: np.ndarray,
+    cut_radii: float,
 ) -> bool:
     """Axis ``j`` refitted to the points labelled ``j`` (one round of
-    :func:`refit_axes`; ``q``, ``proj``: work space); False when they are too few."""
+    :func:`refit_axes`; ``q``, ``proj``: work space; ``shared`` (N,) or empty: points
+    lying in another shaft's band, whose reach counts only within ``cut_radii`` radii of
+    the others'); False when they are too few."""
     n = pts.shape[0]
     m = 0
     sx = 0.0
@@ -402,6 +420,10 @@ def _refit_axis(
         pi = proj[i]
         if reach == reach and (pi > reach or pi != pi):
             reach = pi
+    if shared.shape[0]:  # the reach of its points in no other shaft's band, if any
+        own = _own_reach(lab, j, shared, proj)
+        if own > -math.inf and reach - own > cut_radii * radius[j]:
+            reach = own
     if contiguous:  # up to the first gap along the axis
         sp = np.sort(proj[:m])
         gap = gap_radii * radius[j]
@@ -415,9 +437,54 @@ def _refit_axis(
     return True
 
 
+@helper
+def _passes(
+    xs: np.ndarray,
+    ys: np.ndarray,
+    seg: np.ndarray,
+    lab: np.ndarray,
+    single: bool,
+    through_radii: float,
+    radius: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    shared: np.ndarray,
+) -> None:
+    """``shared[i]``: point ``i``, labelled ``j``, lies within the radius of another axis
+    ``k`` and behind its distal end, where ``k``'s shaft passes through ``j``'s line: the
+    points labelled ``k`` reach farther than ``through_radii`` radii of ``j`` on both
+    sides of it (``lo``, ``hi`` (K, K): work space, the extent of ``k``'s points across
+    ``j``'s line). A shaft ending at another's line (a V) does not pass through it."""
+    kk = seg.shape[0]
+    n = xs.shape[0]
+    for j in range(kk):
+        for k in range(kk):
+            lo[j, k] = 0.0
+            hi[j, k] = 0.0
+    for i in range(n):
+        k = lab[i]
+        if k < kk:
+            for j in range(kk):
+                if j != k:
+                    perp = row_dot(-seg[j, 1], seg[j, 0], xs[i], ys[i], single) - seg[j, 3]
+                    lo[j, k] = min(lo[j, k], perp)
+                    hi[j, k] = max(hi[j, k], perp)
+    for i in range(n):
+        j = lab[i]
+        s = False
+        if j < kk:
+            thr = through_radii * radius[j]
+            for k in range(kk):
+                if k != j and lo[j, k] < -thr and hi[j, k] > thr:
+                    if _d2(xs[i], ys[i], seg, k, single) < 1.0:
+                        along = row_dot(seg[k, 0], seg[k, 1], xs[i], ys[i], single) - seg[k, 2]
+                        s = s or along < 0.0
+        shared[i] = s
+
+
 @kernel(
     f"boolean(float64[:, ::1], {_SEGMENTS}, float64[:, ::1], float64[:, ::1], float64[::1],"
-    " float64, boolean, int64, int64, boolean, int64, float64, float64)"
+    " float64, boolean, int64, int64, boolean, int64, float64, float64, float64, float64)"
 )
 def refit_axes(
     pts: np.ndarray,
@@ -436,6 +503,8 @@ def refit_axes(
     rounds: int,
     turn_cos: float,
     gap_radii: float,
+    through_radii: float,
+    cut_radii: float,
 ) -> bool:
     """``split._refit``: rounds of nearest axis, then each axis refitted to its points
     (direction: the 2x2 principal axis, unless it turns past ``turn_cos`` from
@@ -443,7 +512,12 @@ def refit_axes(
     ``contiguous``, up to the first gap of ``gap_radii`` radii along the axis), until no
     point changes axis; ``ends`` and ``dirs`` updated in place. False when an axis keeps
     fewer than 3 points or ``weight`` x its points < ``min_area``. At most
-    :data:`DOT_SERIAL_MAX` points."""
+    :data:`DOT_SERIAL_MAX` points.
+
+    ``through_radii`` > 0: where another shaft passes through an axis's line (its points
+    lie on both sides of the line, farther than ``through_radii`` of the axis's radii),
+    the axis's points in that shaft's band (within its radius) behind its distal end
+    extend the axis's reach by at most ``cut_radii`` of its radii (:func:`_passes`)."""
     n = pts.shape[0]
     single = n == 1
     lab = np.empty(n, np.int64)
@@ -451,8 +525,14 @@ def refit_axes(
     q = np.empty((n, 2), np.float64)
     proj = np.empty(n, np.float64)
     xs, ys = _columns(pts)
+    kk = ends.shape[0]
+    through = through_radii > 0.0
+    shared = np.zeros(n if through else 0, np.bool_)
+    lo = np.empty((kk, kk) if through else (0, 0), np.float64)
+    hi = np.empty_like(lo)
     for rnd in range(rounds):
-        _labels(xs, ys, _frames(ends, dirs, back, radius), keep_d2, keep, single, lab)
+        seg = _frames(ends, dirs, back, radius)
+        _labels(xs, ys, seg, keep_d2, keep, single, lab)
         same = rnd > 0
         for i in range(n):
             same = same and lab[i] == prev[i]
@@ -460,10 +540,12 @@ def refit_axes(
             break  # the same points give the same axes: converged
         for i in range(n):
             prev[i] = lab[i]
-        for j in range(ends.shape[0]):
+        if through:
+            _passes(xs, ys, seg, lab, single, through_radii, radius, lo, hi, shared)
+        for j in range(kk):
             if not _refit_axis(
                 pts, lab, j, q, proj, ends, dirs, radius, limit_end, start_dirs, margin,
-                weight, min_area, contiguous, turn_cos, gap_radii,
+                weight, min_area, contiguous, turn_cos, gap_radii, shared, cut_radii,
             ):  # fmt: skip
                 return False
     return True

@@ -104,6 +104,11 @@ SPLIT_OTHERS_D2 = 9.0
 #: of the blob). Two tools crossing are cut across their shafts: their pieces' motion
 #: is measured as is.
 CROWDED_SPLIT_TRACKS = 3
+#: ... and keeps its velocity when one of its head parts lies farther than this many
+#: shaft widths from where its tool's same part is expected (:meth:`Track.expected_heads`):
+#: the head changed hands between the pieces, the tool did not move (a four-tool split
+#: of fresh seed 55, frames 141-149).
+HEAD_JUMP_WIDTHS = 1.0
 #: A head part seen this many frames ago or fewer is expected where it was, moved on the
 #: track's velocity (for at most :data:`SPLIT_STOP_FRAMES`), when heads are handed back
 #: to their own tool (:func:`~mistool.tracking.heads.hand_over_heads`).
@@ -232,6 +237,22 @@ class Track:
     def predict_xy(self, frame: int) -> tuple[float, float]:
         """:meth:`predict` as two floats (the same values)."""
         return self.motion.predict_xy(self.predict_steps(frame))
+
+
+def _head_jumped(t: Track, inst: InstanceObservation, frame: int) -> bool:
+    """One of the instance's head parts lies farther than :data:`HEAD_JUMP_WIDTHS` shaft
+    widths (its shaft's, else the expected part's width) from where ``t``'s same part is
+    expected at ``frame``."""
+    expected = t.expected_heads(frame)
+    shaft = inst.parts.get("shaft")
+    for p in HEAD_PARTS:
+        part = inst.parts.get(p)
+        e = expected.get(p)
+        if part is not None and e is not None:
+            reach = HEAD_JUMP_WIDTHS * (shaft.box.width if shaft is not None else e.width)
+            if math.hypot(part.box.cx - e.cx, part.box.cy - e.cy) > reach:
+                return True
+    return False
 
 
 def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
@@ -1022,8 +1043,10 @@ class IdentityTracker:
                 c,
                 gap,
                 # a new track's first displacement to a crowded piece is no velocity:
-                # the piece's cut moved (held-out seed 6 frame 55: 70 px in a frame)
-                continuous=t.state is TrackState.TRACKED and not (crowded and t.seen == 1),
+                # the piece's cut moved (held-out seed 6 frame 55: 70 px in a frame);
+                # nor is one whose head jumped
+                continuous=t.state is TrackState.TRACKED
+                and not (crowded and (t.seen == 1 or _head_jumped(t, inst, frame))),
                 first=t.seen == 1,
                 unsure_along=unsure,
             )

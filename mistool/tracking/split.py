@@ -58,6 +58,20 @@ SPLIT_END_MARGIN = 0.1
 #: Shafts from the border (``contiguous``): a shaft ends at the first gap of this many
 #: half-widths between its pixels along its axis (beyond is another's).
 SPLIT_CONTIGUOUS_GAP = 4.0
+#: In a fit of at least this many axes, an axis's reach is cut back where another shaft
+#: passes through its line (:data:`SPLIT_THROUGH_RADII`): a tool's expected shaft,
+#: reaching across another's, took a wedge of it. Not in fits of two or three: every
+#: form tried there renamed or lowered two-tool crossings or held-out four-tool
+#: sequences (docs/tracking.md, tenth to thirteenth passes).
+SPLIT_THROUGH_AXES = 4
+#: ... another shaft passes through an axis's line when its points lie on both sides of
+#: it, farther than this many of the axis's half-widths (a shaft ending at the line, a V,
+#: does not pass through) ...
+SPLIT_THROUGH_RADII = 1.0
+#: ... and the axis's points within that shaft's half-width, behind its distal end,
+#: extend the axis's reach by at most this many of its half-widths beyond its other
+#: points' reach.
+SPLIT_THROUGH_CUT_RADII = 1.0
 
 #: A shaft entering the view is seen on the image border over at least this many px.
 ENTRY_MIN_PX = 6
@@ -525,18 +539,21 @@ def _refit(ax: _Axes, pts: np.ndarray, weight: int, min_area_px: int, contiguous
     spread of a stub entering the view, or of a shaft mostly under another, is across
     it); its distal end is the points' reach, never beyond the expected end plus its
     margin (``contiguous``: up to the first gap of :data:`SPLIT_CONTIGUOUS_GAP`
-    half-widths along the axis, beyond is another's). One compiled loop
+    half-widths along the axis, beyond is another's; with at least
+    :data:`SPLIT_THROUGH_AXES` axes, not across another shaft passing through its line:
+    :data:`SPLIT_THROUGH_RADII`). One compiled loop
     (:func:`mistool.kernels.split.refit_axes`), ``ax.ends`` and ``ax.dirs`` updated in
     place."""
     if len(pts) > DOT_SERIAL_MAX:  # (the fit's sample never is: SPLIT_FIT_POINTS)
         raise ValueError(f"_refit: {len(pts)} points, at most {DOT_SERIAL_MAX} (numpy's bits)")
     keep = ax.keep_d2 is not None
+    through = SPLIT_THROUGH_RADII if len(ax.dirs) >= SPLIT_THROUGH_AXES else 0.0
     return bool(
         kernels.refit_axes(
             _points(pts), ax.ends, ax.dirs, ax.back, ax.radius, ax.limit_end,
             ax.start_dirs, ax.margin, ax.keep_d2 if ax.keep_d2 is not None else 0.0, keep,
             weight, min_area_px, contiguous, SPLIT_REFIT_ROUNDS, SPLIT_MAX_TURN_COS,
-            SPLIT_CONTIGUOUS_GAP,
+            SPLIT_CONTIGUOUS_GAP, through, SPLIT_THROUGH_CUT_RADII,
         )
     )  # fmt: skip
 
