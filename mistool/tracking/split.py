@@ -475,12 +475,20 @@ def _initial_axes(
     compiled pass
     (:func:`mistool.kernels.split.initial_axes`)."""
     k = len(expected)
-    boxes = np.zeros((k, 3, 5))
-    nother = np.zeros(k, np.int64)
-    for i, e in enumerate(expected):
-        rows = [e["shaft"]] + [b for p, b in e.items() if p != "shaft"]
-        boxes[i, : len(rows)] = [(b.cx, b.cy, b.length, b.width, b.angle_deg) for b in rows]
-        nother[i] = len(rows) - 1
+    flat: list[float] = []  # (the (K, 3, 5) boxes made from one list: one conversion)
+    counts = []
+    for e in expected:
+        b = e["shaft"]
+        flat += (b.cx, b.cy, b.length, b.width, b.angle_deg)
+        n = 0
+        for p, b in e.items():
+            if p != "shaft":
+                flat += (b.cx, b.cy, b.length, b.width, b.angle_deg)
+                n += 1
+        flat += (0.0,) * (5 * (2 - n))
+        counts.append(n)
+    boxes = np.array(flat, np.float64).reshape(k, 3, 5)
+    nother = np.array(counts, np.int64)
     ends0 = np.empty((k, 2))
     dirs = np.empty((k, 2))
     back = np.empty(k)
@@ -942,8 +950,11 @@ def _head_labels(
     parts = [segs]
     row = [rows]
     centres = np.zeros((len(ax.dirs) + len(anchors), 3))
+    # (every instrument has its head segment: only an anchor without boxes is a centre)
+    centre = [False] * len(ax.dirs)
     for a, anchor in enumerate(anchors, start=len(ax.dirs)):
         seg = anchor.segments(part.part)
+        centre.append(seg is None)
         if seg is None:
             centres[a] = (anchor.centre[0], anchor.centre[1], anchor.radius * anchor.radius)
             continue
@@ -954,8 +965,7 @@ def _head_labels(
     else:
         ends, dirs, back, radius = (np.concatenate(c) for c in zip(*parts, strict=True))
     rows = np.concatenate(row).astype(np.int64) if len(row) > 1 else row[0]
-    is_centre = np.ones(len(centres), np.bool_)
-    is_centre[rows] = False
+    is_centre = np.array(centre, np.bool_)
     runs = mask_runs(_mask_u8(part.mask))
     px, py = kernels.run_pixels(*runs, int(part.offset[0]), int(part.offset[1]))
     lab = np.empty(len(px), np.int64)
@@ -966,15 +976,9 @@ def _head_labels(
     return runs, lab
 
 
-@dataclass(frozen=True)
-class _Measured:
-    """A piece's part measured, with its pixels' coordinate sums (its instance's
-    centroid)."""
-
-    obs: PartObservation
-    sum_x: int
-    """Sum of the pixels' full-image x, px."""
-    sum_y: int
+#: A piece's part measured, with its pixels' full-image coordinate sums (its instance's
+#: centroid): ``(obs, sum of x, sum of y)`` (a plain tuple: one per piece and part).
+_Measured = tuple[PartObservation, int, int]
 
 
 def _shaft_pieces(
@@ -1023,7 +1027,7 @@ def _measure_runs(
         box = RotatedBox(cx=cx, cy=cy, length=length, width=width, angle_deg=angle)
         origin = (ox + x0, oy + y0)
         obs = PartObservation(name, box, corners, area, kept, origin)
-        out.append(_Measured(obs, sx + area * origin[0], sy + area * origin[1]))
+        out.append((obs, sx + area * origin[0], sy + area * origin[1]))
     return out
 
 
@@ -1031,16 +1035,22 @@ def _instance(parts: dict[str, _Measured], shape: tuple[int, int] | None) -> Ins
     """:func:`~mistool.tracking.instances.make_instance` of measured parts: the same
     values (its centroid's sums are exact integers in float64, so the parts' own sums
     give its bits)."""
-    area = sum(m.obs.area_px for m in parts.values())
-    sx = sum(m.sum_x for m in parts.values())
-    sy = sum(m.sum_y for m in parts.values())
-    x0 = min(m.obs.offset[0] for m in parts.values())
-    y0 = min(m.obs.offset[1] for m in parts.values())
-    x1 = max(m.obs.offset[0] + m.obs.mask.shape[1] for m in parts.values())
-    y1 = max(m.obs.offset[1] + m.obs.mask.shape[0] for m in parts.values())
+    area = sx = sy = 0  # (exact integers: any order gives the same sums and bounds)
+    x0 = y0 = 1 << 62
+    x1 = y1 = -(1 << 62)
+    obs = {}
+    for name, (o, mx, my) in parts.items():
+        obs[name] = o
+        area += o.area_px
+        sx += mx
+        sy += my
+        ox, oy = o.offset
+        h, w = o.mask.shape
+        x0, y0 = min(x0, ox), min(y0, oy)
+        x1, y1 = max(x1, ox + w), max(y1, oy + h)
     return InstanceObservation(
         label=None,
-        parts={name: m.obs for name, m in parts.items()},
+        parts=obs,
         centroid_px=(float(sx) / area, float(sy) / area),
         area_px=area,
         bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)),
