@@ -2852,27 +2852,10 @@ _LANES16 = np.uint64(0x0001000100010001)
 
 
 @helper
-def _ones(a: np.ndarray, i: int, n: int) -> int:
-    """The sum of the 0/1 bytes ``a[i:i + n]`` (``a``: flat uint8), eight at a time: up to
-    255 words summed into one word's byte lanes, then the lanes added (exact)."""
-    tot = 0
-    t = 0
-    while n - t >= 8:
-        m = min((n - t) // 8, 255)
-        acc = np.uint64(0)
-        for q in range(m):
-            acc += _load8(a, i + t + 8 * q)
-        lanes = (acc & _BYTES_LOW) + ((acc >> np.uint64(8)) & _BYTES_LOW)
-        tot += np.int64((lanes * _LANES16) >> np.uint64(48))
-        t += 8 * m
-    for q in range(t, n):
-        tot += a[i + q]
-    return tot
-
-
-@helper
 def _ones_and(a: np.ndarray, i: int, b: np.ndarray, j: int, n: int) -> int:
-    """The sum of ``a[i + t] & b[j + t]`` over ``t < n`` (0/1 bytes), as :func:`_ones`."""
+    """The sum of ``a[i + t] & b[j + t]`` over ``t < n`` (0/1 bytes; ``a[i:i + n]``'s own
+    sum with ``b, j = a, i``), eight at a time: up to 255 words summed into one word's
+    byte lanes, then the lanes added (exact)."""
     tot = 0
     t = 0
     while n - t >= 8:
@@ -2895,11 +2878,11 @@ def iou_count(
     """IoU of a filled canvas (``rend``: 0 or 1, its pixel ``(i, j)`` at the image's
     ``(x0 + st j, y0 + st i)``) with a mask crop at ``(ox, oy)`` sampled on the same
     pixels; NaN when both are empty. (The byte counts eight bytes at a time,
-    :func:`_ones`; a canvas of step 2 samples every other mask byte, one at a time.)"""
+    :func:`_ones_and`; a canvas of step 2 samples every other mask byte, one at a time.)"""
     hc, wc = rend.shape
     mh, mw = mask.shape
     rflat = rend.ravel()
-    n_rend = _ones(rflat, 0, hc * wc)
+    n_rend = _ones_and(rflat, 0, rflat, 0, hc * wc)
     ia, ja = max(0, -(-(oy - y0) // st)), max(0, -(-(ox - x0) // st))
     ib, jb = min(hc, -(-(oy + mh - y0) // st)), min(wc, -(-(ox + mw - x0) // st))
     m8 = mask.view(np.uint8).ravel()
@@ -2909,7 +2892,7 @@ def iou_count(
         r0 = np.uint64(i * wc + ja)
         row_obs = row_inter = 0
         if st == 1:
-            row_obs = _ones(m8, np.int64(m0), jb - ja)
+            row_obs = _ones_and(m8, np.int64(m0), m8, np.int64(m0), jb - ja)
             row_inter = _ones_and(m8, np.int64(m0), rflat, np.int64(r0), jb - ja)
         else:
             for j in range(np.uint64(jb - ja)):
