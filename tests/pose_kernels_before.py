@@ -1,6 +1,8 @@
 """The compiled pose kernels' pieces as they were before the tenth session's changes
-(commit 3dccf97), compiled here with the same numba options, for
-``tests/test_pose_speed.py`` to compare the faster kernels with bit for bit."""
+(commit 3dccf97; the line fit's RANSAC and sort, the jaw ends' picks and the contour
+tracing as they were before the eleventh session's, at commit 5bd7ced), compiled here
+with the same numba options, for ``tests/test_pose_speed.py`` to compare the faster
+kernels with bit for bit."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import math
 import numpy as np
 from numba import njit
 
+from mistool.kernels import contours as kc
 from mistool.kernels import pose as kp
 
 _jit = njit(cache=True, nogil=True, error_model="numpy")
@@ -170,7 +173,7 @@ def fit_line(
         x[t] = px[t] - ox
         y[t] = py[t] - oy
     h = np.empty(3)
-    if kp._ransac(x, y, along, thresh, iters, h) < 6:
+    if ransac(x, y, along, thresh, iters, h) < 6:
         return -1
     m00 = m01 = m02 = m11 = m12 = sw = 0.0
     for t in range(n):
@@ -202,3 +205,203 @@ def fit_line(
     line[3] = math.sqrt(ss / k) if k else math.inf
     line[2] -= line[0] * ox + line[1] * oy
     return k
+
+
+@_jit
+def argsort(v: np.ndarray) -> np.ndarray:
+    n = len(v)
+    idx = np.empty(n, np.int64)
+    key = np.empty(n)
+    tmp = np.empty(n, np.int64)
+    tkey = np.empty(n)
+    bounds = np.empty(n + 1, np.int64)
+    n_runs = 0
+    i = 0
+    while i < n:  # the runs: ascending as they are, strictly descending reversed
+        j = i + 1
+        if j < n and v[j] < v[i]:
+            while j < n and v[j] < v[j - 1]:
+                j += 1
+            for k in range(j - i):
+                idx[i + k] = j - 1 - k
+                key[i + k] = v[j - 1 - k]
+        else:
+            while j < n and v[j] >= v[j - 1]:
+                j += 1
+            for k in range(i, j):
+                idx[k] = k
+                key[k] = v[k]
+        bounds[n_runs] = i
+        n_runs += 1
+        i = j
+    bounds[n_runs] = n
+    while n_runs > 1:  # merge neighbouring runs pairwise
+        m = 0
+        for r in range(0, n_runs, 2):
+            lo, mid = bounds[r], bounds[r + 1]
+            hi = bounds[r + 2] if r + 2 <= n_runs else mid
+            a, b, k = lo, mid, lo
+            while a < mid and b < hi:
+                if key[b] < key[a]:
+                    tmp[k], tkey[k] = idx[b], key[b]
+                    b += 1
+                else:
+                    tmp[k], tkey[k] = idx[a], key[a]
+                    a += 1
+                k += 1
+            while a < mid:
+                tmp[k], tkey[k] = idx[a], key[a]
+                a += 1
+                k += 1
+            while b < hi:
+                tmp[k], tkey[k] = idx[b], key[b]
+                b += 1
+                k += 1
+            bounds[m] = lo
+            m += 1
+        bounds[m] = n
+        n_runs = m
+        idx, tmp = tmp, idx
+        key, tkey = tkey, key
+    return idx
+
+
+@_jit
+def ransac(
+    x: np.ndarray, y: np.ndarray, along: np.ndarray, thresh: float, iters: int, h: np.ndarray
+) -> int:
+    n = len(x)
+    order = argsort(along)
+    half = n // 2
+    best = math.inf
+    res = np.empty(n)
+    found = False
+    for k in range(iters):
+        i = order[int(kp._DRAWS[0, k] * half)]
+        j = order[n - half + int(kp._DRAWS[1, k] * half)]
+        h0, h1 = y[i] - y[j], x[j] - x[i]
+        ln = math.sqrt(h0 * h0 + h1 * h1)
+        if not ln > 1e-9:  # NaN falls through: its residuals say no line
+            if not math.isnan(ln):
+                continue
+        h0, h1 = h0 / ln, h1 / ln
+        c = -(h0 * x[i] + h1 * y[i])
+        for t in range(n):
+            res[t] = min(abs(h0 * x[t] + h1 * y[t] + c), thresh)
+        cost = kp._sum8(res)
+        if math.isnan(cost):  # a NaN line or point: no line
+            return -1
+        if cost < best:
+            best = cost
+            h[0], h[1], h[2] = h0, h1, c
+            found = True
+    if not found:
+        return -1
+    count = 0
+    for t in range(n):
+        count += abs(h[0] * x[t] + h[1] * y[t] + h[2]) < thresh
+    return count
+
+
+@_jit
+def jaw_picks(
+    ci: np.ndarray, ox: float, oy: float, ju: float, jv: float, width: float, picks: np.ndarray
+) -> int:
+    n = len(ci)
+    if n < 2:
+        return 0
+    d = np.empty(n)
+    for i in range(n):
+        dx = (ci[i, 0] + ox) - ju
+        dy = (ci[i, 1] + oy) - jv
+        d[i] = math.sqrt(dx * dx + dy * dy)
+    win = int(max(2, min(n // 4, np.rint(width))))
+    dmax = d.max()
+    cand = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        if d[i] < 0.5 * dmax:
+            continue
+        top = True  # d[i] is the maximum of its window (the outline is closed)
+        for j in range(i - win, i + win + 1):
+            jj = j + n if j < 0 else (j - n if j >= n else j)
+            if d[jj] > d[i]:
+                top = False
+                break
+        if top:
+            cand[k] = i
+            k += 1
+    cand = cand[:k]
+    order = argsort(-d[cand])  # farthest first; equal distances in outline order
+    n_picks = 0
+    for o in order:
+        i = cand[o]
+        xi, yi = ci[i, 0] + ox, ci[i, 1] + oy
+        far = True
+        for p in range(n_picks):
+            far &= math.hypot(xi - (ci[picks[p], 0] + ox), yi - (ci[picks[p], 1] + oy)) > width
+        if far:
+            picks[n_picks] = i
+            n_picks += 1
+            if n_picks == 2:
+                break
+    return n_picks
+
+
+@_jit
+def trace(
+    flat: np.ndarray, h: int, w: int, x0: int, y0: int, points: np.ndarray, start: int
+) -> int:
+    cap = points.shape[0] - start
+    if cap < 1:
+        return -2
+    x, y = x0, y0
+    s = 4
+    n = 0
+    first_step = True
+    x1 = y1 = 0  # the second pixel
+    while True:
+        if 0 < x < w - 1 and 0 < y < h - 1:  # all eight neighbours in the crop
+            k = y * w + x
+            code = (
+                np.uint64(flat[k + 1])
+                | np.uint64(flat[k + 1 - w]) << np.uint64(1)
+                | np.uint64(flat[k - w]) << np.uint64(2)
+                | np.uint64(flat[k - 1 - w]) << np.uint64(3)
+                | np.uint64(flat[k - 1]) << np.uint64(4)
+                | np.uint64(flat[k - 1 + w]) << np.uint64(5)
+                | np.uint64(flat[k + w]) << np.uint64(6)
+                | np.uint64(flat[k + 1 + w]) << np.uint64(7)
+            )
+        else:
+            code = (
+                kc._pixel(flat, h, w, x + 1, y)
+                | kc._pixel(flat, h, w, x + 1, y - 1) << np.uint64(1)
+                | kc._pixel(flat, h, w, x, y - 1) << np.uint64(2)
+                | kc._pixel(flat, h, w, x - 1, y - 1) << np.uint64(3)
+                | kc._pixel(flat, h, w, x - 1, y) << np.uint64(4)
+                | kc._pixel(flat, h, w, x - 1, y + 1) << np.uint64(5)
+                | kc._pixel(flat, h, w, x, y + 1) << np.uint64(6)
+                | kc._pixel(flat, h, w, x + 1, y + 1) << np.uint64(7)
+            )
+        if first_step:  # the start pixel (west of it: background)
+            first_step = False
+            s = 4
+            while True:
+                s = (s - 1) & 7
+                if (code >> np.uint64(s)) & np.uint64(1) or s == 4:
+                    break
+            if s == 4:  # a single pixel
+                points[start, 0], points[start, 1] = x0, y0
+                return 1
+            x1, y1 = x0 + kc._DX[s], y0 + kc._DY[s]
+        s = np.int64(kc._NEXT[code * np.uint64(8) + np.uint64(s)])
+        if n == cap:
+            return -2
+        points[start + n, 0], points[start + n, 1] = x, y
+        n += 1
+        xn, yn = x + kc._DX[s], y + kc._DY[s]
+        if xn == x0 and yn == y0 and x == x1 and y == y1:
+            return n
+        x, y = xn, yn
+        s = (s + 4) & 7

@@ -5,6 +5,9 @@ definitions in ``tests/test_pose_kernels.py``."""
 
 from __future__ import annotations
 
+import functools
+from typing import Any
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -190,3 +193,156 @@ def test_iou_count_as_before(seed: int, st_: int) -> None:
     got = kp.iou_count(rend, mask, ox, oy, x0, y0, st_)
     ref = before_k.iou_count(rend, mask, ox, oy, x0, y0, st_)
     assert np.float64(got).tobytes() == np.float64(ref).tobytes()
+
+
+# -- the eleventh session's pieces against their former code (5bd7ced) -------------------
+
+
+@functools.cache
+def _wrapped() -> dict[str, Any]:
+    """The helpers under test, each in a small compiled function (a helper is called from
+    kernels), compiled once for the module's tests."""
+    import numba
+
+    from mistool.kernels import contours as kc
+    from mistool.kernels import pose as kp
+
+    return {
+        "trace": numba.njit(
+            lambda flat, h, w, x0, y0, pts, start: kc._trace(flat, h, w, x0, y0, pts, start)
+        ),
+        "next_change": numba.njit(
+            lambda flat, i, end, inside: kc._next_change(flat, i, end, inside)
+        ),
+        "jaw_picks": numba.njit(
+            lambda ci, ox, oy, ju, jv, wd, p: kp._jaw_picks(ci, ox, oy, ju, jv, wd, p)
+        ),
+        "vmax_vmin": numba.njit(lambda v: (kp._vmax(v), kp._vmin(v))),
+        "max_min": numba.njit(lambda v: (v.max(), v.min())),
+    }
+
+
+def _masks(seed: int) -> np.ndarray:
+    """A 0/1 crop: blobs, lines, noise, single pixels, pieces touching the crop's edges."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(1, 90, 2))
+    m = np.zeros((h, w), np.uint8)
+    for _ in range(int(rng.integers(0, 5))):
+        a = (int(rng.integers(-5, w + 5)), int(rng.integers(-5, h + 5)))
+        b = (int(rng.integers(-5, w + 5)), int(rng.integers(-5, h + 5)))
+        kind = rng.random()
+        if kind < 0.4:
+            cv2.line(m, a, b, 1, int(rng.integers(1, 9)))
+        elif kind < 0.8:
+            axes = (int(rng.integers(1, w + 1)), int(rng.integers(1, h + 1)))
+            cv2.ellipse(m, a, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+        else:
+            m[a[1] % h, a[0] % w] = 1
+    if rng.random() < 0.3:
+        m ^= (rng.random((h, w)) < rng.uniform(0.02, 0.6)).astype(np.uint8)
+    return m
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_contour_trace_as_before(seed: int) -> None:
+    """The contour tracing with its flat index carried along (unsigned, moved by each
+    chain code's offset): the same points as the former kernel from every component's
+    first pixel, and the same answer when the points do not fit."""
+    import cv2
+    import pose_kernels_before as before_k
+
+    trace = _wrapped()["trace"]
+    m = _masks(seed)
+    h, w = m.shape
+    flat = m.ravel()
+    rng = np.random.default_rng(seed)
+    n_comp, lab = cv2.connectedComponents(m, connectivity=8)
+    for c in range(1, n_comp):
+        ys, xs = np.nonzero(lab == c)
+        x0, y0 = int(xs[0]), int(ys[0])  # its first pixel in raster order
+        start = int(rng.integers(0, 4))
+        size = start + (4 * h * w + 4 if rng.random() < 0.8 else int(rng.integers(0, 12)))
+        got = np.full((size, 2), -7, np.int32)
+        ref = got.copy()
+        a = trace(flat, h, w, x0, y0, got, start)
+        b = before_k.trace(flat, h, w, x0, y0, ref, start)
+        assert a == b
+        assert np.array_equal(got, ref)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_next_change_equals_its_definition(seed: int) -> None:
+    """The row scan passing over 32 bytes at a time: the first index from ``i`` below
+    ``end`` whose byte is zero (inside) or non-zero (outside), ``end`` for none; also on
+    bytes other than 0 and 1."""
+    nxt = _wrapped()["next_change"]
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(0, 300))
+    runs = rng.integers(1, rng.choice([3, 40, 120]), n + 1)  # alternate 0 and 1 runs
+    v = np.repeat((np.arange(n + 1) + int(rng.integers(2))) % 2, runs)[:n].astype(np.uint8)
+    flips = rng.random(n) < rng.choice([0.0, 0.01, 0.3])
+    v = (v ^ flips).astype(np.uint8)
+    if rng.random() < 0.2:
+        v = v * rng.integers(1, 256, n).astype(np.uint8)
+    for _ in range(20):
+        i = int(rng.integers(0, n + 1))
+        end = int(rng.integers(i, n + 1))
+        inside = bool(rng.random() < 0.5)
+        ref = i
+        while ref < end and (v[ref] != 0) == inside:
+            ref += 1
+        assert nxt(v, i, end, inside) == ref
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_jaw_picks_as_before(seed: int) -> None:
+    """The jaw ends' picks with each window's two neighbours looked at first and the few
+    candidates sorted in place: the same picks, in the same order, as the former code
+    (outlines of random crops, J anywhere, widths from 0 to 40 px)."""
+    import cv2
+    import pose_kernels_before as before_k
+
+    picks_new = _wrapped()["jaw_picks"]
+    rng = np.random.default_rng(seed)
+    m = _masks(seed)
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    outlines = [c.reshape(-1, 2).astype(np.int32) for c in contours]
+    outlines.append(rng.integers(0, 30, (int(rng.integers(0, 9)), 2)).astype(np.int32))
+    for ci in outlines:
+        ci = np.ascontiguousarray(ci)
+        ox, oy = float(rng.integers(0, 600)), float(rng.integers(0, 500))
+        ju, jv = ox + float(rng.uniform(-60, 150)), oy + float(rng.uniform(-60, 150))
+        if rng.random() < 0.3:
+            ju, jv = float(np.round(ju)), float(np.round(jv))
+        width = float(rng.choice([0.0, 1.0, 2.5, rng.uniform(0.0, 40.0)]))
+        got = np.full(2, -1, np.int64)
+        ref = got.copy()
+        a = picks_new(ci, ox, oy, ju, jv, width, got)
+        b = before_k.jaw_picks(ci, ox, oy, ju, jv, width, ref)
+        assert a == b
+        assert np.array_equal(got, ref)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2, 7, 48, 301]), st.booleans())
+def test_vmax_vmin_equal_numbas_reductions(seed: int, n: int, single: bool) -> None:
+    """The plain max / min loops give numba's ``a.max()`` / ``a.min()`` bit for bit:
+    the first NaN, the first of equal extremes (signed zeros), float32 columns too."""
+    rng = np.random.default_rng(seed)
+    a = rng.choice([-0.0, 0.0, 1.5, -2.25, np.inf, -np.inf], (n, 2))
+    if rng.random() < 0.5:
+        a = rng.normal(0.0, 100.0, (n, 2))
+    if rng.random() < 0.3:
+        a[rng.random((n, 2)) < 0.2] = np.nan
+    if single:
+        a = a.astype(np.float32)
+    for col in (a[:, 0], np.ascontiguousarray(a[:, 1])):
+        got = _wrapped()["vmax_vmin"](col)
+        ref = _wrapped()["max_min"](col)
+        for g, r in zip(got, ref, strict=True):
+            assert np.asarray(g).tobytes() == np.asarray(r).tobytes()

@@ -49,12 +49,28 @@ _NEXT = _next_table()
 
 _LOW7 = np.uint64(0x7F7F7F7F7F7F7F7F)
 _HIGH = np.uint64(0x8080808080808080)
+_BYTE_ONES = np.uint64(0x0101010101010101)
 
 
 @helper
 def _next_change(flat: np.ndarray, i: int, end: int, inside: bool) -> int:
     """The first flat index from ``i`` (below ``end``) whose byte is zero when
-    ``inside``, non-zero when not; ``end`` when none is. Eight bytes at a time."""
+    ``inside``, non-zero when not; ``end`` when none is. 32 bytes at a time where none
+    changes (0/1 bytes: four words all zero, or all 0x01 bytes), then eight."""
+    if inside:
+        while i + 32 <= end:
+            if (
+                _load8(flat, i) & _load8(flat, i + 8) & _load8(flat, i + 16) & _load8(flat, i + 24)
+            ) != _BYTE_ONES:
+                break
+            i += 32
+    else:
+        while i + 32 <= end:
+            if (
+                _load8(flat, i) | _load8(flat, i + 8) | _load8(flat, i + 16) | _load8(flat, i + 24)
+            ) != 0:
+                break
+            i += 32
     want = _HIGH if inside else np.uint64(0)
     while i + 8 <= end:
         word = _load8(flat, i)
@@ -140,65 +156,80 @@ def _pixel(flat: np.ndarray, h: int, w: int, x: int, y: int) -> np.uint64:
 
 
 @helper
+def _code(flat: np.ndarray, h: int, w: int, x: int, y: int) -> np.uint64:
+    """The neighbourhood of pixel ``(x, y)`` (any integers): bit ``k`` set when its
+    neighbour along chain code ``k`` is foreground."""
+    return (
+        _pixel(flat, h, w, x + 1, y)
+        | _pixel(flat, h, w, x + 1, y - 1) << np.uint64(1)
+        | _pixel(flat, h, w, x, y - 1) << np.uint64(2)
+        | _pixel(flat, h, w, x - 1, y - 1) << np.uint64(3)
+        | _pixel(flat, h, w, x - 1, y) << np.uint64(4)
+        | _pixel(flat, h, w, x - 1, y + 1) << np.uint64(5)
+        | _pixel(flat, h, w, x, y + 1) << np.uint64(6)
+        | _pixel(flat, h, w, x + 1, y + 1) << np.uint64(7)
+    )
+
+
+@helper
 def _trace(
     flat: np.ndarray, h: int, w: int, x0: int, y0: int, points: np.ndarray, start: int
 ) -> int:
     """The outer border of the 8-connected component whose first pixel in raster order
     is ``(x0, y0)`` (its west neighbour is background), traced as OpenCV traces it, into
-    ``points[start:]``: the number of points, or -2 when they do not fit."""
+    ``points[start:]``: the number of points, or -2 when they do not fit.
+
+    One step per border pixel: its neighbourhood's code, then the next chain code from
+    one table look-up (:data:`_NEXT`). The pixel's flat index is carried along (moved by
+    the chain code's offset) and unsigned (no wrap-around checks on the eight loads)."""
     cap = points.shape[0] - start
     if cap < 1:
         return -2
+    one = np.uint64(1)
+    code = _code(flat, h, w, x0, y0)
+    s = 4  # the start pixel's first move: west of it is background
+    while True:
+        s = (s - 1) & 7
+        if (code >> np.uint64(s)) & one or s == 4:
+            break
+    if s == 4:  # a single pixel
+        points[start, 0], points[start, 1] = x0, y0
+        return 1
+    x1, y1 = x0 + _DX[s], y0 + _DY[s]  # the second pixel
+    step = np.empty(8, np.uint64)  # each chain code's flat offset (modulo 2**64)
+    for d in range(8):
+        step[d] = np.uint64(_DX[d] + _DY[d] * w)
+    uw = np.uint64(w)
     x, y = x0, y0
-    s = 4
+    k = np.uint64(y0 * w + x0)
+    sn = np.uint64(s)
     n = 0
-    first_step = True
-    x1 = y1 = 0  # the second pixel
     while True:
         if 0 < x < w - 1 and 0 < y < h - 1:  # all eight neighbours in the crop
-            k = y * w + x
             code = (
-                np.uint64(flat[k + 1])
-                | np.uint64(flat[k + 1 - w]) << np.uint64(1)
-                | np.uint64(flat[k - w]) << np.uint64(2)
-                | np.uint64(flat[k - 1 - w]) << np.uint64(3)
-                | np.uint64(flat[k - 1]) << np.uint64(4)
-                | np.uint64(flat[k - 1 + w]) << np.uint64(5)
-                | np.uint64(flat[k + w]) << np.uint64(6)
-                | np.uint64(flat[k + 1 + w]) << np.uint64(7)
+                np.uint64(flat[k + one])
+                | np.uint64(flat[k + one - uw]) << one
+                | np.uint64(flat[k - uw]) << np.uint64(2)
+                | np.uint64(flat[k - one - uw]) << np.uint64(3)
+                | np.uint64(flat[k - one]) << np.uint64(4)
+                | np.uint64(flat[k - one + uw]) << np.uint64(5)
+                | np.uint64(flat[k + uw]) << np.uint64(6)
+                | np.uint64(flat[k + one + uw]) << np.uint64(7)
             )
         else:
-            code = (
-                _pixel(flat, h, w, x + 1, y)
-                | _pixel(flat, h, w, x + 1, y - 1) << np.uint64(1)
-                | _pixel(flat, h, w, x, y - 1) << np.uint64(2)
-                | _pixel(flat, h, w, x - 1, y - 1) << np.uint64(3)
-                | _pixel(flat, h, w, x - 1, y) << np.uint64(4)
-                | _pixel(flat, h, w, x - 1, y + 1) << np.uint64(5)
-                | _pixel(flat, h, w, x, y + 1) << np.uint64(6)
-                | _pixel(flat, h, w, x + 1, y + 1) << np.uint64(7)
-            )
-        if first_step:  # the start pixel (west of it: background)
-            first_step = False
-            s = 4
-            while True:
-                s = (s - 1) & 7
-                if (code >> np.uint64(s)) & np.uint64(1) or s == 4:
-                    break
-            if s == 4:  # a single pixel
-                points[start, 0], points[start, 1] = x0, y0
-                return 1
-            x1, y1 = x0 + _DX[s], y0 + _DY[s]
-        s = np.int64(_NEXT[code * np.uint64(8) + np.uint64(s)])
+            code = _code(flat, h, w, x, y)
+        sn = np.uint64(_NEXT[code * np.uint64(8) + sn])
         if n == cap:
             return -2
-        points[start + n, 0], points[start + n, 1] = x, y
+        at = np.uint64(start + n)
+        points[at, 0], points[at, 1] = x, y
         n += 1
-        xn, yn = x + _DX[s], y + _DY[s]
+        xn, yn = x + _DX[sn], y + _DY[sn]
         if xn == x0 and yn == y0 and x == x1 and y == y1:
             return n
         x, y = xn, yn
-        s = (s + 4) & 7
+        k += step[sn]
+        sn = (sn + np.uint64(4)) & np.uint64(7)
 
 
 @kernel("int64(boolean[:, ::1], int32[:, ::1])")

@@ -264,16 +264,26 @@ def _kth(v: np.ndarray, n: int, k: int) -> float:
 
 @kernel("int64[::1](float64[::1])")
 def _argsort(v: np.ndarray) -> np.ndarray:
+    """Indices that sort ``v`` (ascending, stable): :func:`_argsort_in` with its own
+    scratch."""
+    n = len(v)
+    ints = np.empty(3 * n + 1, np.int64)
+    return _argsort_in(v, ints, np.empty(2 * n))
+
+
+@helper
+def _argsort_in(v: np.ndarray, ints: np.ndarray, floats: np.ndarray) -> np.ndarray:
     """Indices that sort ``v`` (ascending, stable): a natural merge sort, so that the few
     monotone runs of one limb's boundary points (one per neighbour direction, in outline
     order) are merged in a pass or two instead of sorted from scratch. The keys move with
-    their indices (one load per comparison)."""
+    their indices (one load per comparison). ``ints`` (``3 n + 1``) and ``floats``
+    (``2 n``) are scratch; the answer is a view of ``ints``."""
     n = len(v)
-    idx = np.empty(n, np.int64)
-    key = np.empty(n)
-    tmp = np.empty(n, np.int64)
-    tkey = np.empty(n)
-    bounds = np.empty(n + 1, np.int64)
+    idx = ints[:n]
+    tmp = ints[n : 2 * n]
+    bounds = ints[2 * n : 3 * n + 1]
+    key = floats[:n]
+    tkey = floats[n : 2 * n]
     n_runs = 0
     i = 0
     while i < n:  # the runs: ascending as they are, strictly descending reversed
@@ -323,6 +333,41 @@ def _argsort(v: np.ndarray) -> np.ndarray:
         idx, tmp = tmp, idx
         key, tkey = tkey, key
     return idx
+
+
+@helper
+def _vmax(a: np.ndarray) -> Any:
+    """``a.max()`` of a 1-D float array, as numba's: the first NaN if any, else the
+    first of the largest; a plain loop (numba's goes through a generic iterator)."""
+    if len(a) == 0:
+        raise ValueError("zero-size array to reduction operation maximum which has no identity")
+    m = a[0]
+    if math.isnan(m):
+        return m
+    for i in range(1, len(a)):
+        v = a[i]
+        if math.isnan(v):
+            return v
+        if v > m:
+            m = v
+    return m
+
+
+@helper
+def _vmin(a: np.ndarray) -> Any:
+    """``a.min()`` as :func:`_vmax`."""
+    if len(a) == 0:
+        raise ValueError("zero-size array to reduction operation minimum which has no identity")
+    m = a[0]
+    if math.isnan(m):
+        return m
+    for i in range(1, len(a)):
+        v = a[i]
+        if math.isnan(v):
+            return v
+        if v < m:
+            m = v
+    return m
 
 
 @kernel("float64(float64[::1])")
@@ -486,16 +531,17 @@ def _neighbour_labels(
     Written for speed: the branches taken depend on where the pixel is (long runs along
     the outline), not on the masks' values; no call with an array inside the loop."""
     n = len(outline)
+    one, usw = np.uint64(1), np.uint64(sw)
     for i in range(n):
         px, py = outline[i, 0], outline[i, 1]  # crop px
-        k = py * sw + px
         if oh:
             pass  # the part's own labels are set already
         elif 0 < px < sw - 1 and 0 < py < sh - 1:  # all four neighbours in the crop
-            labels[0, i] |= shaft[k + 1]
-            labels[1, i] |= shaft[k - 1]
-            labels[2, i] |= shaft[k + sw]
-            labels[3, i] |= shaft[k - sw]
+            k = np.uint64(py * sw + px)  # unsigned: no wrap-around checks
+            labels[0, i] |= shaft[k + one]
+            labels[1, i] |= shaft[k - one]
+            labels[2, i] |= shaft[k + usw]
+            labels[3, i] |= shaft[k - usw]
         else:
             for d in range(4):
                 cx = px + (1 if d == 0 else (-1 if d == 1 else 0))
@@ -784,16 +830,24 @@ def _sum8(v: np.ndarray) -> float:
 
 
 @helper
-def _ransac(
-    x: np.ndarray, y: np.ndarray, along: np.ndarray, thresh: float, iters: int, h: np.ndarray
+def _ransac_in(
+    x: np.ndarray,
+    y: np.ndarray,
+    along: np.ndarray,
+    thresh: float,
+    iters: int,
+    h: np.ndarray,
+    ints: np.ndarray,
+    floats: np.ndarray,
 ) -> int:
     """MSAC over the lines through pairs of points from both halves along the line (the
-    fixed draws): the best line into ``h[:3]``; its inlier count, or -1 for none."""
+    fixed draws): the best line into ``h[:3]``; its inlier count, or -1 for none.
+    ``ints`` (``3 n + 1``) and ``floats`` (``3 n``) are scratch."""
     n = len(x)
-    order = _argsort(along)
+    order = _argsort_in(along, ints, floats)
     half = n // 2
     best = math.inf
-    res = np.empty(n)
+    res = floats[2 * n : 3 * n]
     found = False
     for k in range(iters):
         i = order[int(_DRAWS[0, k] * half)]
@@ -845,6 +899,31 @@ def fit_line(
         The inlier count, or -1 for no line (fewer than 8 points, fewer than 6 inliers).
     """
     n = len(px)
+    floats = np.empty(_FIT_FLOATS * n + 3)
+    ints = np.empty(_FIT_INTS * n + 1, np.int64)
+    return _fit_line_in(px, py, along, thresh, iters, line, inliers, floats, ints)
+
+
+#: Scratch of :func:`_fit_line_in` per point: ``_FIT_FLOATS n + 3`` floats, ``_FIT_INTS n
+#: + 1`` integers.
+_FIT_FLOATS, _FIT_INTS = 5, 3
+
+
+@helper
+def _fit_line_in(
+    px: np.ndarray,
+    py: np.ndarray,
+    along: np.ndarray,
+    thresh: float,
+    iters: int,
+    line: np.ndarray,
+    inliers: np.ndarray,
+    floats: np.ndarray,
+    ints: np.ndarray,
+) -> int:
+    """:func:`fit_line` with its scratch given (``floats``: ``_FIT_FLOATS n + 3``,
+    ``ints``: ``_FIT_INTS n + 1``): no allocation."""
+    n = len(px)
     if n < 8:
         return -1
     sx = sy = 0.0
@@ -852,13 +931,13 @@ def fit_line(
         sx += px[t]
         sy += py[t]
     ox, oy = sx * (1.0 / n), sy * (1.0 / n)
-    x = np.empty(n)
-    y = np.empty(n)
+    x = floats[:n]
+    y = floats[n : 2 * n]
     for t in range(n):
         x[t] = px[t] - ox
         y[t] = py[t] - oy
-    h = np.empty(3)
-    if _ransac(x, y, along, thresh, iters, h) < 6:
+    h = floats[_FIT_FLOATS * n : _FIT_FLOATS * n + 3]
+    if _ransac_in(x, y, along, thresh, iters, h, ints, floats[2 * n : 5 * n]) < 6:
         return -1
     m00 = m01 = m02 = m11 = m12 = sw = 0.0
     for t in range(n):
@@ -870,11 +949,11 @@ def fit_line(
             m12 += y[t]
             sw += 1.0
     _tls(m00, m01, m02, m11, m12, sw, line)
-    r = np.empty(n)
+    r = floats[2 * n : 3 * n]  # (the RANSAC's scratch is free again)
     for t in range(n):
         r[t] = line[0] * x[t] + line[1] * y[t] + line[2]
     scale = thresh
-    core = np.empty(2 * n)
+    core = floats[3 * n : 5 * n]
     for _ in range(2):
         step = _irls_step(x, y, r, line, scale, thresh, core)
         if step < 0:
@@ -986,7 +1065,7 @@ def _frame(
     n = len(pix)
     for i in range(n):
         s_pix[i] = (pix[i, 0] - cx) * e0 + (pix[i, 1] - cy) * e1
-    lo, hi = s_pix.min(), s_pix.max()
+    lo, hi = _vmin(s_pix), _vmax(s_pix)
     distal = 0
     if len(other) >= 3:
         tot = 0.0
@@ -1050,8 +1129,8 @@ def _limb_points(
     prox_free = not fr[_F_PROXB]
     lo_x = lo_y = hi_x = hi_y = 0.0
     if len(other):
-        lo_x, lo_y = other[:, 0].min() - 2.0, other[:, 1].min() - 2.0
-        hi_x, hi_y = other[:, 0].max() + 2.0, other[:, 1].max() + 2.0
+        lo_x, lo_y = _vmin(other[:, 0]) - 2.0, _vmin(other[:, 1]) - 2.0
+        hi_x, hi_y = _vmax(other[:, 0]) + 2.0, _vmax(other[:, 1]) + 2.0
     e0, e1, p0, p1 = fr[_F_E], fr[_F_E + 1], fr[_F_P], fr[_F_P + 1]
     cx, cy = centre[0], centre[1]
     for i in range(len(pts)):
@@ -1069,10 +1148,7 @@ def _limb_points(
     return zone
 
 
-@kernel(
-    "boolean(float64[:, ::1], float64[::1], float64[::1], int64[::1], float64, float64,"
-    " float64[::1], float64[::1])"
-)
+@helper
 def _fit_side(
     pts: np.ndarray,
     s: np.ndarray,
@@ -1082,17 +1158,21 @@ def _fit_side(
     cy: float,
     fit: np.ndarray,
     line: np.ndarray,
+    floats: np.ndarray,
+    ints: np.ndarray,
 ) -> bool:
     """One side's limb line from the points ``use`` (already subsampled) into ``fit``
-    (:data:`FIT_LEN` entries), or False."""
+    (:data:`FIT_LEN` entries), or False. Scratch: ``floats`` of ``(3 + _FIT_FLOATS) n +
+    3``, ``ints`` of ``(1 + _FIT_INTS) n + 1`` (no allocation)."""
     n = len(use)
     if n < par[_P_MIN_POINTS]:
         return False
-    px, py, al = np.empty(n), np.empty(n), np.empty(n)
+    px, py, al = floats[:n], floats[n : 2 * n], floats[2 * n : 3 * n]
     for k in range(n):
         px[k], py[k], al[k] = pts[use[k], 0], pts[use[k], 1], s[use[k]]
-    inl = np.empty(n, np.int64)
-    n_in = fit_line(px, py, al, par[_P_FIT_THRESH], int(par[_P_FIT_ITERS]), line, inl)
+    inl = ints[:n]
+    thresh, iters = par[_P_FIT_THRESH], int(par[_P_FIT_ITERS])
+    n_in = _fit_line_in(px, py, al, thresh, iters, line, inl, floats[3 * n :], ints[n:])
     if n_in < 0:
         return False
     lo = hi = 0.0
@@ -1135,6 +1215,9 @@ def _fit_limbs(
     line = np.empty(4)
     m = len(pts)
     sides = np.empty((2, m + 1), np.int64)
+    most = min(m, cap)  # a side's points, at most
+    floats = np.empty((3 + _FIT_FLOATS) * most + 3)  # _fit_side's scratch, both sides
+    ints = np.empty((1 + _FIT_INTS) * most + 1, np.int64)
     n0 = n1 = 0
     for i in range(m):  # each index written to both lists, kept in its own: no branch
         sides[0, n0] = i
@@ -1149,7 +1232,9 @@ def _fit_limbs(
             for k in range(cap):
                 use[k] = use[k * (n - 1) // (cap - 1)]
             n = cap
-        if not _fit_side(pts, s, par, use[:n], centre[0], centre[1], fits[side], line):
+        if not _fit_side(
+            pts, s, par, use[:n], centre[0], centre[1], fits[side], line, floats, ints
+        ):
             fits[side, :] = math.nan
     if not math.isnan(fits[0, 0]) and not math.isnan(fits[1, 0]):
         if fits[0, 0] * fits[1, 0] + fits[0, 1] * fits[1, 1] > 0:  # the same limb twice
@@ -1247,7 +1332,7 @@ def _is_round_end(cap_q: np.ndarray, cap_s: np.ndarray, spread: float, max_sprea
     n = len(cap_q)
     if n < 5 or spread > max_spread:
         return False
-    mid = 0.5 * (cap_q.max() + cap_q.min())
+    mid = 0.5 * (_vmax(cap_q) + _vmin(cap_q))
     x2 = np.empty(n)
     m2 = ms = 0.0
     for i in range(n):
@@ -1452,13 +1537,13 @@ def cylinder_outline(
         xyz[k, 0] = r * (c * e0 + s * f0) + p[0]
         xyz[k, 1] = r * (c * e1 + s * f1) + p[1]
         xyz[k, 2] = r * (c * e2 + s * f2) + p[2]
-    if xyz[:, 2].min() < min_z:
+    if _vmin(xyz[:, 2]) < min_z:
         return 0
     for k in range(2 * n):
         pts[k, 0] = np.float32(K[0, 0] * xyz[k, 0] / xyz[k, 2] + K[0, 2])
         pts[k, 1] = np.float32(K[1, 1] * xyz[k, 1] / xyz[k, 2] + K[1, 2])
-    lx, ly = math.floor(pts[:, 0].min()), math.floor(pts[:, 1].min())
-    hx, hy = math.ceil(pts[:, 0].max()), math.ceil(pts[:, 1].max())
+    lx, ly = math.floor(_vmin(pts[:, 0])), math.floor(_vmin(pts[:, 1]))
+    hx, hy = math.ceil(_vmax(pts[:, 0])), math.ceil(_vmax(pts[:, 1]))
     x0, y0 = int(max(0, min(ox, lx))), int(max(0, min(oy, ly)))
     x1, y1 = int(min(width, max(ox + mw, hx + 1))), int(min(height, max(oy + mh, hy + 1)))
     if x1 <= x0 or y1 <= y0:
@@ -2099,13 +2184,17 @@ def _jaw_picks(
         dy = (ci[i, 1] + oy) - jv
         d[i] = math.sqrt(dx * dx + dy * dy)
     win = int(max(2, min(n // 4, np.rint(width))))
-    dmax = d.max()
+    dmax = _vmax(d)
     cand = np.empty(n, np.int64)
     k = 0
     for i in range(n):
         if d[i] < 0.5 * dmax:
             continue
-        top = True  # d[i] is the maximum of its window (the outline is closed)
+        # d[i] is the maximum of its window (the outline is closed): its two neighbours
+        # first (most points fail there), then the whole window
+        if d[i - 1 if i > 0 else n - 1] > d[i] or d[i + 1 if i < n - 1 else 0] > d[i]:
+            continue
+        top = True
         for j in range(i - win, i + win + 1):
             jj = j + n if j < 0 else (j - n if j >= n else j)
             if d[jj] > d[i]:
@@ -2114,10 +2203,16 @@ def _jaw_picks(
         if top:
             cand[k] = i
             k += 1
-    cand = cand[:k]
-    order = _argsort(-d[cand])  # farthest first; equal distances in outline order
+    # farthest first, equal distances in outline order (a stable insertion sort: few)
+    for a in range(1, k):
+        c = cand[a]
+        b = a
+        while b > 0 and d[cand[b - 1]] < d[c]:
+            cand[b] = cand[b - 1]
+            b -= 1
+        cand[b] = c
     n_picks = 0
-    for o in order:
+    for o in range(k):
         i = cand[o]
         xi, yi = ci[i, 0] + ox, ci[i, 1] + oy
         far = True
@@ -2132,7 +2227,7 @@ def _jaw_picks(
 
 
 @helper
-def _disc_spans(
+def _disc_runs(
     flat: np.ndarray,
     w: int,
     cx: int,
@@ -2142,25 +2237,25 @@ def _disc_spans(
     y0: int,
     x1: int,
     y1: int,
-    spans: np.ndarray,
-) -> tuple[int, int, int]:
-    """The crop's (``flat``: its bytes, rows of ``w``) pixels within ``rad`` of ``(cx,
-    cy)`` and within ``[x0, x1) x [y0, y1)``: each row's span of the disc into ``spans``
-    (``|x - cx| <= dxm``, exactly; empty rows ``(0, 0)``), and the set pixels' count and
-    coordinate sums (exact integers), over their row runs."""
+    runs: np.ndarray,
+) -> tuple[int, int, int, int]:
+    """The crop's (``flat``: its bytes, rows of ``w``) set pixels within ``rad`` of ``(cx,
+    cy)`` and within ``[x0, x1) x [y0, y1)``: their row runs into ``runs`` (row, first
+    column, column after the last; raster order; each row's span of the disc is ``|x -
+    cx| <= dxm``, exactly), and the runs' number, the pixels' count and coordinate sums
+    (exact integers)."""
     r2 = rad * rad
-    cnt = sx = sy = 0
+    n_runs = cnt = sx = sy = 0
     for y in range(y0, y1):
         rem = r2 - (y - cy) * (y - cy)
-        xa = xb = 0
-        if rem >= 0:
-            dxm = int(math.sqrt(rem))
-            while dxm * dxm > rem:
-                dxm -= 1
-            while (dxm + 1) * (dxm + 1) <= rem:
-                dxm += 1
-            xa, xb = max(cx - dxm, x0), min(cx + dxm + 1, x1)
-        spans[y - y0, 0], spans[y - y0, 1] = xa, xb
+        if rem < 0:
+            continue
+        dxm = int(math.sqrt(rem))
+        while dxm * dxm > rem:
+            dxm -= 1
+        while (dxm + 1) * (dxm + 1) <= rem:
+            dxm += 1
+        xa, xb = max(cx - dxm, x0), min(cx + dxm + 1, x1)
         base = y * w
         x = xa
         while x < xb:
@@ -2168,19 +2263,19 @@ def _disc_spans(
             if a >= xb:
                 break
             x = _next_change(flat, base + a, base + xb, True) - base
+            runs[n_runs, 0], runs[n_runs, 1], runs[n_runs, 2] = y, a, x
+            n_runs += 1
             n = x - a
             cnt += n
             sx += (a + x - 1) * n // 2
             sy += y * n
-    return cnt, sx, sy
+    return n_runs, cnt, sx, sy
 
 
 @helper
 def _disc_extents(
-    flat: np.ndarray,
-    w: int,
-    spans: np.ndarray,
-    y0: int,
+    runs: np.ndarray,
+    n_runs: int,
     ox: int,
     oy: int,
     mx: float,
@@ -2189,27 +2284,19 @@ def _disc_extents(
     e1: float,
 ) -> tuple[float, float, float]:
     """The largest coordinate along ``(e0, e1)`` and the extent across it (its least and
-    largest) of the set pixels of :func:`_disc_spans`' ``spans``, about ``(mx, my)``:
-    within a row both are rounded linear functions of x, monotone, so a run's extremes
-    are at its two ends (the values of the pixel-by-pixel maxima and minima; a zero's
-    sign may differ, and does not reach :func:`_jaw_axis`'s end)."""
+    largest) of the pixels of :func:`_disc_runs`' ``runs``, about ``(mx, my)``: within a
+    row both are rounded linear functions of x, monotone, so a run's extremes are at its
+    two ends (the values of the pixel-by-pixel maxima and minima; a zero's sign may
+    differ, and does not reach :func:`_jaw_axis`'s end)."""
     along = -math.inf
     lo, hi = math.inf, -math.inf
-    for r in range(len(spans)):
-        y = y0 + r
-        base = y * w
-        dy = float(y + oy) - my
-        x, xb = spans[r, 0], spans[r, 1]
-        while x < xb:
-            a = _next_change(flat, base + x, base + xb, False) - base
-            if a >= xb:
-                break
-            x = _next_change(flat, base + a, base + xb, True) - base
-            for k in (a, x - 1):
-                dx = float(k + ox) - mx
-                along = max(along, dx * e0 + dy * e1)
-                across = dx * -e1 + dy * e0
-                lo, hi = min(lo, across), max(hi, across)
+    for r in range(n_runs):
+        dy = float(runs[r, 0] + oy) - my
+        for k in (runs[r, 1], runs[r, 2] - 1):
+            dx = float(k + ox) - mx
+            along = max(along, dx * e0 + dy * e1)
+            across = dx * -e1 + dy * e0
+            lo, hi = min(lo, across), max(hi, across)
     return along, lo, hi
 
 
@@ -2233,36 +2320,31 @@ def _jaw_axis(
     within ``rad`` of the outline pixel ``(cx, cy)`` (crop px), their principal direction
     (pointing along ``(ux, uy)``, away from J), the farthest extent along it: ``end[:2]``
     the end (px), ``end[2:4]`` the direction, ``end[4]`` the jaw's half-width (px, at
-    most ``width``); False for fewer than 3 pixels."""
+    most ``width``); False for fewer than 3 pixels. (The disc's row runs found once,
+    :func:`_disc_runs`, then read twice.)"""
     h, w = mask.shape
     x0, y0 = max(int(math.floor(cx - rad)), 0), max(int(math.floor(cy - rad)), 0)
     x1, y1 = min(int(math.ceil(cx + rad)) + 1, w), min(int(math.ceil(cy + rad)) + 1, h)
-    spans = np.empty((max(y1 - y0, 0), 2), np.int64)
+    # a row of the disc holds at most one run per two columns
+    runs = np.empty((max(y1 - y0, 0) * ((max(x1 - x0, 0) + 1) // 2), 3), np.int64)
     flat = mask.view(np.uint8).ravel()
-    cnt, sx, sy = _disc_spans(flat, w, cx, cy, rad, x0, y0, x1, y1, spans)
+    n_runs, cnt, sx, sy = _disc_runs(flat, w, cx, cy, rad, x0, y0, x1, y1, runs)
     if cnt < 3:
         return False
     mx, my = (sx + cnt * ox) / cnt, (sy + cnt * oy) / cnt
     c00 = c01 = c11 = 0.0
-    for y in range(y0, y1):  # the same pixels in the same order (row-major, np.nonzero's)
-        base = y * w
-        dy = float(y + oy) - my
-        x, xb = spans[y - y0, 0], spans[y - y0, 1]
-        while x < xb:
-            a = _next_change(flat, base + x, base + xb, False) - base
-            if a >= xb:
-                break
-            x = _next_change(flat, base + a, base + xb, True) - base
-            for k in range(a, x):
-                dx = float(k + ox) - mx
-                c00 += dx * dx
-                c01 += dx * dy
-                c11 += dy * dy
+    for r in range(n_runs):  # the same pixels in the same order (row-major, np.nonzero's)
+        dy = float(runs[r, 0] + oy) - my
+        for k in range(runs[r, 1], runs[r, 2]):
+            dx = float(k + ox) - mx
+            c00 += dx * dx
+            c01 += dx * dy
+            c11 += dy * dy
     phi = 0.5 * math.atan2(2.0 * c01, c00 - c11)
     e0, e1 = math.cos(phi), math.sin(phi)
     if e0 * ux + e1 * uy < 0:
         e0, e1 = -e0, -e1
-    along, lo, hi = _disc_extents(flat, w, spans, y0, ox, oy, mx, my, e0, e1)
+    along, lo, hi = _disc_extents(runs, n_runs, ox, oy, mx, my, e0, e1)
     end[0], end[1] = mx + (along + 0.5) * e0, my + (along + 0.5) * e1
     end[2], end[3] = e0, e1
     end[4] = min(0.5 * (hi - lo) + 0.5, width)
@@ -2871,6 +2953,30 @@ def _ones_and(a: np.ndarray, i: int, b: np.ndarray, j: int, n: int) -> int:
     return tot
 
 
+@helper
+def _ones_both(a: np.ndarray, i: int, b: np.ndarray, j: int, n: int) -> tuple[int, int]:
+    """:func:`_ones_and` of ``a`` alone and of ``a & b`` in one pass:
+    ``(sum a[i:i + n], sum a[i + t] & b[j + t])``."""
+    tot = both = 0
+    t = 0
+    while n - t >= 8:
+        m = min((n - t) // 8, 255)
+        acc = acc_and = np.uint64(0)
+        for q in range(m):
+            word = _load8(a, i + t + 8 * q)
+            acc += word
+            acc_and += word & _load8(b, j + t + 8 * q)
+        lanes = (acc & _BYTES_LOW) + ((acc >> np.uint64(8)) & _BYTES_LOW)
+        tot += np.int64((lanes * _LANES16) >> np.uint64(48))
+        lanes = (acc_and & _BYTES_LOW) + ((acc_and >> np.uint64(8)) & _BYTES_LOW)
+        both += np.int64((lanes * _LANES16) >> np.uint64(48))
+        t += 8 * m
+    for q in range(t, n):
+        tot += a[i + q]
+        both += a[i + q] & b[j + q]
+    return tot, both
+
+
 @kernel("float64(uint8[:, ::1], boolean[:, ::1], int64, int64, int64, int64, int64)")
 def iou_count(
     rend: np.ndarray, mask: np.ndarray, ox: int, oy: int, x0: int, y0: int, st: int
@@ -2878,7 +2984,8 @@ def iou_count(
     """IoU of a filled canvas (``rend``: 0 or 1, its pixel ``(i, j)`` at the image's
     ``(x0 + st j, y0 + st i)``) with a mask crop at ``(ox, oy)`` sampled on the same
     pixels; NaN when both are empty. (The byte counts eight bytes at a time,
-    :func:`_ones_and`; a canvas of step 2 samples every other mask byte, one at a time.)"""
+    :func:`_ones_and`, :func:`_ones_both`; a canvas of step 2 samples every other mask
+    byte, one at a time.)"""
     hc, wc = rend.shape
     mh, mw = mask.shape
     rflat = rend.ravel()
@@ -2892,8 +2999,7 @@ def iou_count(
         r0 = np.uint64(i * wc + ja)
         row_obs = row_inter = 0
         if st == 1:
-            row_obs = _ones_and(m8, np.int64(m0), m8, np.int64(m0), jb - ja)
-            row_inter = _ones_and(m8, np.int64(m0), rflat, np.int64(r0), jb - ja)
+            row_obs, row_inter = _ones_both(m8, np.int64(m0), rflat, np.int64(r0), jb - ja)
         else:
             for j in range(np.uint64(jb - ja)):
                 row_obs += m8[m0 + 2 * j]
