@@ -108,6 +108,9 @@ def _enumerated(cost: list[list[float]], max_cost: float) -> list[tuple[int, int
     unmatched first, then its columns in order; :func:`_matchings`), each total summed
     row by row from 0 as the walk did."""
     n, m = len(cost), len(cost[0])
+    if n == 1 and m == 1:  # (the walk's answer: one track, one instance)
+        x = cost[0][0]
+        return [(0, 0)] if math.isfinite(x) and x <= max_cost else []
     ok = [[math.isfinite(x) and x <= max_cost for x in row] for row in cost]
     best: tuple[tuple[int, int], ...] = ()
     best_total = math.inf

@@ -362,3 +362,183 @@ def test_the_costs_from_one_hypot_call_per_frame_are_those_of_each_pair(seed, n_
     assert np.array(got).reshape(n_tracks, n_insts).view(np.int64).tolist() == (
         np.array(want).reshape(n_tracks, n_insts).view(np.int64).tolist()
     )
+
+
+class _NumpyVelocity:
+    """``ConstantVelocity`` as it was (commit b752e53): (2,) numpy arrays."""
+
+    def __init__(self, position: np.ndarray, velocity: np.ndarray) -> None:
+        self.position = np.asarray(position, dtype=np.float64)
+        self.velocity = np.asarray(velocity, dtype=np.float64)
+
+    def predict(self, steps: float) -> np.ndarray:
+        return self.position + self.velocity * steps
+
+    def update(self, measured: Any, gap: int, continuous: bool, first: bool, along: Any) -> None:
+        _update_before(self, np.asarray(measured, dtype=np.float64), gap, continuous, first, along)  # type: ignore[arg-type]
+
+    def coast(self, steps: float) -> None:
+        self.position = self.predict(steps)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_motion_state_in_four_floats_is_the_former_arrays(seed):
+    """ConstantVelocity (position and velocity as four floats) follows the former (2,)
+    array model bit for bit through any sequence of updates (measured as an array or as
+    the instance's centroid tuple; continuous or not, first or not, unsure along a
+    direction or not), coasts, resets and predictions."""
+    rng = np.random.default_rng(seed)
+    pos, vel = rng.uniform(-50, 750, 2), rng.normal(0, 8, 2)
+    got, want = ConstantVelocity(pos.copy(), vel.copy()), _NumpyVelocity(pos.copy(), vel.copy())
+    for _ in range(int(rng.integers(1, 30))):
+        op = rng.random()
+        steps = int(rng.integers(0, 12))
+        if op < 0.6:
+            m = rng.uniform(-50, 750, 2)
+            measured = (float(m[0]), float(m[1])) if rng.random() < 0.5 else m
+            gap = int(rng.integers(1, 12))
+            flags = rng.random(3) < (0.8, 0.2, 0.3)
+            along = unit_vector(float(rng.uniform(0, 180))) if flags[2] else None
+            kw = {"continuous": bool(flags[0]), "first": bool(flags[1])}
+            got.update(measured, gap, unsure_along=along, **kw)
+            want.update(measured, gap, kw["continuous"], kw["first"], along)
+        elif op < 0.8:
+            got.coast(steps)
+            want.coast(steps)
+        elif op < 0.85:
+            got.reset_velocity()
+            want.velocity = np.zeros(2)
+        assert got.predict(steps).tolist() == want.predict(steps).tolist()
+        assert got.predict_xy(steps) == tuple(want.predict(steps).tolist())
+        assert got.position.tolist() == want.position.tolist()
+        assert got.velocity.tolist() == want.velocity.tolist()
+    assert got.velocity.dtype == got.position.dtype == np.float64
+
+
+def test_a_tracks_reference_shape_is_made_at_its_first_read(monkeypatch):
+    """A track's boxes (split.reference_boxes of its last instance seen apart with a
+    shaft) are made when first read, once, not at every update: the same boxes as
+    made at the update."""
+    from mistool.tracking import split
+
+    made = []
+
+    def counted(inst: InstanceObservation, runs: list) -> dict[str, RotatedBox]:
+        made.append(inst)
+        return split.reference_boxes(inst, runs)
+
+    monkeypatch.setattr(identity, "reference_boxes", counted)
+    rng = np.random.default_rng(5)
+    inst = _instance(rng)
+    stub = [(np.array([[0.0, 200.0], [0.0, 210.0], [0.0, 220.0]]), 21)]
+    tracker = identity.IdentityTracker(_config())
+    last = inst
+    for k in range(6):
+        last = replace(inst, centroid_px=(inst.centroid_px[0] + k, inst.centroid_px[1]))
+        assert tracker.resolve(k, [last], [stub])[1] == ["1"]
+    (t,) = tracker.tracks
+    assert made == []  # (six updates, no boxes made)
+    assert t.has_boxes and t.boxes_frame == 5
+    assert t.boxes == split.reference_boxes(last, stub)
+    assert t.boxes is t.boxes and made == [last]  # made once
+    t.boxes = None
+    assert not t.has_boxes and t.boxes is None
+
+
+def _head_part(rng: np.random.Generator, name: str, x: float, y: float) -> PartObservation:
+    h, w = int(rng.integers(2, 18)), int(rng.integers(2, 18))
+    mask = rng.random((h, w)) < 0.8
+    mask[h // 2, w // 2] = True
+    x0, y0 = int(round(x - w / 2)), int(round(y - h / 2))
+    box = RotatedBox(
+        x0 + (w - 1) / 2, y0 + (h - 1) / 2, max(h, w), min(h, w), 0.0 if w >= h else 90.0
+    )
+    return PartObservation(name, box, box.corners(), int(mask.sum()), mask, (x0, y0))
+
+
+def _heads_scene(rng: np.random.Generator) -> tuple[list[InstanceObservation], list[Track], int]:
+    """Two or three named tools whose head parts lie near where the others' are
+    expected (0-40 px from the expected boxes' edges)."""
+    frame = 20
+    centre = rng.uniform(100, 500, 2)
+    insts, tracks = [], []
+    for k in range(int(rng.integers(2, 4))):
+        heads, parts = {}, {}
+        for name in ("wrist", "clasper"):
+            if rng.random() < 0.8:
+                cx, cy = centre + rng.normal(0, 25, 2)
+                length = float(rng.uniform(2, 40))
+                box = RotatedBox(
+                    float(cx), float(cy), length, length * float(rng.uniform(0.1, 1)),
+                    float(rng.uniform(0, 180)),
+                )  # fmt: skip
+                heads[name] = (box, frame - int(rng.integers(0, 13)))
+            if rng.random() < 0.8:
+                x, y = centre + rng.normal(0, 25, 2)
+                parts[name] = _head_part(rng, name, float(x), float(y))
+        if not parts:
+            parts["clasper"] = _head_part(rng, "clasper", *map(float, centre))
+        area = sum(p.area_px for p in parts.values())
+        insts.append(
+            InstanceObservation(None, parts, tuple(map(float, centre)), area, (0, 0, 1, 1), SHAPE)
+        )
+        motion = ConstantVelocity(centre, rng.normal(0, 3, 2))
+        t = Track(
+            name=str(k),
+            motion=motion,
+            last_frame=frame - 1,
+            area=float(area),
+            angle=None,
+            elongation=0.0,
+        )
+        t.heads = heads
+        tracks.append(t)
+    return insts, tracks, frame
+
+
+def test_no_head_within_reach_means_no_head_handed_over():
+    """Where identity._heads_within_reach says no tool's expected head lies within
+    HEAD_CLAIM_PX of another instance's crop of that part, hand_over_heads returns the
+    very instances it was given (so _hand_over skips it); over scenes with heads at
+    every distance round that reach, both answers occur and hand-overs happen."""
+    from mistool.tracking.heads import hand_over_heads
+
+    counts = {"far": 0, "near": 0, "handed": 0}
+    for seed in range(600):
+        rng = np.random.default_rng(seed)
+        insts, tracks, frame = _heads_scene(rng)
+        expected = [t.expected_heads(frame) for t in tracks]
+        got = hand_over_heads(insts, expected, 3)
+        if identity._heads_within_reach(insts, tracks, frame):
+            counts["near"] += 1
+            counts["handed"] += any(a is not b for a, b in zip(got, insts, strict=True))
+        else:
+            counts["far"] += 1
+            assert all(a is b for a, b in zip(got, insts, strict=True)), seed
+    assert min(counts.values()) >= 20, counts
+
+
+def test_heads_far_apart_skip_the_hand_over(monkeypatch):
+    """Two tools seen apart, their heads far from each other: the frame's hand-over is
+    not attempted (hand_over_heads not called; it was called on every frame with two
+    named instances)."""
+    from mistool.tracking import heads
+
+    calls = []
+    monkeypatch.setattr(
+        identity, "hand_over_heads", lambda *a: calls.append(a) or heads.hand_over_heads(*a)
+    )
+    rng = np.random.default_rng(3)
+    tracker = identity.IdentityTracker(_config())
+    for k in range(4):
+        insts = []
+        for x in (150.0, 550.0):
+            parts = {"clasper": _head_part(rng, "clasper", x + k, 300.0)}
+            insts.append(InstanceObservation(None, parts, (x + k, 300.0), 50, (0, 0, 1, 1), SHAPE))
+        assert tracker.resolve(k, insts, [[], []])[1] == ["1", "2"]
+    assert calls == []
+    # the same tools' heads within reach of each other: attempted
+    near = [replace(insts[0], parts={"clasper": _head_part(rng, "clasper", 545.0, 300.0)})]
+    tracker.resolve(4, near + insts[1:], [[], []])
+    assert len(calls) == 1

@@ -47,7 +47,7 @@ import numpy as np
 from mistool.assignment import gated_assignment
 from mistool.config import Config
 from mistool.model import InstanceObservation, RotatedBox
-from mistool.tracking.heads import HEAD_PARTS, hand_over_heads
+from mistool.tracking.heads import HEAD_CLAIM_PX, HEAD_PARTS, hand_over_heads
 from mistool.tracking.instances import angle_diff_deg, unit_vector
 from mistool.tracking.motion import ConstantVelocity
 from mistool.tracking.split import (
@@ -139,7 +139,18 @@ class TrackState(enum.Enum):
     @property
     def coasting(self) -> bool:
         """Inside a shared blob (``COASTING`` or ``HIDDEN``)."""
-        return self in (TrackState.COASTING, TrackState.HIDDEN)
+        return self is _COASTING or self is _HIDDEN
+
+
+# The states as module names: ``TrackState.TRACKED`` is looked up through the enum's
+# metaclass (~0.2 us, ~10x a module name's), a few times per track and frame.
+_TRACKED, _COASTING, _HIDDEN, _LOST, _ABSORBED = (
+    TrackState.TRACKED,
+    TrackState.COASTING,
+    TrackState.HIDDEN,
+    TrackState.LOST,
+    TrackState.ABSORBED,
+)
 
 
 @dataclass(frozen=True)
@@ -192,10 +203,8 @@ class Track:
     """See :class:`TrackState`."""
     size: float = 0.0
     """Largest sqrt(area) seen, px: the instrument's scale."""
-    boxes: dict[str, RotatedBox] | None = None
-    """Last part boxes seen apart from others (with a shaft) ..."""
     boxes_frame: int = 0
-    """... and their frame."""
+    """The frame of :attr:`boxes`."""
     shaftless: int = 0
     """Frames in a row it was seen apart from others without a shaft."""
     seen: int = 1
@@ -211,12 +220,44 @@ class Track:
     or coasting)."""
     first_frame: int = 0
     """The frame it was first seen in."""
+    _boxes: dict[str, RotatedBox] | None = field(default=None, repr=False)
+    _boxes_from: tuple[InstanceObservation, list[tuple[np.ndarray, int]]] | None = field(
+        default=None, repr=False
+    )
+
+    @property
+    def boxes(self) -> dict[str, RotatedBox] | None:
+        """Last part boxes seen apart from others (with a shaft), at :attr:`boxes_frame`:
+        the instance's :func:`~mistool.tracking.split.reference_boxes`, made at their
+        first read (:meth:`set_boxes_from`: a track is updated every frame, its boxes
+        read only when it is split from a blob)."""
+        source = self._boxes_from
+        if source is not None:
+            self._boxes, self._boxes_from = reference_boxes(*source), None
+        return self._boxes
+
+    @boxes.setter
+    def boxes(self, value: dict[str, RotatedBox] | None) -> None:
+        self._boxes, self._boxes_from = value, None
+
+    @property
+    def has_boxes(self) -> bool:
+        """Whether :attr:`boxes` is not None (without making them)."""
+        return self._boxes_from is not None or self._boxes is not None
+
+    def set_boxes_from(
+        self, inst: InstanceObservation, runs: list[tuple[np.ndarray, int]], frame: int
+    ) -> None:
+        """:attr:`boxes` are ``reference_boxes(inst, runs)`` (made when first read),
+        seen at ``frame``."""
+        self._boxes, self._boxes_from = None, (inst, runs)
+        self.boxes_frame = frame
 
     def expected_heads(self, frame: int) -> dict[str, RotatedBox]:
         """Where its head parts seen at most :data:`HEAD_MEMORY_FRAMES` ago are expected
         at ``frame``: moved on its velocity for at most :data:`SPLIT_STOP_FRAMES`."""
         out = {}
-        vx, vy = self.motion.velocity.tolist()
+        vx, vy = self.motion.vx, self.motion.vy
         for p, (b, seen) in self.heads.items():
             gap = frame - seen
             if 0 < gap <= HEAD_MEMORY_FRAMES:
@@ -228,7 +269,7 @@ class Track:
         """Frames of motion to predict at ``frame``: the gap, at most
         :data:`LOST_AFTER_FRAMES` when lost (looked for near where it was last)."""
         gap = frame - self.last_frame
-        return LOST_AFTER_FRAMES if self.state is TrackState.LOST else gap
+        return LOST_AFTER_FRAMES if self.state is _LOST else gap
 
     def predict(self, frame: int) -> np.ndarray:
         """(2,) px: the expected centroid at ``frame``."""
@@ -307,7 +348,7 @@ class _TrackTerms:
     def __init__(self, t: Track, frame: int) -> None:
         self.track = t
         self.state = t.state
-        self.lost = t.state is TrackState.LOST
+        self.lost = t.state is _LOST
         self.gap = frame - t.last_frame
         self.size = t.size
         self.area = t.area
@@ -375,10 +416,10 @@ def _cost_of(
     if angle is not None and t.angle is not None and not (lost and not i.has_shaft):
         w = min(elong, t.elongation)
         cost += weights.angle * w * angle_diff_deg(angle, t.angle) / 90.0
-    if t.state is TrackState.TRACKED:  # not a blob's area, nor an exit's partial one
+    if t.state is _TRACKED:  # not a blob's area, nor an exit's partial one
         cost += weights.area * abs(math.log(max(i.area, 1) / max(t.area, 1.0)))
     cost += weights.gap * (gap - 1)
-    if t.state is TrackState.HIDDEN:  # a shared blob keeps its name: no flapping
+    if t.state is _HIDDEN:  # a shared blob keeps its name: no flapping
         cost += weights.hidden_penalty
     if diag is not None:
         cost += weights.entry * moved / (weights.entry_scale_frac * diag)
@@ -478,7 +519,7 @@ def _shrunk(t: Track, inst: InstanceObservation, frame: int) -> bool:
     """Whether ``inst`` is too small to be the whole of track ``t``, seen apart in the
     frame before (:data:`SHRUNK_AREA_FRAC`), and lies inside the view."""
     return (
-        t.state is TrackState.TRACKED
+        t.state is _TRACKED
         and frame - t.last_frame == 1
         and inst.area_px < SHRUNK_AREA_FRAC * t.area
         and not _touches_border(inst)
@@ -496,7 +537,7 @@ def _fragment_of(t: Track, host: Track | None) -> bool:
     three tools gave the names out wrongly."""
     return (
         host is not None
-        and t.boxes is None
+        and not t.has_boxes
         and (not t.at_border or t.first_frame == host.first_frame)
         and t.seen <= FRAGMENT_MAX_SEEN
         and host.seen > t.seen
@@ -512,7 +553,52 @@ def _touches_border(inst: InstanceObservation) -> bool:
     return x <= 0 or y <= 0 or x + w >= ww or y + h >= hh
 
 
-def _inside(p: np.ndarray, bbox: tuple[int, int, int, int], margin: float) -> bool:
+def _heads_within_reach(
+    insts: Sequence[InstanceObservation | None], tracks: list[Track], frame: int
+) -> bool:
+    """Whether :func:`~mistool.tracking.heads.hand_over_heads` may move any pixel: some
+    track's head part expected at ``frame`` (:meth:`Track.expected_heads`) lies within
+    :data:`~mistool.tracking.heads.HEAD_CLAIM_PX` of another instance's crop of that
+    part. A hand-over moves only pixels within that reach of where the receiving tool
+    expects the part; the test looks at the crops' bounds against the box's own bounds
+    grown by the reach and a pixel (the window
+    :func:`mistool.kernels.split.shown_near` scans), without the pixels, nor the boxes
+    :meth:`Track.expected_heads` makes. False: it would return the instances
+    unchanged."""
+    for r, t in enumerate(tracks):
+        if not t.heads:
+            continue
+        vx, vy = t.motion.vx, t.motion.vy
+        for p, (b, seen) in t.heads.items():
+            gap = frame - seen
+            if not 0 < gap <= HEAD_MEMORY_FRAMES:
+                continue
+            n = min(gap, SPLIT_STOP_FRAMES)
+            cx, cy = b.cx + vx * n, b.cy + vy * n
+            a = math.radians(b.angle_deg)
+            u0, u1 = abs(math.cos(a)), abs(math.sin(a))
+            hl, hw = 0.5 * b.length, 0.5 * b.width
+            ex = hl * u0 + hw * u1 + HEAD_CLAIM_PX + 1.0
+            ey = hl * u1 + hw * u0 + HEAD_CLAIM_PX + 1.0
+            for d, donor in enumerate(insts):
+                obs = donor.parts.get(p) if d != r and donor is not None else None
+                if obs is None:
+                    continue
+                x0, y0 = obs.offset
+                h, w = obs.mask.shape
+                if not (  # (NaN: within reach)
+                    x0 > cx + ex + 1.0
+                    or x0 + w < cx - ex - 1.0
+                    or y0 > cy + ey + 1.0
+                    or y0 + h < cy - ey - 1.0
+                ):
+                    return True
+    return False
+
+
+def _inside(
+    p: np.ndarray | tuple[float, float], bbox: tuple[int, int, int, int], margin: float
+) -> bool:
     x, y, w, h = bbox
     mx, my = margin * w, margin * h
     return bool(x - mx <= p[0] <= x + w + mx and y - my <= p[1] <= y + h + my)
@@ -647,11 +733,11 @@ class IdentityTracker:
         live = [
             t
             for t in self._tracks
-            if frame - t.last_frame <= self._max_gap and t.state is not TrackState.ABSORBED
+            if frame - t.last_frame <= self._max_gap and t.state is not _ABSORBED
         ]
         for t in live:
-            if t.state is TrackState.TRACKED and frame - t.last_frame > LOST_AFTER_FRAMES:
-                t.state = TrackState.LOST
+            if t.state is _TRACKED and frame - t.last_frame > LOST_AFTER_FRAMES:
+                t.state = _LOST
         return live
 
     def _cost(
@@ -672,38 +758,50 @@ class IdentityTracker:
         frame, weights, fps = fr.index, self._weights, self._config.fps
         insts = [_InstanceTerms(inst, _one_entry(self._runs_of(inst))) for inst in fr.instances]
         tracks = [_TrackTerms(t, frame) for t in fr.live]
+        # which distances each pair needs: to the prediction; between the shafts'
+        # entries (both known, and the image's shape); from the instance to the track's
+        # entry only for the far-head test (a track last in a blob, a shaftless instance)
         xs: list[float] = []
         ys: list[float] = []
         for tt in tracks:
             px, py, entry = tt.px, tt.py, tt.entry
+            blobby = tt.track.in_blob or tt.state is _COASTING or tt.state is _HIDDEN
             for i in insts:
                 xs.append(i.cx - px)
                 ys.append(i.cy - py)
-                if entry is not None:  # (the far-head test's distance to the entry)
-                    xs.append(i.cx - entry[0])
-                    ys.append(i.cy - entry[1])
+                if entry is not None:
+                    if blobby and not i.has_shaft:
+                        xs.append(i.cx - entry[0])
+                        ys.append(i.cy - entry[1])
                     if i.entry is not None and i.diag is not None:
                         xs.append(i.entry[0] - entry[0])
                         ys.append(i.entry[1] - entry[1])
         hyp = np.hypot(np.array(xs, np.float64), np.array(ys, np.float64)).tolist()
-        reach = [self._entry_reach(inst) for inst in fr.instances]
         cost = []
         k = 0
         for tt in tracks:
             t = tt.track
+            entry = tt.entry
+            blobby = t.in_blob or tt.state is _COASTING or tt.state is _HIDDEN
+            # (:func:`_shrunk`: a track seen apart in the frame before)
+            shrink = SHRUNK_AREA_FRAC * t.area if tt.state is _TRACKED and tt.gap == 1 else None
             row = []
-            for b, i in enumerate(insts):
+            for i in insts:
                 dist = hyp[k]
+                k += 1
                 near = None
                 moved = 0.0
-                k += 1
-                if tt.entry is not None:
-                    near = hyp[k]
-                    k += 1
+                far_head = blobby and not i.has_shaft
+                if entry is not None:
+                    if far_head:
+                        near = hyp[k]
+                        k += 1
                     if i.entry is not None and i.diag is not None:
                         moved = hyp[k]
                         k += 1
-                if _far_head_of(tt, i, reach[b], dist, near) or _shrunk(t, i.inst, frame):
+                if (far_head and _far_head_of(tt, i, self._entry_reach(i.inst), dist, near)) or (
+                    shrink is not None and i.area < shrink and not _touches_border(i.inst)
+                ):
                     row.append(math.inf)
                 else:
                     row.append(_cost_of(tt, i, weights, fps, dist, moved))
@@ -723,7 +821,7 @@ class IdentityTracker:
         for a, t in enumerate(fr.live):
             if a in matched or fr.index - t.last_frame > recent:
                 continue
-            pred = t.predict(fr.index)
+            pred = t.predict_xy(fr.index)
             for b, a2 in sorted(fr.owner.items(), key=lambda kv: kv[1]):
                 host = fr.live[a2]
                 grown = fr.instances[b].area_px > BLOB_GROWTH * host.area or host.state.coasting
@@ -740,19 +838,20 @@ class IdentityTracker:
         there are none, or the track was last seen apart without a shaft for more than
         :data:`LOST_AFTER_FRAMES` frames in a row (its shaft left the view: they are
         stale)."""
-        if t.boxes is None or t.shaftless > LOST_AFTER_FRAMES:
+        boxes = t.boxes
+        if boxes is None or t.shaftless > LOST_AFTER_FRAMES:
             return None
         gap = frame - t.boxes_frame
         move = gap if steps is None else min(gap, steps)
-        velocity = t.motion.velocity
-        vx, vy = velocity.tolist()
+        vx, vy = t.motion.vx, t.motion.vy
         dx, dy = vx * move, vy * move  # (plain floats: numpy's values, faster)
         out = {
             p: RotatedBox(b.cx + dx, b.cy + dy, b.length, b.width, b.angle_deg)
-            for p, b in t.boxes.items()
+            for p, b in boxes.items()
         }
         s = out["shaft"]
-        extra = 2.0 * abs(float(velocity @ unit_vector(s.angle_deg))) * (gap - move)
+        # (numpy's dot product, as before: its summation may differ from two floats')
+        extra = 2.0 * abs(float(t.motion.velocity @ unit_vector(s.angle_deg))) * (gap - move)
         out["shaft"] = RotatedBox(s.cx, s.cy, s.length + extra, s.width, s.angle_deg)
         return out
 
@@ -949,8 +1048,8 @@ class IdentityTracker:
                 slots.append((b, -1))
                 insts.append(inst)
                 tracks.append(fr.live[fr.owner[b]])
-        if len(insts) < 2:
-            return False
+        if len(insts) < 2 or not _heads_within_reach(insts, tracks, fr.index):
+            return False  # (no head expected near another's pixels: nothing to hand over)
         expected = [t.expected_heads(fr.index) for t in tracks]
         got = hand_over_heads(insts, expected, max(self._config.min_area_px, 1))
         changed = False
@@ -1000,7 +1099,7 @@ class IdentityTracker:
                 for a in hidden:  # keep them coasting on their predicted motion
                     t = fr.live[a]
                     if _fragment_of(t, host):
-                        t.state = TrackState.ABSORBED
+                        t.state = _ABSORBED
                     else:
                         self._hide(t, fr.index)
         if not fr.pieces and not handed:
@@ -1013,7 +1112,7 @@ class IdentityTracker:
         """A track hidden in a blob carrying another's name coasts on its motion."""
         t.motion.coast(t.predict_steps(frame))
         t.last_frame = frame
-        t.state = TrackState.HIDDEN
+        t.state = _HIDDEN
         t.in_blob = True
 
     def _update(
@@ -1035,17 +1134,16 @@ class IdentityTracker:
         t.in_blob = merged or not apart
         if merged:
             t.motion.coast(t.predict_steps(frame))
-            t.state = TrackState.COASTING
+            t.state = _COASTING
         else:
-            c = np.asarray(inst.centroid_px, dtype=np.float64)
             unsure = unit_vector(t.angle) if crowded and t.angle is not None else None
             t.motion.update(
-                c,
+                inst.centroid_px,
                 gap,
                 # a new track's first displacement to a crowded piece is no velocity:
                 # the piece's cut moved (held-out seed 6 frame 55: 70 px in a frame);
                 # nor is one whose head jumped
-                continuous=t.state is TrackState.TRACKED
+                continuous=t.state is _TRACKED
                 and not (crowded and (t.seen == 1 or _head_jumped(t, inst, frame))),
                 first=t.seen == 1,
                 unsure_along=unsure,
@@ -1062,13 +1160,12 @@ class IdentityTracker:
             if apart:
                 t.shaftless = 0 if "shaft" in parts else t.shaftless + 1
             if apart and "shaft" in parts and len(runs) <= 1:
-                t.boxes = reference_boxes(inst, runs)
-                t.boxes_frame = frame
+                t.set_boxes_from(inst, runs, frame)
             self._set_entry(t, inst, runs)
             for p in HEAD_PARTS:
                 if p in parts:
                     t.heads[p] = (parts[p].box, frame)
-            t.state = TrackState.TRACKED
+            t.state = _TRACKED
         t.last_frame = frame
         t.seen += 1
 
@@ -1095,7 +1192,7 @@ class IdentityTracker:
         angle, elong = _appearance(inst)
         t = Track(
             name=str(self._next),
-            motion=ConstantVelocity(np.asarray(inst.centroid_px, dtype=np.float64)),
+            motion=ConstantVelocity(inst.centroid_px),
             last_frame=frame,
             area=float(inst.area_px),
             angle=angle,
@@ -1106,8 +1203,7 @@ class IdentityTracker:
         t.shaftless = 0 if "shaft" in inst.parts else 1
         runs = self._runs_of(inst)
         if "shaft" in inst.parts:
-            t.boxes = reference_boxes(inst, runs)
-            t.boxes_frame = frame
+            t.set_boxes_from(inst, runs, frame)
         self._set_entry(t, inst, runs)
         t.heads = {p: (inst.parts[p].box, frame) for p in HEAD_PARTS if p in inst.parts}
         self._next += 1
