@@ -1261,8 +1261,9 @@ def _with_part_before(inst: Any, part: str, xy: np.ndarray, min_area: int) -> An
 @settings(max_examples=150, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(0, 400), st.sampled_from([1, 5, 50]))
 def test_a_head_handed_over_is_the_former_instance(seed, n, min_area):
-    """heads._with_part (its pixels' bounds column by column) gives the former
-    instance: every value, box and mask bit."""
+    """heads._with_part (the pixels painted on a larger canvas by the hand-over kernel,
+    their count and bounds beside it) gives the former instance made from their list:
+    every value, box and mask bit."""
     from mistool.tracking.heads import _with_part
     from mistool.tracking.instances import make_instance, part_observation
 
@@ -1275,7 +1276,14 @@ def test_a_head_handed_over_is_the_former_instance(seed, n, min_area):
     c = rng.uniform(20, 500, 2)
     xy = np.unique(np.floor(c + rng.normal(0, 12, (n, 2))).clip(0, 700), axis=0)
     rng.shuffle(xy)
-    got = _with_part(inst, "clasper", xy, min_area)
+    ij = xy.astype(np.int64)
+    canvas = np.zeros((720, 760), np.uint8)  # (at (-5, -7), as the kernel paints it)
+    canvas[ij[:, 1] + 7, ij[:, 0] + 5] = 255
+    bounds = np.zeros(12, np.int64)
+    bounds[:3] = -5, -7, len(ij)
+    if len(ij):
+        bounds[3:7] = *ij.min(axis=0), *(ij.max(axis=0) + 1)
+    got = _with_part(inst, "clasper", canvas, bounds, 2, min_area)
     want = _with_part_before(inst, "clasper", xy, min_area)
     assert _same_instance(got, want)
 

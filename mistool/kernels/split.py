@@ -1124,6 +1124,116 @@ def claimed(
     return moved
 
 
+@helper
+def _count_upto(mask: np.ndarray, most: int) -> int:
+    """The mask's non-zero pixels, counted up to ``most``."""
+    n = 0
+    for y in range(mask.shape[0]):
+        for x in range(mask.shape[1]):
+            if mask[y, x] != 0:
+                n += 1
+                if n == most:
+                    return n
+    return n
+
+
+@helper
+def _paint(canvas: np.ndarray, x: int, y: int, bounds: np.ndarray, k: int) -> None:
+    """Pixel (x, y) set (255) on ``canvas`` (at ``bounds[0], bounds[1]`` of ``bounds``),
+    counted in ``bounds[k]`` and its bounds ``bounds[k + 1 : k + 5]`` (x0, y0, x1, y1,
+    exclusive ends) grown over it."""
+    canvas[y - bounds[1], x - bounds[0]] = 255
+    if bounds[k] == 0:
+        bounds[k + 1] = x
+        bounds[k + 2] = y
+        bounds[k + 3] = x + 1
+        bounds[k + 4] = y + 1
+    else:
+        bounds[k + 1] = min(bounds[k + 1], x)
+        bounds[k + 2] = min(bounds[k + 2], y)
+        bounds[k + 3] = max(bounds[k + 3], x + 1)
+        bounds[k + 4] = max(bounds[k + 4], y + 1)
+    bounds[k] += 1
+
+
+@kernel(
+    "int64(uint8[:, ::1], int64, int64, uint8[:, ::1], int64, int64, float64, float64,"
+    " float64, float64, float64, float64, boolean, float64, float64, float64, float64,"
+    " float64, float64, float64, uint8[:, ::1], uint8[:, ::1], int64[::1])"
+)
+def hand_over_pixels(
+    mine: np.ndarray,
+    mx0: int,
+    my0: int,
+    donor: np.ndarray,
+    dx0: int,
+    dy0: int,
+    cx: float,
+    cy: float,
+    u0: float,
+    u1: float,
+    hl: float,
+    hw: float,
+    has_own: bool,
+    ocx: float,
+    ocy: float,
+    ou0: float,
+    ou1: float,
+    ohl: float,
+    ohw: float,
+    reach: float,
+    got: np.ndarray,
+    left: np.ndarray,
+    bounds: np.ndarray,
+) -> int:
+    """``heads.hand_over_heads``' hand-over of one part's pixels, painted: the donor's
+    pixels (``donor`` at (dx0, dy0)) within ``reach`` of the box expected by the tool
+    receiving the part (centre, unit direction, half length and width) and nearer to it
+    than to the donor's own expected box (``has_own``; the :func:`claimed` pixels) move
+    to the receiver, whose own pixels of the part (``mine`` at (mx0, my0); an empty
+    array: none) within ``reach`` of the donor's box go the other way. ``got`` and
+    ``left`` (zeros, at ``bounds[0], bounds[1]``, covering both crops) receive the
+    receiver's and the donor's new pixels (255); ``bounds[2:7]`` and ``bounds[7:12]``:
+    each one's pixel count (as the former pixel lists' lengths: kept + moved, left +
+    back) and bounds (x0, y0, x1, y1; ends exclusive). Returns the count moved.
+    Distances as ``heads.box_distance`` of each pixel list (one pixel alone: its
+    one-point order)."""
+    for k in range(2, 12):
+        bounds[k] = 0
+    moved = 0
+    single = _count_upto(donor, 2) == 1
+    for y in range(donor.shape[0]):
+        for x in range(donor.shape[1]):
+            if donor[y, x] == 0:
+                continue
+            px = x + dx0
+            py = y + dy0
+            d = _box_d(float(px), float(py), cx, cy, u0, u1, hl, hw, single)
+            own = math.inf
+            if has_own:
+                own = _box_d(float(px), float(py), ocx, ocy, ou0, ou1, ohl, ohw, single)
+            if d <= reach and d < own:
+                moved += 1
+                _paint(got, px, py, bounds, 2)
+            else:
+                _paint(left, px, py, bounds, 7)
+    single = _count_upto(mine, 2) == 1
+    for y in range(mine.shape[0]):
+        for x in range(mine.shape[1]):
+            if mine[y, x] == 0:
+                continue
+            px = x + mx0
+            py = y + my0
+            back = has_own and (
+                _box_d(float(px), float(py), ocx, ocy, ou0, ou1, ohl, ohw, single) <= reach
+            )
+            if back:
+                _paint(left, px, py, bounds, 7)
+            else:
+                _paint(got, px, py, bounds, 2)
+    return moved
+
+
 # the split's initial axes (mistool.tracking.split._initial_axes) ------------------------
 
 

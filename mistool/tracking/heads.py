@@ -84,25 +84,76 @@ def _pixels(inst: InstanceObservation, part: str) -> np.ndarray:
 
 
 def _with_part(
-    inst: InstanceObservation, part: str, xy: np.ndarray, min_area: int
+    inst: InstanceObservation,
+    part: str,
+    canvas: np.ndarray,
+    bounds: np.ndarray,
+    k: int,
+    min_area: int,
 ) -> InstanceObservation | None:
-    """``inst`` with part ``part`` made of the pixels ``xy`` (dropped when too few);
-    None when nothing is left."""
+    """``inst`` with part ``part`` made of the pixels painted on ``canvas`` (at
+    ``bounds[0], bounds[1]``; their count and bounds ``bounds[k : k + 5]``, see
+    :func:`mistool.kernels.split.hand_over_pixels`), dropped when too few; None when
+    nothing is left."""
     parts = {p: o for p, o in inst.parts.items() if p != part}
-    if len(xy) >= min_area:
-        ij = xy.astype(np.int64)
-        xs, ys = ij[:, 0], ij[:, 1]  # (a column's min and max: numpy's over axis 0 of
-        x0, y0 = int(xs.min()), int(ys.min())  # (N, 2) is ~10x slower)
-        x1, y1 = int(xs.max()) + 1, int(ys.max()) + 1
-        m = np.zeros((y1 - y0, x1 - x0), np.uint8)
-        m[ij[:, 1] - y0, ij[:, 0] - x0] = 255
-        obs = part_observation(part, m, int(x0), int(y0), min_area)
+    count, x0, y0, x1, y1 = bounds[k : k + 5].tolist()
+    if count >= min_area:
+        cx0, cy0 = bounds[:2].tolist()
+        m = canvas[y0 - cy0 : y1 - cy0, x0 - cx0 : x1 - cx0].copy()  # (C order)
+        obs = part_observation(part, m, x0, y0, min_area)
         if obs is not None:
             parts[part] = obs
     if not parts:
         return None
     ordered: dict[str, PartObservation] = {p: parts[p] for p in PARTS if p in parts}
     return make_instance(inst.label, ordered, inst.image_shape)
+
+
+_NO_PIXELS = np.zeros((0, 0), np.uint8)
+
+
+def _handed_over(
+    mine: InstanceObservation,
+    donor: InstanceObservation,
+    part: str,
+    want: RotatedBox,
+    own: RotatedBox | None,
+    min_area: int,
+) -> tuple[InstanceObservation | None, InstanceObservation | None]:
+    """The receiving tool's and the donor's instances after the hand-over of ``part``
+    (see :func:`hand_over_heads`; ``want``: where the receiver expects it, ``own``:
+    where the donor does): the donor's pixels within :data:`HEAD_CLAIM_PX` of ``want``
+    and nearer to it than to ``own`` go to the receiver, the receiver's within that
+    reach of ``own`` go to the donor (compiled, the new masks painted without the pixel
+    lists: :func:`mistool.kernels.split.hand_over_pixels`). None for one left with
+    nothing."""
+    d = donor.parts[part]
+    dmask = np.ascontiguousarray(d.mask).view(np.uint8)
+    dx0, dy0 = int(d.offset[0]), int(d.offset[1])
+    x0, y0, x1, y1 = dx0, dy0, dx0 + dmask.shape[1], dy0 + dmask.shape[0]
+    m = mine.parts.get(part)
+    mmask, mx0, my0 = _NO_PIXELS, 0, 0
+    if m is not None:
+        mmask = np.ascontiguousarray(m.mask).view(np.uint8)
+        mx0, my0 = int(m.offset[0]), int(m.offset[1])
+        x0, y0 = min(x0, mx0), min(y0, my0)
+        x1, y1 = max(x1, mx0 + mmask.shape[1]), max(y1, my0 + mmask.shape[0])
+    got = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    left = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    bounds = np.zeros(12, np.int64)
+    bounds[0], bounds[1] = x0, y0
+    u0, u1 = _unit(want.angle_deg)
+    o = own if own is not None else want
+    o0, o1 = _unit(o.angle_deg)
+    kernels.hand_over_pixels(
+        mmask, mx0, my0, dmask, dx0, dy0, want.cx, want.cy, u0, u1, 0.5 * want.length,
+        0.5 * want.width, own is not None, o.cx, o.cy, o0, o1, 0.5 * o.length,
+        0.5 * o.width, HEAD_CLAIM_PX, got, left, bounds,
+    )  # fmt: skip
+    return (
+        _with_part(mine, part, got, bounds, 2, min_area),
+        _with_part(donor, part, left, bounds, 7, min_area),
+    )
 
 
 def _shows(inst: InstanceObservation, part: str, box: RotatedBox, min_area: int) -> bool:
@@ -164,16 +215,8 @@ def hand_over_heads(
                 if own is not None and _covered(want, own) >= HEAD_UNDER_FRAC:
                     continue  # expected under the other's head: hidden by it
                 if _claimed(donor, part, want, own) < min_area:
-                    continue  # (counted without the pixel lists: the usual answer)
-                xy = _pixels(donor, part)
-                to_me = box_distance(xy, want)
-                to_own = box_distance(xy, own) if own is not None else np.full(len(xy), np.inf)
-                move = (to_me <= HEAD_CLAIM_PX) & (to_me < to_own)
-                if int(move.sum()) < min_area:
-                    continue
-                kept, back = _own_and_theirs(mine, part, own)
-                got = _with_part(mine, part, np.concatenate([kept, xy[move]]), min_area)
-                left = _with_part(donor, part, np.concatenate([xy[~move], back]), min_area)
+                    continue  # (counted without painting the new masks: the usual answer)
+                got, left = _handed_over(mine, donor, part, want, own, min_area)
                 if got is None or left is None:
                     continue
                 out[r], out[d] = got, left
@@ -199,17 +242,3 @@ def _claimed(inst: InstanceObservation, part: str, want: RotatedBox, own: Rotate
             0.5 * o.length, 0.5 * o.width, HEAD_CLAIM_PX,
         )
     )  # fmt: skip
-
-
-def _own_and_theirs(
-    inst: InstanceObservation, part: str, theirs: RotatedBox | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """The instance's pixels of ``part`` split into those it keeps and those lying where
-    another tool expects that part (``theirs``: within :data:`HEAD_CLAIM_PX`): a swap."""
-    if part not in inst.parts:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    xy = _pixels(inst, part)
-    if theirs is None:
-        return xy, xy[:0]
-    back = box_distance(xy, theirs) <= HEAD_CLAIM_PX
-    return xy[~back], xy[back]
