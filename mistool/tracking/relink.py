@@ -48,6 +48,7 @@ shows the identity step's names as they come; :meth:`mistool.Tracker.table` reli
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -462,7 +463,7 @@ def relink(table: TrackTable, fps: float) -> TrackTable:
     number = {c: str(k + 1) for k, c in enumerate(heads)}
     names = np.array([number[int(c)] for c in label], dtype=object)
     if keep.all() and np.array_equal(names.astype(str), rows.name):
-        return swap_heads(table)
+        return swap_heads(table, rows)
     return swap_heads(table.with_columns(instrument=names)[keep])
 
 
@@ -510,43 +511,219 @@ _Candidate = tuple[int, str, str, int, int, bool]
 """A swap found in one frame: ``(frame, name_a, name_b, row_a, row_b, strong)``, strong
 when it gains more than :data:`HEAD_SWAP_MARGIN` (else :data:`HEAD_SWAP_KEEP_MARGIN`)."""
 
+#: Part codes of :class:`_HeadRows`' keys.
+_SHAFT, _WRIST, _CLASPER = 0, 1, 2
 
-def _swap_candidates(
-    rows: _Rows, frames: list[dict[tuple[str, str], int]], part: str
+
+class _HeadRows:
+    """The rows of the frames :func:`swap_heads` looks at, by (frame, name, part): one
+    sorted integer key per row (``(frame * names + name) * 3 + part``, names numbered
+    in :func:`_name_key` order), the last row of a key kept (as a dict filled in row
+    order keeps it)."""
+
+    def __init__(self, rows: _Rows, look: np.ndarray) -> None:
+        self.rows = rows
+        name = rows.name[look]
+        unique = np.unique(name)
+        self.names: list[str] = sorted(unique.tolist(), key=lambda n: (_name_key(n), n))
+        rank = np.empty(len(unique), np.int64)
+        rank[np.searchsorted(unique, self.names)] = np.arange(len(unique))
+        code = np.full(len(look), -1, np.int64)
+        part = rows.part[look]
+        for c, p in ((_SHAFT, "shaft"), (_WRIST, "wrist"), (_CLASPER, "clasper")):
+            code[part == p] = c
+        kept = code >= 0
+        self.m = len(self.names)
+        key = (rows.frame[look] * self.m + rank[np.searchsorted(unique, name)]) * 3 + code
+        order = np.flatnonzero(kept)[np.argsort(key[kept], kind="stable")]
+        key, row = key[order], look[order]
+        last = np.ones(len(key), dtype=bool)
+        last[:-1] = key[1:] != key[:-1]
+        self.key, self.row = key[last], row[last]
+
+    @functools.cached_property
+    def xy(self) -> tuple[list[float], list[float]]:
+        """Every row's box centre x and y, as Python floats."""
+        return self.rows.xy[:, 0].tolist(), self.rows.xy[:, 1].tolist()
+
+    def find(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per key: its row (any where absent) and whether present."""
+        at = np.minimum(np.searchsorted(self.key, keys), len(self.key) - 1)
+        return self.row[at], self.key[at] == keys
+
+    def by(self, frame: int) -> dict[tuple[str, str], int]:
+        """One frame's ``(name, part) -> row``."""
+        lo, hi = np.searchsorted(self.key, [frame * self.m * 3, (frame + 1) * self.m * 3])
+        parts = ("shaft", "wrist", "clasper")
+        return {
+            (self.names[(k // 3) % self.m], parts[k % 3]): r
+            for k, r in zip(self.key[lo:hi].tolist(), self.row[lo:hi].tolist(), strict=True)
+        }
+
+    def swap(self, frame: int, a: str, b: str, part: str, ra: int, rb: int) -> None:
+        """``b``'s row of ``part`` in ``frame`` is now ``ra``, ``a``'s ``rb``."""
+        c = _WRIST if part == "wrist" else _CLASPER
+        base = frame * self.m
+        ka = (base + self.names.index(a)) * 3 + c
+        kb = (base + self.names.index(b)) * 3 + c
+        at = np.searchsorted(self.key, [kb, ka])
+        self.row[at] = (ra, rb)
+
+    def candidates(self, part: str) -> list[_Candidate]:
+        """The pairs of names whose rows of ``part`` attach better swapped (by
+        :data:`HEAD_SWAP_KEEP_MARGIN` at least), each name in at most one pair per
+        frame, in frame order: :func:`_pair_candidates` over the frames where exactly
+        two names show ``part`` and a shaft, :func:`_frame_candidates` in the others."""
+        c = _WRIST if part == "wrist" else _CLASPER
+        base = self.key[self.key % 3 == c] // 3
+        shaft, has = self.find(base * 3 + _SHAFT)
+        base, shaft = base[has], shaft[has]
+        head = self.find(base * 3 + c)[0]
+        frame = base // self.m
+        new = np.ones(len(frame), dtype=bool)
+        new[1:] = frame[1:] != frame[:-1]
+        starts = np.flatnonzero(new)
+        count = np.diff(np.append(starts, len(frame)))
+        i = starts[count == 2]  # the pair's first name in name order, then the second
+        pairs = _PairRows(
+            frame[i], base[i] % self.m, base[i + 1] % self.m,
+            head[i], head[i + 1], shaft[i], shaft[i + 1],
+        )  # fmt: skip
+        if c == _CLASPER:  # a name's wrist (as swapped) anchors its jaws
+            pairs.wrist_a, pairs.has_wrist_a = self.find(base[i] * 3 + _WRIST)
+            pairs.wrist_b, pairs.has_wrist_b = self.find(base[i + 1] * 3 + _WRIST)
+        out, odd = _pair_candidates(self, pairs, part)
+        more = np.concatenate([frame[starts[count > 2]], odd]).astype(np.int64)
+        for f in np.unique(more).tolist():
+            out += _frame_candidates(self, f, self.by(f), part)
+        out.sort(key=lambda cand: cand[0])  # (one source per frame: stable within it)
+        return out
+
+
+@dataclass
+class _PairRows:
+    """Per frame with exactly two names showing a head part and a shaft: the frame,
+    the names' codes (in name order) and their rows of that part and of the shaft;
+    for the jaws, each name's wrist row and whether it has one."""
+
+    frame: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    head_a: np.ndarray
+    head_b: np.ndarray
+    shaft_a: np.ndarray
+    shaft_b: np.ndarray
+    wrist_a: np.ndarray | None = None
+    has_wrist_a: np.ndarray | None = None
+    wrist_b: np.ndarray | None = None
+    has_wrist_b: np.ndarray | None = None
+
+
+def _pair_candidates(
+    heads: _HeadRows, pairs: _PairRows, part: str
+) -> tuple[list[_Candidate], np.ndarray]:
+    """:func:`_frame_candidates` of frames with two names, as column arithmetic: the
+    same operations on the same floats, element by element (the cosines, sines and
+    point distances by ``math``, as there); also the frames with a value that is not
+    finite (left to :func:`_frame_candidates`: Python's ``min`` and numpy's differ on
+    NaN)."""
+    rows = heads.rows
+    xy, length, width, angle = rows.xy, rows.length, rows.width, rows.angle
+
+    def anchor(s: np.ndarray) -> tuple[np.ndarray, ...]:  # _shaft_anchor, by columns
+        x, y, long = xy[s, 0], xy[s, 1], length[s]
+        rad = list(map(math.radians, angle[s].tolist()))
+        ux = np.fromiter(map(math.cos, rad), np.float64, len(rad))
+        uy = np.fromiter(map(math.sin, rad), np.float64, len(rad))
+        w, h = float(rows.extent[0]), float(rows.extent[1])
+        px, py = x + 1.0 * 0.5 * long * ux, y + 1.0 * 0.5 * long * uy
+        mx, my = x + -1.0 * 0.5 * long * ux, y + -1.0 * 0.5 * long * uy
+        inside_p = np.minimum(np.minimum(np.minimum(px, w - px), py), h - py)
+        inside_m = np.minimum(np.minimum(np.minimum(mx, w - mx), my), h - my)
+        minus = inside_m > inside_p
+        sg = np.where(minus, -1.0, 1.0)
+        return np.where(minus, mx, px), np.where(minus, my, py), sg * ux, sg * uy
+
+    ax, ay, aux, auy = anchor(pairs.shaft_a)
+    bx, by, bux, buy = anchor(pairs.shaft_b)
+    wa, wb = width[pairs.shaft_a], width[pairs.shaft_b]
+    used = [ax, ay, aux, auy, bx, by, bux, buy, wa, wb]
+    point_a = point_b = np.zeros(len(ax), dtype=bool)
+    if pairs.wrist_a is not None and pairs.wrist_b is not None:
+        point_a, point_b = pairs.has_wrist_a, pairs.has_wrist_b  # type: ignore[assignment]
+        ax = np.where(point_a, xy[pairs.wrist_a, 0], ax)
+        ay = np.where(point_a, xy[pairs.wrist_a, 1], ay)
+        bx = np.where(point_b, xy[pairs.wrist_b, 0], bx)
+        by = np.where(point_b, xy[pairs.wrist_b, 1], by)
+        used += [ax, ay, bx, by]
+    hax, hay = xy[pairs.head_a, 0], xy[pairs.head_a, 1]
+    hbx, hby = xy[pairs.head_b, 0], xy[pairs.head_b, 1]
+    used += [hax, hay, hbx, hby]
+
+    def cost(hx: np.ndarray, hy: np.ndarray, to_a: bool) -> np.ndarray:  # _attachment
+        x, y, ux, uy, point = (ax, ay, aux, auy, point_a) if to_a else (bx, by, bux, buy, point_b)
+        dx, dy = hx - x, hy - y
+        out = np.abs(dx * uy - dy * ux) + HEAD_ALONG_WEIGHT * np.abs(dx * ux + dy * uy)
+        k = np.flatnonzero(point)
+        if len(k):
+            out[k] = np.fromiter(
+                map(math.hypot, dx[k].tolist(), dy[k].tolist()), np.float64, len(k)
+            )
+        return out
+
+    finite = np.logical_and.reduce([np.isfinite(v) for v in used])
+    now = cost(hax, hay, True) + cost(hbx, hby, False)
+    swapped = cost(hax, hay, False) + cost(hbx, hby, True)
+    mean_width = 0.5 * (wa + wb)
+    keep = finite & (swapped + HEAD_SWAP_KEEP_MARGIN * mean_width < now)
+    strong = swapped + HEAD_SWAP_MARGIN * mean_width < now
+    names = heads.names
+    out: list[_Candidate] = [
+        (f, names[a], names[b], ra, rb, s)
+        for f, a, b, ra, rb, s in zip(
+            pairs.frame[keep].tolist(), pairs.a[keep].tolist(), pairs.b[keep].tolist(),
+            pairs.head_a[keep].tolist(), pairs.head_b[keep].tolist(), strong[keep].tolist(),
+            strict=True,
+        )
+    ]  # fmt: skip
+    return out, pairs.frame[~finite]
+
+
+def _frame_candidates(
+    heads: _HeadRows, f: int, by: dict[tuple[str, str], int], part: str
 ) -> list[_Candidate]:
-    """Per frame (``(name, part) -> row``), the pairs of names whose rows of ``part``
+    """One frame's (``(name, part) -> row``) pairs of names whose rows of ``part``
     attach better swapped (by :data:`HEAD_SWAP_KEEP_MARGIN` at least), each name in at
-    most one pair per frame."""
-    x, y = rows.xy[:, 0].tolist(), rows.xy[:, 1].tolist()
+    most one pair."""
+    rows, (x, y) = heads.rows, heads.xy
     out: list[_Candidate] = []
-    for f, by in enumerate(frames):
-        names = sorted({n for n, p in by if p == part and (n, "shaft") in by}, key=_name_key)
-        if len(names) < 2:
-            continue
-        anchors: dict[str, _Anchor] = {}
-        for n in names:
-            r = by[(n, "shaft")]
-            anchors[n] = _shaft_anchor(
-                x[r], y[r], float(rows.length[r]), float(rows.width[r]),
-                float(rows.angle[r]), rows.extent,
-            )  # fmt: skip
-            w = by.get((n, "wrist"))
-            if part == "clasper" and w is not None:
-                anchors[n] = (x[w], y[w], anchors[n][2], None)
-        paired: set[str] = set()
-        for i, a in enumerate(names):
-            for b in names[i + 1 :]:
-                if a in paired or b in paired:
-                    continue
-                ra, rb = by[(a, part)], by[(b, part)]
-                pa, pb = anchors[a], anchors[b]
-                now = _attachment(x[ra], y[ra], pa) + _attachment(x[rb], y[rb], pb)
-                swapped = _attachment(x[ra], y[ra], pb) + _attachment(x[rb], y[rb], pa)
-                width = 0.5 * (pa[2] + pb[2])
-                if swapped + HEAD_SWAP_KEEP_MARGIN * width < now:
-                    strong = swapped + HEAD_SWAP_MARGIN * width < now
-                    out.append((f, a, b, ra, rb, strong))
-                    paired |= {a, b}
+    names = sorted({n for n, p in by if p == part and (n, "shaft") in by}, key=_name_key)
+    if len(names) < 2:
+        return out
+    anchors: dict[str, _Anchor] = {}
+    for n in names:
+        r = by[(n, "shaft")]
+        anchors[n] = _shaft_anchor(
+            x[r], y[r], float(rows.length[r]), float(rows.width[r]),
+            float(rows.angle[r]), rows.extent,
+        )  # fmt: skip
+        w = by.get((n, "wrist"))
+        if part == "clasper" and w is not None:
+            anchors[n] = (x[w], y[w], anchors[n][2], None)
+    paired: set[str] = set()
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            if a in paired or b in paired:
+                continue
+            ra, rb = by[(a, part)], by[(b, part)]
+            pa, pb = anchors[a], anchors[b]
+            now = _attachment(x[ra], y[ra], pa) + _attachment(x[rb], y[rb], pb)
+            swapped = _attachment(x[ra], y[ra], pb) + _attachment(x[rb], y[rb], pa)
+            width = 0.5 * (pa[2] + pb[2])
+            if swapped + HEAD_SWAP_KEEP_MARGIN * width < now:
+                strong = swapped + HEAD_SWAP_MARGIN * width < now
+                out.append((f, a, b, ra, rb, strong))
+                paired |= {a, b}
     return out
 
 
@@ -559,7 +736,7 @@ def _strong_frames(run: list[_Candidate]) -> int:
     return best
 
 
-def swap_heads(table: TrackTable) -> TrackTable:
+def swap_heads(table: TrackTable, rows: _Rows | None = None) -> TrackTable:
     """Head rows (wrist, then jaws: ``"clasper"``) swapped between two names where they
     hang on the other's shaft (or wrist) in at least :data:`HEAD_SWAP_MIN_FRAMES`
     consecutive frames, and in the frames next to them where they still do by
@@ -569,6 +746,7 @@ def swap_heads(table: TrackTable) -> TrackTable:
     Args:
         table: rows of a whole sequence (``frame``, ``instrument``, ``part``, the part
             boxes as :func:`relink` reads them), in any order.
+        rows: the table's columns as :func:`relink` read them (None: read here).
     """
     if table.num_rows == 0:
         return table
@@ -582,22 +760,14 @@ def swap_heads(table: TrackTable) -> TrackTable:
         busy |= np.bincount(frame[part_of == part] - first, minlength=len(busy)) >= 2
     if not busy.any():
         return table
-    rows = _Rows(table)
-    frames: list[dict[tuple[str, str], int]] = [{} for _ in range(len(busy))]
-    look = np.flatnonzero(busy[frame - first])
-    for r, f, n, p in zip(
-        look.tolist(),
-        rows.frame[look].tolist(),
-        rows.name[look].tolist(),
-        rows.part[look].tolist(),
-        strict=True,
-    ):
-        frames[f - first][(n, p)] = r
+    if rows is None:
+        rows = _Rows(table)
+    heads = _HeadRows(rows, np.flatnonzero(busy[frame - first]))
     names = rows.name.copy()
     swapped = False
     for part in ("wrist", "clasper"):  # the jaws' anchors are the wrists as swapped
         runs: dict[tuple[str, str], list[_Candidate]] = {}
-        for c in _swap_candidates(rows, frames, part):
+        for c in heads.candidates(part):
             runs.setdefault((c[1], c[2]), []).append(c)
         for pair in runs.values():
             start = 0
@@ -607,8 +777,7 @@ def swap_heads(table: TrackTable) -> TrackTable:
                 if _strong_frames(pair[start:j]) >= HEAD_SWAP_MIN_FRAMES:
                     for f, a, b, ra, rb, _ in pair[start:j]:
                         names[ra], names[rb] = b, a
-                        by = frames[f]
-                        by[(b, part)], by[(a, part)] = ra, rb
+                        heads.swap(f, a, b, part, ra, rb)
                     swapped = True
                 start = j
     if not swapped:
