@@ -250,6 +250,9 @@ def identified(
             instances, names = tracker.resolve(index, result.instances, result.runs)
             if recent is not None:
                 recent.add(len(names))
+            if not pending and instances is result.instances and not result.deferred:
+                yield index, list(names), result  # (what a _Pending of it would yield now)
+                continue
             item = _Pending(index, list(names), result)
             if instances is not result.instances or result.deferred:
                 item.result = result.replaced(

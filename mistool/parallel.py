@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import cv2
 import numpy as np
@@ -258,7 +258,11 @@ def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
     frames, inst_i, inst_f, part_i, part_f, corners, bits, labels, poses, *rest = packed
     unknown, run_counts, run_lengths, run_ends = rest
     inst_rows, inst_xy = inst_i.tolist(), inst_f.tolist()
-    part_rows, part_nums = part_i.tolist(), part_f.tolist()
+    part_rows = part_i.tolist()
+    # each part's row cells (box, area, corners: rows.ROW_CELLS) for the caller's rows
+    cells = np.concatenate(
+        [part_f, part_i[:, 1:2].astype(np.float64), corners.reshape(-1, 8)], axis=1
+    ).tolist()
     run_n, run_len = run_counts.tolist(), run_lengths.tolist()
     out = []
     i = p = u = r = e = b = m = 0  # next instance, part, unknown, runs list, run, bit, pose
@@ -274,20 +278,26 @@ def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
         at = b0 = b  # the frame's first bit (from a byte boundary)
         b += -(-nbits // 8) * 8
         for area, x, y, bw, bh, given, sh, sw, n_parts in inst_rows[i : i + count]:
-            own = {}
+            own: dict[str, PartObservation] = {}
             for _ in range(n_parts):
                 code, parea, ox, oy, mh, mw = part_rows[p]
-                name, box = PARTS[code], RotatedBox(*part_nums[p])
+                name, row = PARTS[code], cells[p]
+                box = _made(RotatedBox, cx=row[0], cy=row[1], length=row[2], width=row[3],
+                            angle_deg=row[4])  # fmt: skip
+                obj: PartObservation
                 if flat is None and code == _SHAFT:
-                    own[name] = _sent_part(
-                        name, box, corners[p], parea, (ox, oy), bits, at, (mh, mw)
-                    )
+                    obj = _made(_SentPart, _packed=(bits, at, (mh, mw)))
                 else:
                     if flat is not None:
                         mask = flat[at - b0 : at - b0 + mh * mw].reshape(mh, mw)
                     else:
                         mask = _part_mask(bits, at, (mh, mw))
-                    own[name] = PartObservation(name, box, corners[p], parea, mask, (ox, oy))
+                    obj = _made(PartObservation, mask=mask)
+                obj.__dict__.update(
+                    part=name, box=box, corners=corners[p], area_px=parea, offset=(ox, oy),
+                    _cells=row,
+                )  # fmt: skip
+                own[name] = obj
                 at += mh * mw
                 p += 1
             instances.append(
@@ -346,6 +356,7 @@ class _SentPart(PartObservation):
 
 
 _SHAFT = PARTS.index("shaft")
+_T = TypeVar("_T")
 
 
 def _part_mask(bits: np.ndarray, at: int, shape: tuple[int, int]) -> np.ndarray:
@@ -355,24 +366,12 @@ def _part_mask(bits: np.ndarray, at: int, shape: tuple[int, int]) -> np.ndarray:
     return flat[at % 8 : at % 8 + n].reshape(shape)
 
 
-def _sent_part(
-    part: str,
-    box: RotatedBox,
-    corners: np.ndarray,
-    area: int,
-    offset: tuple[int, int],
-    bits: np.ndarray,
-    at: int,
-    shape: tuple[int, int],
-) -> PartObservation:
-    """A :class:`_SentPart` whose mask is the ``shape[0] * shape[1]`` bits of ``bits``
-    from bit ``at`` on, row by row (the dataclass's checks are not needed: the worker
-    made the values as a PartObservation)."""
-    obj = object.__new__(_SentPart)
-    obj.__dict__.update(
-        part=part, box=box, corners=corners, area_px=area, offset=offset,
-        _packed=(bits, at, shape),
-    )  # fmt: skip
+def _made(cls: type[_T], **values: Any) -> _T:
+    """A ``cls`` (a frozen dataclass of :mod:`mistool.model`) holding ``values``, made
+    without its ``__init__`` and checks: the worker made these values as such objects,
+    checked; a field set later, as :func:`unpack_frames` does, is set in its dict."""
+    obj = object.__new__(cls)
+    obj.__dict__.update(values)
     return obj
 
 

@@ -19,6 +19,8 @@ from mistool.pose.measure import ROW_KEYS, ROW_LEN, SLOT_OF, SLOTS
 
 #: Rows allocated at first; capacity doubles when full.
 INITIAL_ROWS = 256
+#: Rows kept in lists before they are written into the columns together.
+FLUSH_ROWS = 1024
 
 #: The numeric columns every table built here has, after frame, time_s, instrument, part.
 BOX_COLUMNS: tuple[str, ...] = (
@@ -70,6 +72,17 @@ class RowBuilder:
         self._text: dict[str, np.ndarray] = {}
         # per tuple of a metric's keys (all numeric): where its values go in self._num
         self._plans: dict[tuple[str, ...], slice | list[int]] = {}
+        # rows of frames with the pose as one array, not yet in the columns (written
+        # together, :meth:`_flush`): rows before self._done are in the columns
+        self._done = 0
+        self._frames: list[int] = []
+        self._insts: list[int] = []
+        self._parts: list[int] = []
+        self._cells: list[list[float]] = []
+        self._poses: list[np.ndarray] = []  # each frame's poses, (instances * 3, ROW_LEN)
+        self._picks: list[int] = []  # per row with a pose, its row in those stacked
+        self._posed: list[int] = []  # and its row in the table
+        self._stacked = 0  # rows of the poses so far
 
     @property
     def num_rows(self) -> int:
@@ -85,7 +98,7 @@ class RowBuilder:
 
         def grown(a: np.ndarray, fill: Any) -> np.ndarray:
             out = np.full((cap, *a.shape[1:]), fill, dtype=a.dtype)
-            out[: self._n] = a[: self._n]
+            out[: self._done] = a[: self._done]
             return out
 
         self._frame = grown(self._frame, 0)
@@ -127,6 +140,7 @@ class RowBuilder:
         if metrics is None or isinstance(metrics, np.ndarray):
             self._add_posed(index, names, instances, metrics)
             return
+        self._flush()
         rows: list[tuple[int, int, Any, Any]] = []
         for name, inst, metric in zip(names, instances, metrics, strict=True):
             code = self._code(str(name))
@@ -149,33 +163,73 @@ class RowBuilder:
         instances: Sequence[Any],
         poses: np.ndarray | None,
     ) -> None:
-        """:meth:`add_frame` with the metric pose as one array, or None."""
+        """:meth:`add_frame` with the metric pose as one array, or None: the rows' cells
+        kept in lists (written into the columns together, :meth:`_flush`)."""
         if poses is not None and poses.shape != (len(instances), len(SLOTS), ROW_LEN):
             raise ValueError(
                 f"metrics: expected shape ({len(instances)}, {len(SLOTS)}, {ROW_LEN}) for "
                 f"{len(instances)} instances, got {poses.shape}"
             )
-        rows: list[tuple[int, int, Any, Any]] = []
-        picks: list[int] = []  # each row's row in poses.reshape(-1, ROW_LEN)
+        n0 = self._n
+        insts, parts_of, cells = self._insts, self._parts, self._cells
+        picks = self._picks
+        base = self._stacked
         for k, (name, inst) in enumerate(zip(names, instances, strict=True)):
             code = self._code(str(name))
             parts = inst.parts
             for p, part in enumerate(PARTS):
                 obs = parts.get(part)
                 if obs is not None:
-                    rows.append((code, p, obs, None))
-                    picks.append(3 * k + _SLOT_OF_PART[p])
-        if not rows:
+                    insts.append(code)
+                    parts_of.append(p)
+                    cells.append(getattr(obs, "_cells", None) or _row_cells(obs))
+                    picks.append(base + 3 * k + _SLOT_OF_PART[p])
+        added = len(insts) - len(self._frames)
+        if not added:
             return
-        i0 = self._rows(index, rows)
-        if poses is not None:
+        self._frames.extend([index] * added)
+        self._n = n0 + added
+        if poses is None:
+            del picks[len(picks) - added :]
+        else:
+            self._poses.append(poses.reshape(-1, ROW_LEN))
+            self._stacked += len(poses) * len(SLOTS)
+            self._posed.extend(range(n0, n0 + added))
+        if len(cells) >= FLUSH_ROWS:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Write the rows kept in lists into the columns."""
+        i0, i1 = self._done, self._n
+        if i1 == i0:
+            return
+        if i1 > self._cap:
+            self._grow(i1)
+        self._frame[i0:i1] = self._frames
+        self._inst[i0:i1] = self._insts
+        self._part[i0:i1] = self._parts
+        self._box[i0:i1] = self._cells
+        if self._posed:
             plan = self._plans.get(ROW_KEYS)
             if plan is None:  # before self._num is read: it may grow
                 plan = self._plans[ROW_KEYS] = self._plan(ROW_KEYS)
-            self._num[i0 : i0 + len(rows), plan] = poses.reshape(-1, ROW_LEN)[picks]
+            cols = np.arange(self._num.shape[1])[plan]
+            stacked = np.concatenate(self._poses)
+            at = np.array(self._posed, np.int64)
+            self._num[np.ix_(at, cols)] = stacked[self._picks]
+        self._done = i1
+        self._frames.clear()
+        self._insts.clear()
+        self._parts.clear()
+        self._cells.clear()
+        self._poses.clear()
+        self._picks.clear()
+        self._posed.clear()
+        self._stacked = 0
 
     def _rows(self, index: int, rows: list[tuple[int, int, Any, Any]]) -> int:
-        """Write ``rows``' frame, instrument, part and box cells; their first row."""
+        """Write ``rows``' frame, instrument, part and box cells; their first row (no
+        rows kept in lists: :meth:`_flush` first)."""
         i0 = self._n
         i1 = i0 + len(rows)
         if i1 > self._cap:
@@ -183,14 +237,8 @@ class RowBuilder:
         self._frame[i0:i1] = index
         self._inst[i0:i1] = [r[0] for r in rows]
         self._part[i0:i1] = [r[1] for r in rows]
-        box = []
-        for _, _, obs, _ in rows:
-            b = obs.box
-            box.append(
-                [b.cx, b.cy, b.length, b.width, b.angle_deg, obs.area_px, *_corners(obs.corners)]
-            )
-        self._box[i0:i1] = box
-        self._n = i1
+        self._box[i0:i1] = [getattr(r[2], "_cells", None) or _row_cells(r[2]) for r in rows]
+        self._n = self._done = i1
         return i0
 
     def _add_metric(self, i: int, metric: Mapping[str, Any]) -> None:
@@ -235,6 +283,7 @@ class RowBuilder:
         """The rows so far as a table (columns: :data:`BASE_COLUMNS`, then the metric
         columns, known ones in :data:`~mistool.model.COLUMNS` order); the builder is
         emptied (its capacity kept)."""
+        self._flush()
         n = self._n
         names = np.empty(len(self._names), dtype=object)
         names[:] = self._names
@@ -254,14 +303,17 @@ class RowBuilder:
         known = [c for c in COLUMN_NAMES if c in extra]
         for c in known + [c for c in extra if c not in known]:
             cols[c] = extra[c][:n].copy()
-        self._n = 0
+        self._n = self._done = 0
         self._num[:n] = np.nan
         for a in self._text.values():
             a[:n] = ""
         return TrackTable(cols)
 
 
-def _corners(corners: Any) -> list[float]:
-    """A part's (4, 2) corners as 8 floats, row by row."""
-    out: list[float] = np.asarray(corners, dtype=np.float64).ravel().tolist()
-    return out
+def _row_cells(obs: Any) -> list[float]:
+    """A part's :data:`BOX_COLUMNS` cells: its box, area and (4, 2) corners row by row
+    (:func:`mistool.parallel.unpack_frames` gives a worker's parts theirs as
+    ``_cells``, made for the batch at once)."""
+    b = obs.box
+    corners: list[float] = np.asarray(obs.corners, dtype=np.float64).ravel().tolist()
+    return [b.cx, b.cy, b.length, b.width, b.angle_deg, obs.area_px, *corners]

@@ -272,3 +272,49 @@ def test_benchmark_script_runs() -> None:
         check=True,
     )
     assert "ratio imread-unchanged / api:" in proc.stdout
+
+
+def test_a_frame_kept_whole_with_nothing_waiting_goes_on_at_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``identified`` with a pool: a frame whose instances the identity step keeps and
+    whose pose came with it, while no earlier frame waits, is yielded as it is, without
+    a pending entry (one per frame, the caller's cost); a frame after one that waits
+    for its pose still waits its turn: the frames come out in order."""
+    from types import SimpleNamespace
+
+    from mistool import api
+
+    made: list[int] = []
+    pending = api._Pending
+
+    def counted(index: int, *args: object) -> object:
+        made.append(index)
+        return pending(index, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(api, "_Pending", counted)
+
+    class Tracker:
+        def resolve(self, index: int, instances: list, runs: object) -> tuple[list, list]:
+            return instances, [str(k + 1) for k in range(len(instances))]
+
+    busy = SimpleNamespace(result=lambda: [np.zeros((0, 3, 1))], done=lambda: False)
+    pool = SimpleNamespace(workers=1, batch_frames=1, submit=lambda *a: busy)
+    seq = SimpleNamespace(config=Config(), check_shape=lambda *a: None)
+    empty = np.zeros(0, np.int64)
+    frames = [
+        parallel.FrameResult([], np.zeros((0, 3, 1)), empty, (4, 4), deferred=k == 2)
+        for k in range(5)
+    ]
+    out = list(
+        api.identified(
+            enumerate(zip("abcde", frames, strict=True)),  # type: ignore[arg-type]
+            seq,  # type: ignore[arg-type]
+            Tracker(),  # type: ignore[arg-type]
+            True,
+            pool,  # type: ignore[arg-type]
+        )
+    )
+    assert [index for index, _, _ in out] == [0, 1, 2, 3, 4]
+    assert out[0][2] is frames[0] and out[1][2] is frames[1]
+    assert made == [2, 3, 4]  # the deferred frame and those after it while it waited

@@ -874,3 +874,38 @@ def test_a_shaft_not_deferred_has_its_mask_unpacked_at_its_first_use() -> None:
         assert p.mask.shape == q.mask.shape and np.array_equal(p.mask, q.mask)
         assert (p.part, p.box, p.area_px, p.offset) == (q.part, q.box, q.area_px, q.offset)
         assert p.mask is p.mask  # unpacked once
+
+
+def test_unpacked_parts_carry_their_rows_cells_and_checked_values() -> None:
+    """Each part a batch unpacks to carries its row's box cells (``_cells``, made for
+    the whole batch at once, what ``mistool.rows`` writes) equal to those read from its
+    fields, and its box and part are the model's types with the values sent."""
+    from mistool.rows import _row_cells
+
+    rng = np.random.default_rng(7)
+    sent = []
+    for n, deferred in ((2, False), (3, True), (1, False)):
+        insts = []
+        for _ in range(n):
+            parts = {}
+            for name in ("shaft", "wrist", "clasper"):
+                h, w = (int(v) for v in rng.integers(1, 9, 2))
+                length, width = sorted(rng.uniform(1.0, 50.0, 2), reverse=True)
+                box = RotatedBox(*rng.uniform(0, 500, 2), length, width, rng.uniform(0, 180))
+                corners = box.corners() + rng.normal(size=(4, 2))
+                area = int(rng.integers(1, 10**6))
+                parts[name] = PartObservation(
+                    name, box, corners, area, rng.random((h, w)) < 0.5, (1, 2)
+                )
+            insts.append(InstanceObservation(None, parts, (1.0, 2.0), 7, (3, 4, 5, 6), (40, 50)))
+        empty = np.zeros(0, np.int64)
+        sent.append(parallel.FrameResult(insts, None, empty, (40, 50), deferred=deferred))
+    got = parallel.unpack_frames(parallel.pack_frames(sent))
+    for g, s in zip(got, sent, strict=True):
+        for gi, si in zip(g.instances, s.instances, strict=True):
+            for p, q in zip(gi.parts.values(), si.parts.values(), strict=True):
+                assert isinstance(p, PartObservation) and type(p.box) is RotatedBox
+                assert (p.part, p.box, p.area_px, p.offset) == (q.part, q.box, q.area_px, q.offset)
+                assert np.array_equal(p.corners, q.corners) and np.array_equal(p.mask, q.mask)
+                assert p._cells == _row_cells(q) == _row_cells(p)  # type: ignore[attr-defined]
+                assert all(type(v) is float for v in p._cells)  # type: ignore[attr-defined]

@@ -320,3 +320,76 @@ def test_a_metric_pose_array_of_another_shape_is_an_error() -> None:
     rows = RowBuilder(fps=25.0)
     with pytest.raises(ValueError, match="metrics: expected shape"):
         rows.add_frame(0, ["1", "2"], [_inst(0), _inst(1)], np.zeros((1, 3, 28)))
+
+
+def test_a_parts_row_cells_given_with_it_are_its_row() -> None:
+    """A part that carries its row's cells (``_cells``: a worker's parts, made for the
+    whole batch by ``mistool.parallel.unpack_frames``) gives them as its box cells."""
+    inst = _inst(0, ("shaft",))
+    cells = [float(v) for v in range(100, 114)]
+    inst.parts["shaft"]._cells = cells  # type: ignore[attr-defined]
+    rows = RowBuilder(fps=1.0)
+    rows.add_frame(0, ["a"], [inst], None)
+    t = rows.take()
+    assert [float(t[c][0]) for c in BOX_COLUMNS] == cells
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(st.integers(0, 2), _poses_strategy(), _FRAME), max_size=30),
+    st.integers(1, 6),
+)
+def test_rows_kept_in_lists_are_the_former_across_dict_frames_and_takes(frames, flush) -> None:
+    """Frames whose pose is an array (their rows kept in lists, written ``FLUSH_ROWS``
+    at a time) among frames of metric dicts and takes: the same tables as the former
+    definition's, bit for bit."""
+    from unittest import mock
+
+    from mistool import rows as rows_module
+    from mistool.pose.measure import ROW_KEYS, ROW_LEN, SLOT_OF
+
+    new, old = RowBuilder(fps=7.0), _FormerRowBuilder(fps=7.0)
+    got: list[TrackTable] = []
+    want: list[TrackTable] = []
+    with mock.patch.object(rows_module, "FLUSH_ROWS", flush):
+        for k, (kind, (frame, cells), dict_frame) in enumerate(frames * 4):
+            if kind == 2:
+                got.append(new.take())
+                want.append(old.take())
+            elif kind == 1:
+                insts = [
+                    _inst(k + j, tuple(p for p in PARTS if p in ps))
+                    for j, (_, ps, _) in enumerate(dict_frame)
+                ]
+                names = [n for n, _, _ in dict_frame]
+                metrics = [m for _, _, m in dict_frame]
+                new.add_frame(k, names, insts, metrics)
+                old.add_frame(k, names, insts, metrics)
+            else:
+                insts = [
+                    _inst(k + j, tuple(p for p in PARTS if p in ps))
+                    for j, (_, ps) in enumerate(frame)
+                ]
+                names = [n for n, _ in frame]
+                poses = None if cells is None else np.array(cells).reshape(-1, 3, ROW_LEN)
+                dicts = [
+                    None
+                    if poses is None
+                    else {
+                        p: dict(zip(ROW_KEYS, poses[j, SLOT_OF[p]].tolist(), strict=True))
+                        for p in inst.parts
+                    }
+                    for j, inst in enumerate(insts)
+                ]
+                new.add_frame(k, names, insts, poses)
+                old.add_frame(k, names, insts, dicts)
+            assert new.num_rows == old._n
+        got.append(new.take())
+        want.append(old.take())
+    for g, w in zip(got, want, strict=True):
+        assert g.columns == w.columns
+        for c in g.columns:
+            if g[c].dtype == np.float64:
+                assert np.array_equal(g[c].view(np.int64), w[c].view(np.int64)), c
+            else:
+                assert g[c].dtype == w[c].dtype and g[c].tolist() == w[c].tolist(), c
