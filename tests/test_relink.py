@@ -17,6 +17,7 @@ from mistool.config import config_from_dict
 from mistool.model import TrackTable
 from mistool.tracking.relink import (
     FRAGMENT_REACH_PX,
+    HEAD_MOVE_MARGIN,
     HEAD_SWAP_KEEP_MARGIN,
     HEAD_SWAP_MARGIN,
     HEAD_SWAP_MIN_FRAMES,
@@ -25,6 +26,7 @@ from mistool.tracking.relink import (
     attachment_cost,
     box_gap,
     link_cost,
+    move_heads,
     relink,
     sparse_gated_assignment,
     swap_heads,
@@ -360,6 +362,85 @@ def test_a_swap_goes_on_where_the_heads_are_still_close():
         near_only += _heads_meeting(f, ("clasper",) if 3 <= f < 10 else (), gain)
     table = _table(near_only)
     assert swap_heads(table) is table
+
+
+def _head_on_the_other(
+    frame: int, on_other: bool, wrist_xy: tuple[float, float] = (390.0, 300.0)
+) -> list[dict[str, object]]:
+    """:func:`_heads_apart`'s two tools; ``on_other``: tool 1's head is hidden and tool
+    2's wrist (at ``wrist_xy``) and jaws carry name "1", name "2" showing its shaft
+    alone."""
+    rows = _heads_apart(frame, None)
+    if not on_other:
+        return rows
+    rows = [r for r in rows if r["instrument"] == "1" and r["part"] == "shaft"]
+    rows += [r for r in _heads_apart(frame, None) if r["instrument"] == "2"]
+    for r in rows:
+        if r["part"] == "wrist":
+            r["cx_px"], r["cy_px"] = wrist_xy
+        if r["part"] != "shaft":
+            r["instrument"] = "1"
+    return rows
+
+
+def test_a_wrist_on_another_names_shaft_goes_to_it_with_its_jaws():
+    """Tool 2's wrist and jaws named "1" for 6 frames (tool 1's own head hidden; held-out
+    seed 6 frames 60-63: a name's wrist 200 px from its tool's, on the shaft of a name that
+    shows none), through relink: they go to "2", whose shaft they hang on; the other
+    frames are untouched."""
+    rows = []
+    for f in range(12):
+        rows += _head_on_the_other(f, 3 <= f < 9)
+    table = _table(rows)
+    out = relink(table, 25.0)
+    assert out.num_rows == table.num_rows
+    for f in range(12):
+        got = {
+            (str(n), str(p))
+            for g, n, p in zip(out["frame"], out["instrument"], out["part"], strict=True)
+            if g == f
+        }
+        if 3 <= f < 9:
+            assert got == {("1", "shaft"), ("2", "shaft"), ("2", "wrist"), ("2", "clasper")}
+            assert _part_xy(out, f, "2", "wrist") == (390.0, 300.0)
+        else:
+            assert _part_xy(out, f, "1", "wrist") == _part_xy(table, f, "1", "wrist")
+            assert len(got) == 6
+
+
+def test_a_wrist_moved_for_two_frames_or_by_a_small_gain_is_left():
+    """Fewer than HEAD_SWAP_MIN_FRAMES frames are no evidence; nor is a wrist that hangs
+    on the other shaft better by at most HEAD_MOVE_MARGIN of its widths (here it lies
+    between the shafts' ends, 40 px nearer "2"'s across their axes)."""
+    short = _table(sum((_head_on_the_other(f, f in (3, 4)) for f in range(12)), []))
+    assert move_heads(short) is short
+    # "1"'s shaft ends at (300, 200) going right, "2"'s at (420, 300) going left: a wrist
+    # at (360, 270) hangs on "1" at 70 + 0.5 * 60, on "2" at 30 + 0.5 * 60: a gain of 40
+    rows = sum((_head_on_the_other(f, 3 <= f < 9, (360.0, 270.0)) for f in range(12)), [])
+    moved = move_heads(_table(rows))  # 2's shaft 60 px wide: a margin of 30 px
+    assert HEAD_MOVE_MARGIN * 60.0 < 40.0 <= HEAD_MOVE_MARGIN * 100.0
+    assert _part_xy(moved, 5, "2", "wrist") == (360.0, 270.0)
+    wide = [dict(r) for r in rows]
+    for r in wide:
+        if r["part"] == "shaft" and r["instrument"] == "2":
+            r["width_px"] = 100.0  # a margin of 50 px: more than the gain
+    table = _table(wide)
+    assert move_heads(table) is table
+
+
+def test_a_tool_with_its_own_wrist_keeps_it_when_the_other_shows_none():
+    """Two tools apart, tool 2's head hidden for 6 frames (a crossing, an occluder): tool
+    1's wrist hangs on its own shaft: nothing moves."""
+    rows = []
+    for f in range(12):
+        rows += [
+            r
+            for r in _heads_apart(f, None)
+            if not (3 <= f < 9 and r["instrument"] == "2" and r["part"] != "shaft")
+        ]
+    table = _table(rows)
+    assert move_heads(table) is table
+    assert relink(table, 25.0) is table
 
 
 def test_nothing_to_relink_gives_the_table_back():

@@ -37,6 +37,14 @@ are plain to see, and undone here (:func:`relink`, called by :func:`mistool.api.
   touch is no evidence: box centres of merged heads lie between them), and the frames
   next to such a run where the swap gains less (:data:`HEAD_SWAP_KEEP_MARGIN`: the heads
   still close).
+- **A wrist on another tool's shaft.** A tool's wrist cut off by an occluder, or taken
+  with another tool's head by a split, goes under that tool's name while its own tool,
+  seen with its shaft, shows no wrist. Per frame, a name's wrist row goes to another name
+  showing a shaft and no wrist when it hangs on that shaft better by more than
+  :data:`HEAD_MOVE_MARGIN` of its widths (:func:`move_heads`), only over runs of at least
+  :data:`HEAD_SWAP_MIN_FRAMES` consecutive frames of that pair; the giving name's jaws go
+  with it when they lie nearer the moved wrist than the giving shaft's distal end and the
+  receiving name shows none.
 
 Names are then renumbered ``"1"``, ``"2"``, ... in order of first appearance, as the
 identity step numbers them (unchanged when nothing was relinked). Pure, table in and
@@ -66,10 +74,12 @@ __all__ = [
     "HEAD_SWAP_KEEP_MARGIN",
     "HEAD_SWAP_MARGIN",
     "HEAD_SWAP_MIN_FRAMES",
+    "HEAD_MOVE_MARGIN",
     "attachment_cost",
     "link_cost",
     "relink",
     "sparse_gated_assignment",
+    "move_heads",
     "swap_heads",
 ]
 
@@ -109,6 +119,11 @@ HEAD_SWAP_KEEP_MARGIN = 0.25
 #: A wrist's distance along its shaft's axis from the shaft's distal end counts this much
 #: (the part of the shaft an occluder or the other tool hides shortens its box) ...
 HEAD_ALONG_WEIGHT = 0.5
+#: A name's wrist row goes to another name that shows a shaft but no wrist in that frame
+#: when it hangs on that name's shaft better by more than this many of that shaft's
+#: widths (:func:`attachment_cost`), in each of at least :data:`HEAD_SWAP_MIN_FRAMES`
+#: consecutive frames (:func:`move_heads`).
+HEAD_MOVE_MARGIN = 0.5
 
 
 @dataclass
@@ -463,8 +478,9 @@ def relink(table: TrackTable, fps: float) -> TrackTable:
     number = {c: str(k + 1) for k, c in enumerate(heads)}
     names = np.array([number[int(c)] for c in label], dtype=object)
     if keep.all() and np.array_equal(names.astype(str), rows.name):
-        return swap_heads(table, rows)
-    return swap_heads(table.with_columns(instrument=names)[keep])
+        out = swap_heads(table, rows)
+        return move_heads(out, rows if out is table else None)
+    return move_heads(swap_heads(table.with_columns(instrument=names)[keep]))
 
 
 def attachment_cost(head_xy: np.ndarray, anchor_xy: np.ndarray, axis: np.ndarray | None) -> float:
@@ -781,5 +797,131 @@ def swap_heads(table: TrackTable, rows: _Rows | None = None) -> TrackTable:
                     swapped = True
                 start = j
     if not swapped:
+        return table
+    return table.with_columns(instrument=names.astype(object))
+
+
+def _move_frames(frame: np.ndarray, name: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """The frames where one name shows a shaft and a wrist and another a shaft and no
+    wrist (sorted): the only ones :func:`move_heads` can move a wrist in."""
+    shaft, wrist = part == "shaft", part == "wrist"
+    some = shaft | wrist
+    unique, code = np.unique(name[some], return_inverse=True)
+    m = len(unique)
+    # one sorted key per (frame, name, shaft or wrist): a name's wrist right after its shaft
+    key = np.unique(((frame[some] * m + code.reshape(-1)) << 1) | wrist[some])
+    base, is_wrist = key >> 1, (key & 1).astype(bool)
+    both = np.zeros(len(key), dtype=bool)
+    both[:-1] = ~is_wrist[:-1] & is_wrist[1:] & (base[1:] == base[:-1])
+    alone = ~is_wrist.copy()
+    alone[:-1] &= ~both[:-1]
+    mark = np.zeros(int(frame.max()) + 1, dtype=np.int8)
+    mark[base[both] // m] |= 1
+    mark[base[alone] // m] |= 2
+    return np.flatnonzero(mark == 3)
+
+
+def _wrist_moves(heads: _HeadRows, f: int, by: dict[tuple[str, str], int]) -> list[_Candidate]:
+    """One frame's wrist rows that hang on another name's shaft better than on their own
+    by more than :data:`HEAD_MOVE_MARGIN` of its widths, that name showing a shaft but no
+    wrist: ``(frame, from, to, row, -1, True)``, each name giving and taking at most one
+    (the largest gains first)."""
+    rows, (x, y) = heads.rows, heads.xy
+    anchors: dict[str, _Anchor] = {}
+    for (n, p), r in by.items():
+        if p == "shaft":
+            anchors[n] = _shaft_anchor(
+                x[r], y[r], float(rows.length[r]), float(rows.width[r]),
+                float(rows.angle[r]), rows.extent,
+            )  # fmt: skip
+    takers = sorted((n for n in anchors if (n, "wrist") not in by), key=_name_key)
+    found: list[tuple[float, str, str, int]] = []
+    for a in sorted(anchors, key=_name_key):
+        w = by.get((a, "wrist"))
+        if w is None:
+            continue
+        own = _attachment(x[w], y[w], anchors[a])
+        for b in takers:
+            gain = own - _attachment(x[w], y[w], anchors[b])
+            if gain > HEAD_MOVE_MARGIN * anchors[b][2]:
+                found.append((gain, a, b, w))
+    out: list[_Candidate] = []
+    gave: set[str] = set()
+    took: set[str] = set()
+    for _, a, b, r in sorted(found, key=lambda c: -c[0]):  # (stable: ties in name order)
+        if a not in gave and b not in took:
+            out.append((f, a, b, r, -1, True))
+            gave.add(a)
+            took.add(b)
+    return out
+
+
+def move_heads(table: TrackTable, rows: _Rows | None = None) -> TrackTable:
+    """Wrist rows given to the name whose shaft they hang on where that name shows no
+    wrist, and the jaws with them (see :data:`HEAD_MOVE_MARGIN`); the very table when
+    none is.
+
+    A tool's wrist cut off by an occluder or taken with another tool's head by a split
+    goes with that tool's name, whose own wrist is then missing (held-out seed 6 frames
+    60-63 and 76-97, seed 14 frames 85-96: a name's wrist 200 px from its tool's, on the
+    shaft of a name that shows none). Per frame, a name's wrist row goes to another
+    name showing a shaft and no wrist when :func:`attachment_cost` to that name's shaft
+    is lower by more than :data:`HEAD_MOVE_MARGIN` of that shaft's widths, over runs of
+    at least :data:`HEAD_SWAP_MIN_FRAMES` consecutive frames of that pair; the giving
+    name's jaws go too when the receiving name shows none and they lie nearer the moved
+    wrist than the giving shaft's distal end. Rows move between names; none is added or
+    dropped.
+
+    Args:
+        table: rows of a whole sequence (``frame``, ``instrument``, ``part``, the part
+            boxes as :func:`relink` reads them), in any order.
+        rows: the table's columns as :func:`relink` read them (None: read here).
+    """
+    if table.num_rows == 0:
+        return table
+    frame = np.asarray(table["frame"]).astype(np.int64)
+    name = rows.name if rows is not None else np.asarray(table["instrument"]).astype(str)
+    look = _move_frames(frame, name, np.asarray(table["part"]))
+    if len(look) == 0:
+        return table
+    if rows is None:
+        rows = _Rows(table)
+    heads = _HeadRows(rows, np.flatnonzero(np.isin(frame, look)))
+    by = {f: heads.by(f) for f in look.tolist()}
+    runs: dict[tuple[str, str], list[_Candidate]] = {}
+    for f in look.tolist():
+        for c in _wrist_moves(heads, f, by[f]):
+            runs.setdefault((c[1], c[2]), []).append(c)
+    names = rows.name.copy()
+    (x, y) = heads.xy
+    moved = False
+    for pair in runs.values():
+        start = 0
+        for j in range(1, len(pair) + 1):
+            if j < len(pair) and pair[j][0] == pair[j - 1][0] + 1:
+                continue
+            if j - start >= HEAD_SWAP_MIN_FRAMES:
+                for f, a, b, r, _, _ in pair[start:j]:
+                    d = by[f]
+                    if d.get((a, "wrist")) != r or (b, "wrist") in d:
+                        continue  # (moved by another pair's run)
+                    names[r] = b
+                    del d[(a, "wrist")]
+                    d[(b, "wrist")] = r
+                    moved = True
+                    jaws, s = d.get((a, "clasper")), d[(a, "shaft")]
+                    if jaws is None or (b, "clasper") in d:
+                        continue
+                    end = _shaft_anchor(
+                        x[s], y[s], float(rows.length[s]), float(rows.width[s]),
+                        float(rows.angle[s]), rows.extent,
+                    )  # fmt: skip
+                    to_wrist = math.hypot(x[jaws] - x[r], y[jaws] - y[r])
+                    if to_wrist < math.hypot(x[jaws] - end[0], y[jaws] - end[1]):
+                        names[jaws] = b
+                        del d[(a, "clasper")]
+                        d[(b, "clasper")] = jaws
+            start = j
+    if not moved:
         return table
     return table.with_columns(instrument=names.astype(object))
