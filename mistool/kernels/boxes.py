@@ -1025,14 +1025,17 @@ def _ring_arcs(store: np.ndarray, kw: int, x: int, y: int) -> int:
 
 @helper
 def _row_chains(lo: np.ndarray, hi: np.ndarray, kh: int, hv: np.ndarray) -> int:
-    """The strict convex hull of a crop whose rows ``0 .. kh - 1`` all hold pixels (row
-    ``y``'s extremes ``lo[y]``, ``hi[y]``), into ``hv`` ((2 kh + 2, 2) at least): its
-    vertices in ``cv2.convexHull(clockwise=False)``'s order, the top row's first pixel
-    last (the order in which ``minAreaRect`` sees the hull of a single component's
-    contour, whose first point that pixel is: see :func:`fit_runs_box`); how many."""
+    """The strict convex hull of a crop's pixels (row ``y``'s extremes ``lo[y]``,
+    ``hi[y]``; ``lo > hi``: an empty row; the first and last rows hold pixels), into
+    ``hv`` ((2 kh + 2, 2) at least): its vertices in ``cv2.convexHull(clockwise=False)``'s
+    order, the top row's first pixel last (the order in which ``minAreaRect`` sees the
+    hull of a single component's contour, whose first point that pixel is: see
+    :func:`fit_runs_box`); how many."""
     right = np.empty(kh, np.int64)  # the right chain's rows, top to bottom
     nr = 0
     for r in range(kh):  # pop while the turn is not strictly convex (collinear too)
+        if lo[r] > hi[r]:  # (an empty row between components)
+            continue
         while nr >= 2:
             o, a = right[nr - 2], right[nr - 1]
             if (hi[a] - hi[o]) * (r - o) - (a - o) * (hi[r] - hi[o]) > 0:
@@ -1043,6 +1046,8 @@ def _row_chains(lo: np.ndarray, hi: np.ndarray, kh: int, hv: np.ndarray) -> int:
     left = np.empty(kh, np.int64)
     nl = 0
     for r in range(kh):
+        if lo[r] > hi[r]:
+            continue
         while nl >= 2:
             o, a = left[nl - 2], left[nl - 1]
             if (lo[a] - lo[o]) * (r - o) - (a - o) * (lo[r] - lo[o]) < 0:
@@ -1061,6 +1066,74 @@ def _row_chains(lo: np.ndarray, hi: np.ndarray, kh: int, hv: np.ndarray) -> int:
     return m
 
 
+@helper
+def _contour_order(
+    hv: np.ndarray,
+    m: int,
+    ry: np.ndarray,
+    rx0: np.ndarray,
+    rx1: np.ndarray,
+    parent: np.ndarray,
+    area: np.ndarray,
+    min_area: int,
+    n: int,
+    x0: int,
+    y0: int,
+    lo: np.ndarray,
+    hi: np.ndarray,
+) -> int:
+    """:func:`_row_chains`' hull of several kept components (``m`` vertices in ``hv``,
+    crop coordinates, each passed once by its component's contour) put in the order in
+    which ``cv2.convexHull`` gives it for their traced contours (:func:`fit_runs`'
+    points), in place; returns the number of vertices (``m``).
+
+    That order depends on where each vertex comes in the contours' points: the
+    components in reverse raster order of their first pixels, each contour from its
+    first pixel round the component, the other way from ``hv``'s order. Each contour,
+    as the hull, passes its vertices in the order of their outward normals, starting at
+    its first pixel, where the normals point up (and a little left), as they do at the
+    union's first pixel (``hv``'s last vertex). So a vertex's place in its contour is
+    its place on the union's hull counted from the union's first pixel in the
+    contour's direction, except for a component's own first pixel, always first in its
+    contour (its normals on the union's hull may be any of its own: up and right of
+    it, it comes last on that count). The vertices listed by (component, place) are in
+    the contours' order, and ``convexHull`` (:func:`hull_ccw`) of that list starts and
+    turns as it does for the contours (it looks only at the order of its points'
+    indices)."""
+    kh = lo.shape[0]
+    root_lo = np.empty(kh, np.int64)  # the component of each row's first / last pixel
+    root_hi = np.empty(kh, np.int64)
+    for i in range(n):
+        r = parent[i]
+        if area[r] >= min_area:
+            y = ry[i] - y0
+            if rx0[i] - x0 == lo[y]:
+                root_lo[y] = r
+            if rx1[i] - 1 - x0 == hi[y]:
+                root_hi[y] = r
+    key = np.empty(m, np.int64)  # (reverse raster order of the root runs, then place)
+    for k in range(m):
+        x, y = hv[k, 0], hv[k, 1]
+        r = root_lo[y] if x == lo[y] else root_hi[y]
+        first = x == rx0[r] - x0 and y == ry[r] - y0  # its contour's first point
+        key[k] = (n - r) * (m + 1) + (0 if first else m - k)
+    pts = np.empty((m, 2), np.int32)  # the vertices in the contours' order
+    for k in range(m):  # (insertion sort: the keys are distinct)
+        kk = key[k]
+        j = k
+        while j > 0 and key[j - 1] > kk:
+            key[j] = key[j - 1]
+            pts[j, 0], pts[j, 1] = pts[j - 1, 0], pts[j - 1, 1]
+            j -= 1
+        key[j] = kk
+        pts[j, 0], pts[j, 1] = hv[k, 0], hv[k, 1]
+    idx = np.empty(6 * m + 4, np.int64)
+    got = hull_ccw(pts, idx, idx[m:])
+    for k in range(got):
+        hv[k, 0], hv[k, 1] = pts[idx[k], 0], pts[idx[k], 1]
+    return got
+
+
 @kernel(_BOXED + "(int32[::1], int32[::1], int32[::1], int64, int64, int64, int64)")
 def fit_runs_box(
     ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, n: int, min_area: int, ox: int, oy: int
@@ -1072,7 +1145,9 @@ def fit_runs_box(
     One kept component whose hull vertices each have one run of part pixels round them
     (so its outer contour passes each of them once, in the hull's order) needs no
     contour: ``convexHull`` of its contour is its pixels' strict hull starting after its
-    first pixel (:func:`_row_chains`, from the rows' extremes), and the box's sides are
+    first pixel (:func:`_row_chains`, from the rows' extremes); several such components
+    need none either, their hull's vertices put in the contours' order
+    (:func:`_contour_order`); and the box's sides are
     pushed to the same extremes over the hull's vertices as over the contour's points,
     except for a side at 45 deg (``minAreaRect``'s angle -45: there the rounded
     projections of a side's points tie within an ulp, and a point the contour leaves
@@ -1087,13 +1162,15 @@ def fit_runs_box(
         return (0, 0, 0, 0, 0), empty, (0.0, 0.0, 0.0, 0.0, 0.0), corners
     info = (total, x0, y0, sx, sy)
     crop = store[kw + 1 : (kh + 1) * kw + 1].reshape(kh, kw)
-    if kept == 1:
+    if kept >= 1:
         hv = np.empty((2 * kh + 2, 2), np.int32)
         m = _row_chains(lo, hi, kh, hv)
         safe = m >= 3
         for k in range(m):
             if safe and _ring_arcs(store, kw, hv[k, 0], hv[k, 1]) != 1:
                 safe = False
+        if safe and kept > 1:
+            m = _contour_order(hv, m, ry, rx0, rx1, parent, area, min_area, n, x0, y0, lo, hi)
         if safe:
             work = np.empty(5 * m, np.float32)  # the hull's points, the calipers' scratch
             hx = work[:m]
