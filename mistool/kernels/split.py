@@ -300,7 +300,10 @@ def _label(x: float, y: float, seg: np.ndarray, keep_d2: float, keep: bool, sing
     return lab
 
 
-@kernel("void(float64[::1], float64[::1], float64[:, ::1], float64, boolean, boolean, int64[::1])")
+@kernel(
+    "void(float64[::1], float64[::1], float64[:, ::1], float64, boolean, boolean, int64[::1])",
+    "void(float64[::1], float64[::1], float64[:, ::1], float64, boolean, boolean, uint8[::1])",
+)
 def _labels(
     xs: np.ndarray,
     ys: np.ndarray,
@@ -311,7 +314,8 @@ def _labels(
     out: np.ndarray,
 ) -> None:
     """``out`` (N,): :func:`_label` of each point (``xs``, ``ys``); two segments without
-    ``keep`` in one loop without branches (vector code)."""
+    ``keep`` in one loop without branches (vector code). (uint8 ``out``: at most 255
+    segments.)"""
     n = xs.shape[0]
     if seg.shape[0] == 2 and not keep:
         for i in range(n):
@@ -1377,7 +1381,7 @@ def run_points(
 
 @kernel(
     "boolean(int32[::1], int32[::1], int32[::1], int64, int64, uint8[:, ::1], boolean[:, ::1],"
-    " int64[:, ::1], int64[::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1])"
+    " int64[:, ::1], uint8[::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1])"
 )
 def _cut_runs(
     ry: np.ndarray,
@@ -1396,8 +1400,11 @@ def _cut_runs(
 ) -> bool:
     """:func:`shaft_label_runs`' runs cut where the label changes (the mixed cells'
     pixels labelled ``lab``, in the runs' order; ``nxt``: :func:`_stretches`); False
-    when the outputs are too short."""
+    when the outputs are too short. Eight pixels of a mixed cell with the label of the
+    pixel before them are passed over in one compare (the labels' 8 bytes)."""
     nlab, cap = out_y.shape
+    total = lab.shape[0]
+    ones = np.uint64(0x0101010101010101)
     m = 0
     for i in range(n):
         y = ry[i]
@@ -1409,8 +1416,17 @@ def _cut_runs(
             cj = x // s
             stop = min(rx1[i], nxt[ci, cj] * s)  # (a stretch of one label, or a mixed cell)
             if mixed[ci, cj]:
+                if (
+                    stop - x == 8
+                    and cur >= 0
+                    and m + 8 <= total
+                    and load8(lab, m) == np.uint64(cur) * ones
+                ):
+                    m += 8
+                    x = stop
+                    continue
                 for xx in range(x, stop):
-                    v = lab[m]
+                    v = np.int64(lab[m])
                     m += 1
                     if v != cur:
                         if cur >= 0 and not _emit(cur, y, start, xx, out_y, out_a, out_b, got):
@@ -1481,7 +1497,8 @@ def shaft_label_runs(
     neighbourhood holds two labels (gathered and labelled in one loop; one alone: the
     one-point order), each run cut where the label changes. ``(ry, rx0, rx1, count)``
     per label ``j < nlab``, in raster order, maximal (as ``mask_runs`` of
-    ``owner == j``)."""
+    ``owner == j``). (The mixed cells' pixels are gathered into arrays of at most
+    their cells' size, their labels kept as bytes: fewer than 255 axes.)"""
     ch = (h + s - 1) // s
     cw = (w + s - 1) // s
     half = 0.5 * (s - 1)
@@ -1500,29 +1517,30 @@ def shaft_label_runs(
             coarse[ci, cj] = cells[ci * cw + cj]
     mixed = _mixed_cells(coarse)
     nxt = _stretches(coarse, mixed)
+    most = 0  # at most every pixel of the runs, or of the mixed cells
+    for i in range(n):
+        most += rx1[i] - rx0[i]
+    nmixed = 0
+    for ci in range(ch):
+        for cj in range(cw):
+            nmixed += mixed[ci, cj]
+    most = min(most, nmixed * s * s)
+    xs = np.empty(most, np.float64)
+    ys = np.empty(most, np.float64)
     count = 0  # pixels in mixed cells
     for i in range(n):
         ci = ry[i] // s
         cj, last = rx0[i] // s, (rx1[i] - 1) // s
-        while cj <= last:
-            if mixed[ci, cj]:
-                count += min(rx1[i], cj * s + s) - max(rx0[i], cj * s)
-            cj = nxt[ci, cj]
-    xs = np.empty(count, np.float64)
-    ys = np.empty(count, np.float64)
-    m = 0
-    for i in range(n):
-        ci = ry[i] // s
-        cj, last = rx0[i] // s, (rx1[i] - 1) // s
+        yy = np.float64(ry[i] + y0)
         while cj <= last:
             if mixed[ci, cj]:
                 for x in range(max(rx0[i], cj * s), min(rx1[i], cj * s + s)):
-                    xs[m] = x + x0
-                    ys[m] = ry[i] + y0
-                    m += 1
+                    xs[count] = x + x0
+                    ys[count] = yy
+                    count += 1
             cj = nxt[ci, cj]
-    lab = np.empty(count, np.int64)
-    _labels(xs, ys, seg, keep_d2, keep, count == 1, lab)
+    lab = np.empty(count, np.uint8)
+    _labels(xs[:count], ys[:count], seg, keep_d2, keep, count == 1, lab)
     cap = n + count + 1
     while True:
         out_y = np.empty((nlab, cap), np.int32)
