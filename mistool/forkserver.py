@@ -1,8 +1,9 @@
 """The worker processes' fork server: its context, and its start ahead of the pool.
 
 mistool's worker processes fork from a ``forkserver`` that has imported the per-frame
-code and loaded its compiled kernels once (~0.95 s in a new process: imports ~0.35 s,
-kernels ~0.57 s, of which numba's first load ~0.27 s with its import of scipy.linalg).
+code and loaded its compiled kernels once (in a new process: imports ~0.35 s, then numba's
+start and the kernels' loading, ~0.57 s before :mod:`mistool.numbaload` and far less with
+it: numba's start without its import of scipy.linalg, the kernels without their bitcode).
 :func:`start` launches that server without waiting for it, so that a command can have
 it loading while it imports and lists its own inputs; the pool made later
 (:class:`mistool.parallel.LocalPool`) then forks its workers from it. This module

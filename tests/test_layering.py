@@ -13,8 +13,9 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mistool"
 
 # Layers, lowest first; a module may import only from its own layer or lower ones.
 LAYERS: list[tuple[str, ...]] = [
-    # kernels: compiled inner loops (numba, numpy only), imported by any layer above
-    ("errors", "kernels", "parts", "forksafe"),
+    # kernels: compiled inner loops (numba, numpy only), imported by any layer above;
+    # numbaload: how numba loads their cache (numba only)
+    ("errors", "kernels", "parts", "forksafe", "numbaload"),
     ("model",),
     # export (CSV and atomic writes) needs only errors and model; synth writes truth.csv
     # calibration (camera files) is read by config (a lazy import: same layer)

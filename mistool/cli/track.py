@@ -204,6 +204,14 @@ def _pool(args: argparse.Namespace, local: bool) -> Any:
     return parallel.LocalPool(workers) if local and workers > 1 else None
 
 
+def _start_numba() -> None:
+    """numba started without its BLAS check (this process is mistool's own: no kernel
+    calls a BLAS; :func:`mistool.numbaload.start_without_blas`)."""
+    from mistool.numbaload import start_without_blas
+
+    start_without_blas()
+
+
 def run_track(args: argparse.Namespace) -> int:
     """Run ``mistool track``; returns the exit code."""
     _check_options(args)
@@ -271,6 +279,7 @@ def _run_sequence(args: argparse.Namespace) -> int:
         check_output(out, inputs[listed:], existing=entries or ())
         table_format(out)
     show_progress = not args.quiet and sys.stderr.isatty()
+    _start_numba()
     pool = _pool(args, local=False)
     try:
         with warnings.catch_warnings():
@@ -336,6 +345,7 @@ def _run_dataset(args: argparse.Namespace, root: Path) -> int:
     def report(line: str) -> None:
         progress.write(f"mistool: error: {line}" if "\n" not in line else line)
 
+    _start_numba()
     start = time.perf_counter()
     finished = False
     try:

@@ -6,7 +6,8 @@ by :func:`kernel` with its signatures given, so that:
 - it is loaded from numba's on-disk cache (``__pycache__`` beside the module, or the
   user's cache folder when that is not writable), or compiled when the cache does not
   hold it, at its first call and for its declared signatures only: a process pays
-  (~5-15 ms per kernel) only for the kernels it calls, and importing a kernel module
+  (~1-20 ms per kernel, its bitcode left unparsed: :mod:`mistool.numbaload`) only for
+  the kernels it calls, and importing a kernel module
   costs nothing more than numba's import; the fork server of
   :class:`mistool.parallel.LocalPool` loads every kernel once (:func:`warm`) and every
   worker inherits them;
@@ -55,14 +56,12 @@ def kernel(*signatures: str) -> Callable[[F], F]:
     The machine code is loaded (from the cache, or compiled) at the kernel's first call
     or by :func:`load`, for exactly these signatures; after that the kernel is closed: a
     call with other argument types is a ``TypeError``, never a new compilation. (Loading
-    costs ~5-15 ms per kernel: a process loads only the kernels it calls.)"""
+    costs ~1-20 ms per kernel: a process loads only the kernels it calls.)"""
     if not signatures:
         raise ValueError("kernel(): give the signatures (compiled at import, not at a call)")
 
     def wrap(fn: F) -> F:
-        from numba import njit
-
-        _renew_stale_cache_once()
+        njit = _njit()
         compiled: Any = njit(cache=True, nogil=True, error_model="numpy")(fn)
         unmatched = compiled._compile_for_args  # numba's path for a call no overload fits
 
@@ -115,13 +114,23 @@ def helper(fn: F) -> F:
     """Compile a function called only from other kernels: typed and compiled within each
     caller's compilation, its machine code linked into the caller's (cached with it), so
     loading a module from the cache does not load it on its own (each kernel loaded costs
-    ~5-15 ms of numba's linking). Calling it from Python would compile it then: don't."""
-    from numba import njit
-
-    _renew_stale_cache_once()
+    ~1-20 ms of numba's linking). Calling it from Python would compile it then: don't."""
+    njit = _njit()
     compiled = njit(cache=True, nogil=True, error_model="numpy")(fn)
     setattr(compiled, "mistool_helper", True)  # noqa: B010 - numba types the dispatcher
     return cast(F, compiled)
+
+
+def _njit() -> Any:
+    """numba's ``njit``, with the package's cache renewed if stale and cached kernels
+    loaded without parsing their bitcode (:mod:`mistool.numbaload`)."""
+    from numba import njit
+
+    from mistool.numbaload import install
+
+    install()
+    _renew_stale_cache_once()
+    return njit
 
 
 _STAMP = "mistool-kernels.stamp"
