@@ -53,8 +53,9 @@ def kernel(*signatures: str) -> Callable[[F], F]:
     e.g. ``"void(uint8[:], uint8[:, ::1])"``), cached on disk, releasing the GIL, with
     numpy's error model (a division by zero gives inf or nan, as in numpy).
 
-    The machine code is loaded (from the cache, or compiled) at the kernel's first call
-    or by :func:`load`, for exactly these signatures; after that the kernel is closed: a
+    The machine code is loaded (from the cache, or compiled) at the kernel's first call,
+    by :func:`load`, or when a kernel calling it is compiled, for exactly these
+    signatures; after that the kernel is closed: a
     call with other argument types is a ``TypeError``, never a new compilation. (Loading
     costs ~1-20 ms per kernel: a process loads only the kernels it calls.)"""
     if not signatures:
@@ -72,7 +73,18 @@ def kernel(*signatures: str) -> Callable[[F], F]:
             compiled._compile_for_args = unmatched  # (a later mismatch: numba's TypeError)
             return compiled
 
+        typed = compiled.get_call_template  # numba types a call from another kernel so
+
+        def call_template(args: Any, kws: Any) -> Any:
+            # another kernel calling this one is being compiled: this one is loaded by
+            # its signatures first, never compiled for the caller's argument types
+            # (numba caches such a callee under those types, not under the signature,
+            # so that a process loading it by its signature compiled it again)
+            _load(compiled)
+            return typed(args, kws)
+
         compiled._compile_for_args = first_call
+        compiled.get_call_template = call_template
         compiled.mistool_signatures = signatures
         return cast(F, compiled)  # a dispatcher, called as the function it compiles
 
