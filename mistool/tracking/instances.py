@@ -324,23 +324,35 @@ def _fit_instance(
     )
     if found == 0:
         return None
+    # the frozen dataclasses made by filling their dicts: their __init__ sets each field
+    # through object.__setattr__ (~5 us a frame of two instruments); the box's checks
+    # are kept (RotatedBox raises as before)
     fits = {}
     for k, ((size, px, py, _, _), box) in enumerate(
         zip(info.tolist(), boxes.tolist(), strict=True)
     ):
         if size:
             part = parts[k]
-            fits[part] = PartObservation(
-                part, RotatedBox(*box), corners[k], size, crops[k], (px, py)
-            )
-    return InstanceObservation(
-        label=name,
-        parts=fits,
-        centroid_px=centroid,
-        area_px=area,
-        bbox_xywh=(x, y, w, h),
+            cx, cy, length, width, angle = box
+            if not (length >= width and 0.0 <= angle < 180.0):
+                RotatedBox(*box)  # (raises)
+            rbox = _new(RotatedBox)
+            rbox.__dict__.update(cx=cx, cy=cy, length=length, width=width, angle_deg=angle)
+            obs = _new(PartObservation)
+            obs.__dict__.update(
+                part=part, box=rbox, corners=corners[k], area_px=size, mask=crops[k],
+                offset=(px, py),
+            )  # fmt: skip
+            fits[part] = obs
+    inst = _new(InstanceObservation)
+    inst.__dict__.update(
+        label=name, parts=fits, centroid_px=centroid, area_px=area, bbox_xywh=(x, y, w, h),
         image_shape=runs.shape,
-    )
+    )  # fmt: skip
+    return inst
+
+
+_new = object.__new__
 
 
 def _kernels() -> Any:
@@ -644,9 +656,17 @@ def group_components(
     labels = [i for i in range(1, len(counts)) if counts[i] >= min_area]
     labels.sort(key=lambda i: -counts[i])
     has_shaft = {i: bool(shaft_counts[i] >= min_area) for i in labels}
+    if len(labels) < 2:
+        return [[i] for i in labels]
+    # a group's kind never changes (a piece joins a target, whose kind the group keeps):
+    # a rule whose piece or target kind no group has joins nothing (two tools apart:
+    # only shafts, so only the first rule is tried)
+    kinds = set().union(*(_kind(i, has_shaft, border) for i in labels))
     groups = _Groups(labels, stats, counts)
     gap = _Gap(groups, cc)
     for rule in REACH_RULES:
+        if rule.piece not in kinds or rule.target not in kinds:
+            continue
         while True:
             best = _nearest_pair(rule, groups, gap, has_shaft, border)
             if best is None:
