@@ -371,7 +371,8 @@ def test_unfilter_runs_adler32_against_zlib() -> None:
     wide[1, 1000:] = 200
     wide[2, 5:9] = 7
     wide[2, -3000:] = 255
-    for img, filters in ((noise, [y % 5 for y in range(40)]), (wide, [1, 4, 2])):
+    cases = ((noise, [y % 5 for y in range(40)]), (wide, [1, 4, 2]), (wide, [1, 1, 0]))
+    for img, filters in cases:  # (Sub rows over Paeth and over Sub: written or not)
         h, w = img.shape
         raw = np.concatenate(
             [np.array(filters, np.uint8)[:, None], _filter_rows(img, filters, 1)], 1
@@ -384,6 +385,34 @@ def test_unfilter_runs_adler32_against_zlib() -> None:
         assert n == _runs_of(img)[5] and tuple(bounds) == _runs_of(img)[0]
         for wrong in (adler ^ 1, adler ^ (1 << 16), (adler + 65521) % 2**32):
             assert unfilter_runs(raw, *args, bounds, wrong) == -3
+
+
+@FUZZ
+@given(masks(widths=(1, 200)), st.data())
+def test_sub_rows_read_as_runs_from_their_filtered_bytes(
+    img: np.ndarray, data: st.DataObject
+) -> None:
+    """A Sub row that the row below does not read (None or Sub below, or the last row)
+    gives its runs straight from its filtered bytes, the row not written
+    (``png._sub_runs``); one that the row below reads (Up, Average, Paeth) is written as
+    before: rows mostly Sub, each followed by any filter, give ``label_runs`` of the
+    image, and run arrays one run too short, or shorter, are refused (-1)."""
+    from mistool.kernels.png import unfilter_runs
+
+    img = img.astype(np.uint8)
+    h, w = img.shape
+    filters = [1 if data.draw(st.integers(0, 2)) else data.draw(st.integers(0, 4)) for _ in img]
+    raw = np.concatenate([np.array(filters, np.uint8)[:, None], _filter_rows(img, filters, 1)], 1)
+    want = _runs_of(img)
+    cap = data.draw(st.integers(0, want[5] + 2))
+    runs = [np.empty(cap, np.int32) for _ in range(4)]
+    bounds = np.zeros(4, np.int64)
+    n = unfilter_runs(raw, np.empty(2 * w, np.uint8), *runs, bounds, zlib.adler32(raw.tobytes()))
+    if cap < want[5]:
+        assert n == -1
+        return
+    ry, rx0, rx1, rv = (a[:n].tolist() for a in runs)
+    assert (tuple(bounds), ry, rx0, rx1, rv, n) == want
 
 
 @FUZZ
