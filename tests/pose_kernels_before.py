@@ -405,3 +405,81 @@ def trace(
             return n
         x, y = xn, yn
         s = (s + 4) & 7
+
+
+# -- the twelfth session's pieces as they were before it (commit 37a36fc) ---------------
+
+
+@_jit
+def tip_depth(
+    rx: float,
+    ry: float,
+    rz: float,
+    jx: float,
+    jy: float,
+    jz: float,
+    ax: float,
+    ay: float,
+    az: float,
+    l_nom: float,
+    has_len: bool,
+    bend: float,
+    sigma: float,
+) -> float:
+    """``kernels.pose._tip_depth`` (the bend's arc cosine at every grid point);
+    ``bend``, ``sigma``: its ``par`` entries."""
+    s_j = rx * jx + ry * jy + rz * jz
+    span = 3.0 * (l_nom if has_len else 16.0)
+    lo = max(s_j - span, 1.0)
+    step = s_j + span - lo
+    jj = jx * jx + jy * jy + jz * jz
+    ra = rx * ax + ry * ay + rz * az
+    ja = jx * ax + jy * ay + jz * az
+    grid = kp._UNIT_GRID
+    n = len(grid)
+    cost = np.empty(n)
+    best = 0
+    for k in range(n):
+        s = lo + step * grid[k]
+        ln = math.sqrt(max((s - 2.0 * s_j) * s + jj, 0.0))
+        cosb = min(max((s * ra - ja) / max(ln, 1e-9), -1.0), 1.0)
+        c = math.acos(cosb) / bend
+        c = c * c
+        if has_len:
+            e = (ln - l_nom) / (sigma * l_nom)
+            c += e * e
+        cost[k] = c
+        if c < cost[best]:
+            best = k
+    sk = lo + step * grid[best]
+    if 0 < best < n - 1:  # parabolic refinement
+        c0, c1, c2 = cost[best - 1], cost[best], cost[best + 1]
+        den = c0 - 2.0 * c1 + c2
+        off = 0.5 * (c0 - c2) / den if den > 0 else 0.0
+        sk += min(max(off, -1.0), 1.0) * ((lo + step * grid[1]) - (lo + step * grid[0]))
+    return sk
+
+
+@_jit
+def near_others(lab: np.ndarray, gap_rows: np.ndarray, near: np.ndarray) -> None:
+    """``kernels.pose._near_others``: ``cv2.dilate(lab == OTHER, disk) > 0`` over the
+    whole window."""
+    hh, ww = lab.shape
+    g = (len(gap_rows) - 1) // 2
+    pre = np.zeros((hh, ww + 1), np.int64)
+    for y in range(hh):
+        acc = 0
+        for x in range(ww):
+            acc += lab[y, x] == 2
+            pre[y, x + 1] = acc
+    for y in range(hh):
+        for x in range(ww):
+            hit = False
+            for i in range(2 * g + 1):
+                yy = y + i - g
+                if 0 <= yy < hh:
+                    r = gap_rows[i]
+                    if pre[yy, min(x + r, ww - 1) + 1] > pre[yy, max(x - r, 0)]:
+                        hit = True
+                        break
+            near[y, x] = hit

@@ -6,6 +6,7 @@ definitions in ``tests/test_pose_kernels.py``."""
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any
 
 import numpy as np
@@ -177,8 +178,9 @@ def test_jaw_axis_as_before_bit_for_bit(case: tuple) -> None:  # type: ignore[ty
 @settings(max_examples=400, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2]))
 def test_iou_count_as_before(seed: int, st_: int) -> None:
-    """The IoU's byte counts eight bytes at a time: the same counts as the former loops
-    (canvas and mask of any sizes and overlaps, both strides)."""
+    """The IoU's byte counts eight bytes at a time (a canvas of step 2: eight samples of
+    every other mask byte at a time, ``_ones_both_step2``): the same counts as the former
+    loops (canvas and mask of any sizes and overlaps, both strides)."""
     import pose_kernels_before as before_k
 
     from mistool.kernels import pose as kp
@@ -218,6 +220,12 @@ def _wrapped() -> dict[str, Any]:
             lambda ci, ox, oy, ju, jv, wd, p: kp._jaw_picks(ci, ox, oy, ju, jv, wd, p)
         ),
         "vmax_vmin": numba.njit(lambda v: (kp._vmax(v), kp._vmin(v))),
+        "median_in": numba.njit(lambda v, n, stride: kp._median_in(v, n, stride, np.empty(2 * n))),
+        "across_gap": numba.njit(
+            lambda outline, shaft, sx, sy, o1, x1, y1, o2, x2, y2, n, hh, ww, rows: kp._across_gap(
+                outline, shaft, sx, sy, o1, x1, y1, o2, x2, y2, n, hh, ww, rows
+            )
+        ),
         "max_min": numba.njit(lambda v: (v.max(), v.min())),
     }
 
@@ -346,3 +354,162 @@ def test_vmax_vmin_equal_numbas_reductions(seed: int, n: int, single: bool) -> N
         ref = _wrapped()["max_min"](col)
         for g, r in zip(got, ref, strict=True):
             assert np.asarray(g).tobytes() == np.asarray(r).tobytes()
+
+
+# -- the twelfth session's pieces against their former code (37a36fc) -------------------
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans(), st.booleans())
+def test_tip_depth_as_before(seed: int, known: bool, near: bool) -> None:
+    """The tip's depth with the arc cosine taken only where the length term alone does
+    not exceed the cost at its own least: the same depth as the former loop over the
+    whole grid (rays and joints anywhere, lengths, bends and widths of the grid from
+    tiny to huge, ties; NaN and infinite inputs go through the whole grid)."""
+    import pose_kernels_before as before_k
+
+    from mistool.kernels import pose as kp
+
+    rng = np.random.default_rng(seed)
+    r = rng.normal(size=3)
+    r /= np.linalg.norm(r)
+    joint = rng.normal(0.0, 40.0, 3) + [0.0, 0.0, rng.uniform(-20.0, 150.0)]
+    a = rng.normal(size=3)
+    a /= np.linalg.norm(a)
+    if near:  # the tip's ray close to the clasper's end: a minimum inside the grid
+        tip = joint + rng.uniform(5.0, 25.0) * a
+        r = tip / np.linalg.norm(tip) + rng.normal(0.0, 0.01, 3)
+        r /= np.linalg.norm(r)
+    l_nom = float(rng.choice([10.0, 16.0, rng.uniform(0.0, 60.0), 0.0, 1e-300]))
+    par = _params_array()
+    par[kp.PARAMS.index("tip_bend_sigma_rad")] = float(
+        rng.choice([math.radians(45.0), rng.uniform(1e-3, 3.0), 0.0])
+    )
+    par[kp.PARAMS.index("tip_length_sigma")] = float(rng.choice([0.05, rng.uniform(1e-4, 2.0)]))
+    if rng.random() < 0.05:
+        joint[int(rng.integers(3))] = rng.choice([math.nan, math.inf])
+    if rng.random() < 0.05:
+        l_nom = float(rng.choice([math.nan, math.inf]))
+    args = (*r, *joint, *a, l_nom, known)
+    got = kp._tip_depth(*args, par)
+    ref = before_k.tip_depth(
+        *args,
+        par[kp.PARAMS.index("tip_bend_sigma_rad")],
+        par[kp.PARAMS.index("tip_length_sigma")],
+    )
+    assert np.float64(got).tobytes() == np.float64(ref).tobytes()
+
+
+def _params_array() -> np.ndarray:
+    from mistool.pose.measure import _params
+
+    return _params().copy()
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 300), st.sampled_from([1, 2]))
+def test_median_in_equals_the_median(seed: int, n: int, stride: int) -> None:
+    """The median from the branch-free selection (every ``stride``-th value): the
+    former kernel's value and numpy's bit for bit, NaN and signed zeros included (they
+    go through the former kernel), the values left as they were."""
+    from mistool.kernels import pose as kp
+
+    rng = np.random.default_rng(seed)
+    kind = rng.random()
+    if kind < 0.3:  # few distinct values: ties, zeros of both signs
+        v = rng.choice([-0.0, 0.0, 1.5, -2.25, 3.0, 7.5], n * stride)
+    elif kind < 0.6:
+        v = np.round(rng.normal(300.0, 100.0, n * stride) * 2.0) / 2.0
+    else:
+        v = rng.normal(0.0, 1.0, n * stride)
+    if rng.random() < 0.1:
+        v[rng.random(n * stride) < 0.1] = np.nan
+    if rng.random() < 0.2:
+        v = np.abs(v)  # deviations: zeros of one sign
+    keep = v.copy()
+    got = _wrapped()["median_in"](v, n, stride)
+    vals = keep[::stride][:n]
+    assert np.array_equal(v, keep, equal_nan=True)
+    assert np.float64(got).tobytes() == np.float64(kp._median(vals.copy())).tobytes()
+    if not np.isnan(vals).any():
+        assert got == np.median(vals)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_across_gap_as_before(seed: int) -> None:
+    """The boundary across a junction gap with the grown other parts looked up only at
+    the background neighbours of the outline (``_near_other_at``): the same points as
+    the former code (the whole window grown, ``_near_others``, then ``shaft_boundary``
+    with it as the other part), shafts and other parts of any shapes, near and far, at
+    the image's edges."""
+    import pose_kernels_before as before_k
+
+    from mistool.kernels import contours as kc
+    from mistool.kernels import pose as kp
+    from mistool.pose.measure import _GAP_ROWS
+
+    rng = np.random.default_rng(seed)
+    shaft = _masks(seed).astype(bool)
+    h, w = shaft.shape
+    H, W = h + int(rng.integers(0, 60)), w + int(rng.integers(0, 60))
+    sx, sy = int(rng.integers(0, W - w + 1)), int(rng.integers(0, H - h + 1))
+    others = []
+    for k in range(int(rng.integers(0, 3))):
+        m = _masks(seed + 1000 + k).astype(bool)
+        mh, mw = m.shape
+        mx = int(np.clip(sx + rng.integers(-mw, w + 1), 0, max(W - mw, 0)))
+        my = int(np.clip(sy + rng.integers(-mh, h + 1), 0, max(H - mh, 0)))
+        m = m[: H - my, : W - mx]
+        m &= ~_window(shaft, sx, sy, m.shape, mx, my)  # the parts do not overlap
+        others.append((np.ascontiguousarray(m), mx, my))
+    buf = np.empty((4 * h * w + 4, 2), np.int32)
+    starts = np.empty(65, np.int64)
+    n_pieces, _ = kc.external_contours(shaft, buf, starts)
+    if n_pieces < 1:
+        return
+    outline = np.ascontiguousarray(buf[: starts[n_pieces]])
+    none = np.zeros((0, 0), bool)
+    (o1, x1, y1), (o2, x2, y2) = (others + [(none, 0, 0)] * 2)[:2]
+    got = _wrapped()["across_gap"](
+        outline, shaft, sx, sy, o1, x1, y1, o2, x2, y2, len(others), H, W, _GAP_ROWS
+    )
+    # the former code: the window labelled and grown as a whole, then shaft_boundary
+    g = (len(_GAP_ROWS) - 1) // 2
+    cx0, cy0 = max(sx - 2 - g, 0), max(sy - 2 - g, 0)
+    cx1, cy1 = min(sx + w + 2 + g, W), min(sy + h + 2 + g, H)
+    wx0, wy0, wx1, wy1 = cx1, cy1, cx0, cy0
+    for m, mx, my in others:
+        mh, mw = m.shape
+        wx0, wy0 = min(wx0, max(mx, cx0)), min(wy0, max(my, cy0))
+        wx1, wy1 = max(wx1, min(mx + mw, cx1)), max(wy1, min(my + mh, cy1))
+    wx0, wy0 = max(wx0 - g, cx0), max(wy0 - g, cy0)
+    wx1, wy1 = min(wx1 + g, cx1), min(wy1 + g, cy1)
+    if wx0 >= wx1 or wy0 >= wy1:
+        assert not got[0] and len(got[1]) == len(got[2]) == 0
+        return
+    lab = np.zeros((wy1 - wy0, wx1 - wx0), np.uint8)
+    for m, mx, my in others:
+        lab[_window(m, mx, my, lab.shape, wx0, wy0)] = 2
+    lab[_window(shaft, sx, sy, lab.shape, wx0, wy0)] = 1
+    near = np.empty(lab.shape, bool)
+    before_k.near_others(lab, _GAP_ROWS, near)
+    _, _, bg, other, _ = kp.shaft_boundary(
+        outline, starts[: n_pieces + 1], shaft, sx, sy, near, wx0, wy0, none, 0, 0, H, W
+    )
+    assert got[0] == (len(other) >= 3)
+    assert _same(got[1], bg) and _same(got[2], other)
+
+
+def _window(
+    mask: np.ndarray, mx: int, my: int, shape: tuple[int, ...], x0: int, y0: int
+) -> np.ndarray:
+    """``mask`` (at ``(mx, my)``) on a canvas of ``shape`` at ``(x0, y0)``: a bool array
+    of the canvas' shape."""
+    out = np.zeros(shape, bool)
+    mh, mw = mask.shape
+    xa, ya = max(mx, x0), max(my, y0)
+    xb, yb = min(mx + mw, x0 + shape[1]), min(my + mh, y0 + shape[0])
+    if xa < xb and ya < yb:
+        out[ya - y0 : yb - y0, xa - x0 : xb - x0] = mask[ya - my : yb - my, xa - mx : xb - mx]
+    return out

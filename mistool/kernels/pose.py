@@ -384,6 +384,38 @@ def _median(v: np.ndarray) -> float:
     return 0.5 * (lower + upper)
 
 
+@helper
+def _median_in(v: np.ndarray, n: int, stride: int, scratch: np.ndarray) -> float:
+    """:func:`_median` of ``v[0], v[stride], ... v[(n - 1) stride]`` (``n >= 1``; ``v``
+    left as it is; ``scratch``: at least ``2 n`` elements): the same value, from
+    :func:`_kth` (no branch per element) where that is sure to be it, i.e. where neither
+    a NaN (the selections' orders differ) nor a negative zero (it equals 0.0: which of
+    the two a selection returns depends on its order) is among the values; else from
+    :func:`_median` itself. The middle pair's lower value of an even count is the
+    largest value below the upper one, or the upper one when fewer than ``n / 2``
+    values lie below it."""
+    odd = False
+    for i in range(n):
+        x = v[i * stride]
+        scratch[i] = x
+        odd |= math.isnan(x) or (x == 0.0 and math.copysign(1.0, x) < 0.0)
+    if odd:
+        return _median(scratch[:n].copy())
+    k = n // 2
+    upper = _kth(scratch, n, k)
+    if n % 2:
+        return upper
+    below = 0
+    lower = -math.inf
+    for i in range(n):
+        x = v[i * stride]
+        below += x < upper
+        lower = max(lower, x) if x < upper else lower
+    if below < k:
+        lower = upper
+    return 0.5 * (lower + upper)
+
+
 @_inlined("UniTuple(float64, 3)(float64, float64, float64[:, ::1])")
 def _ray(u: float, v: float, K: np.ndarray) -> tuple[float, float, float]:  # noqa: N803
     """Unit viewing ray of a pixel (``cylinder.pixel_rays``)."""
@@ -620,6 +652,19 @@ def shaft_boundary(
         y = float(outline[i, 1] + sy)
         pix[i, 0], pix[i, 1] = x, y
         border[i] = x <= 0 or y <= 0 or x >= width - 1 or y >= height - 1
+    bg, other = _boundary_points(pix, labels)
+    mom = np.zeros(6)
+    for c in range(len(starts) - 1):
+        _contour_moments(outline, starts[c], starts[c + 1], mom)
+    return pix, border, bg, other, mom
+
+
+@helper
+def _boundary_points(pix: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The boundary points of the outline pixels ``pix`` (full-image px) next to
+    background and next to other parts, by their neighbours' ``labels``
+    (:func:`_neighbour_labels`): :func:`shaft_boundary`'s ``bg, other``."""
+    n = len(pix)
     # a background point is written, and kept (the count advanced) when it is one: no
     # branch on the label; points next to other parts are few (a rare branch)
     bg = np.empty((4 * n + 1, 2))
@@ -636,10 +681,7 @@ def shaft_boundary(
             if lab == _OTHER:
                 other[k_other, 0], other[k_other, 1] = fx, fy
                 k_other += 1
-    mom = np.zeros(6)
-    for c in range(len(starts) - 1):
-        _contour_moments(outline, starts[c], starts[c + 1], mom)
-    return pix, border, bg[:k_bg], other[:k_other], mom
+    return bg[:k_bg], other[:k_other]
 
 
 @kernel("void(uint8[:, ::1], float64[::1])")
@@ -1025,8 +1067,11 @@ def _initial_direction(
     cx, cy = centre[0], centre[1]
     fr[_F_MED] = fr[_F_MED + 1] = math.nan
     if len(other) >= 3:
-        fr[_F_MED] = _median(other[:, 0].copy())
-        fr[_F_MED + 1] = _median(other[:, 1].copy())
+        n_other = len(other)
+        flat = other.reshape(2 * n_other)
+        scratch = np.empty(2 * n_other)
+        fr[_F_MED] = _median_in(flat, n_other, 2, scratch)
+        fr[_F_MED + 1] = _median_in(flat[1:], n_other, 2, scratch)
     theta = 0.5 * math.atan2(2.0 * mu11, mu20 - mu02)
     e0, e1 = math.cos(theta), math.sin(theta)
     tr, det = mu20 + mu02, mu20 * mu02 - mu11 * mu11
@@ -1303,7 +1348,7 @@ def _joint_t(
     c = px * px + py * py + pz * pz - radius * radius
     t0 = -(p0[0] * a[0] + p0[1] * a[1] + p0[2] * a[2])
     use_bg = n - n_other >= 5
-    v = np.empty(n)
+    v = np.empty(3 * n)  # the values, then _median_in's scratch
     k = 0
     for i in range(n):
         if use_bg and i < n_other:
@@ -1318,11 +1363,11 @@ def _joint_t(
         t_out = (-b + sq) / aa * da + t0
         v[k] = t_in if i < n_other else min(t_in, t_out)
         k += 1
-    v = v[:k]
-    med = _median(v)  # v reordered: its deviations need no order
+    scratch = v[k:]
+    med = _median_in(v, k, 1, scratch)
     for i in range(k):
         v[i] = abs(v[i] - med)
-    return med, 1.4826 * _median(v)
+    return med, 1.4826 * _median_in(v, k, 1, scratch)
 
 
 @kernel("boolean(float64[::1], float64[::1], float64, float64)")
@@ -1953,29 +1998,33 @@ def _largest_piece(
 
 
 @helper
-def _near_others(lab: np.ndarray, gap_rows: np.ndarray, near: np.ndarray) -> None:
-    """``cv2.dilate(lab == OTHER, disk) > 0`` into ``near`` (bool, ``lab``'s shape; the
-    disk: ``gap_rows[i]`` its half-width at row ``i - g``, ``2 g + 1`` rows; pixels outside
-    ``lab`` count as not OTHER, as OpenCV's default border for a dilation)."""
+def _others_before(lab: np.ndarray, pre: np.ndarray) -> None:
+    """``pre[y, x]``: the OTHER pixels of ``lab``'s row ``y`` left of column ``x``
+    (``pre``: ``lab``'s rows, one column more)."""
     hh, ww = lab.shape
-    g = (len(gap_rows) - 1) // 2
-    pre = np.zeros((hh, ww + 1), np.int64)  # per row: OTHER pixels left of each column
     for y in range(hh):
         acc = 0
+        pre[y, 0] = 0
         for x in range(ww):
             acc += lab[y, x] == _OTHER
             pre[y, x + 1] = acc
-    for y in range(hh):
-        for x in range(ww):
-            hit = False
-            for i in range(2 * g + 1):
-                yy = y + i - g
-                if 0 <= yy < hh:
-                    r = gap_rows[i]
-                    if pre[yy, min(x + r, ww - 1) + 1] > pre[yy, max(x - r, 0)]:
-                        hit = True
-                        break
-            near[y, x] = hit
+
+
+@helper
+def _near_other_at(pre: np.ndarray, gap_rows: np.ndarray, x: int, y: int) -> bool:
+    """``cv2.dilate(lab == OTHER, disk) > 0`` at ``lab``'s pixel ``(x, y)`` (inside it),
+    from :func:`_others_before`'s ``pre`` (the disk: ``gap_rows[i]`` its half-width at
+    row ``i - g``, ``2 g + 1`` rows; pixels outside ``lab`` count as not OTHER, as
+    OpenCV's default border for a dilation)."""
+    hh, ww = pre.shape[0], pre.shape[1] - 1
+    g = (len(gap_rows) - 1) // 2
+    for i in range(2 * g + 1):
+        yy = y + i - g
+        if 0 <= yy < hh:
+            r = gap_rows[i]
+            if pre[yy, min(x + r, ww - 1) + 1] > pre[yy, max(x - r, 0)]:
+                return True
+    return False
 
 
 @helper
@@ -1997,7 +2046,6 @@ def _paste(
 @helper
 def _across_gap(
     outline: np.ndarray,
-    starts: np.ndarray,
     shaft: np.ndarray,
     sx: int,
     sy: int,
@@ -2031,17 +2079,38 @@ def _across_gap(
     empty = np.empty((0, 2))
     if wx0 >= wx1 or wy0 >= wy1:
         return False, empty, empty
-    lab = np.zeros((wy1 - wy0, wx1 - wx0), np.uint8)
+    hh, ww = wy1 - wy0, wx1 - wx0
+    lab = np.zeros((hh, ww), np.uint8)
     for k in range(n_others):
         m, mx, my = (o1, x1, y1) if k == 0 else (o2, x2, y2)
         _paste(lab, wx0, wy0, m, mx, my, _OTHER)
     _paste(lab, wx0, wy0, shaft, sx, sy, _SHAFT)
-    near = np.empty((wy1 - wy0, wx1 - wx0), np.bool_)
-    _near_others(lab, gap_rows, near)
-    none = np.zeros((0, 0), np.bool_)
-    _, _, bg, other, _ = shaft_boundary(
-        outline, starts, shaft, sx, sy, near, wx0, wy0, none, 0, 0, height, width
-    )
+    pre = np.empty((hh, ww + 1), np.int64)
+    _others_before(lab, pre)
+    # the shaft's own labels (shaft_boundary's), then a background neighbour within the
+    # window is OTHER where the grown other parts hold it: the dilation only where read
+    n = len(outline)
+    labels = np.zeros((4, n), np.uint8)
+    sh, sw = shaft.shape
+    flat = shaft.view(np.uint8).ravel()
+    _neighbour_labels(outline, flat, sh, sw, sx, sy, flat[:0], 0, 0, 0, 0, height, width, labels)
+    pix = np.empty((n, 2))
+    for i in range(n):
+        px, py = outline[i, 0], outline[i, 1]
+        pix[i, 0], pix[i, 1] = float(px + sx), float(py + sy)
+        a, b = px + sx - wx0, py + sy - wy0
+        if -1 <= a <= ww and -1 <= b <= hh:
+            for d in range(4):
+                ca = a + (1 if d == 0 else (-1 if d == 1 else 0))
+                cb = b + (1 if d == 2 else (-1 if d == 3 else 0))
+                if (
+                    labels[d, i] == _BG
+                    and 0 <= ca < ww
+                    and 0 <= cb < hh
+                    and _near_other_at(pre, gap_rows, ca, cb)
+                ):
+                    labels[d, i] = _OTHER
+    bg, other = _boundary_points(pix, labels)
     return len(other) >= 3, bg, other
 
 
@@ -2135,7 +2204,6 @@ def shaft_from_masks(
     if len(other) < 3 and geo[GEO_OTHERS] > 0:  # a thin gap between the shaft and its head?
         found, gap_bg, gap_other = _across_gap(
             outline,
-            starts,
             measured,
             sx,
             sy,
@@ -2410,6 +2478,31 @@ def jaw_ends(
     return n_ends + (4 if hidden else 0)
 
 
+@helper
+def _tip_cost(
+    lo: float,
+    step: float,
+    k: int,
+    s_j: float,
+    jj: float,
+    ra: float,
+    ja: float,
+    l_nom: float,
+    has_len: bool,
+    par: np.ndarray,
+) -> float:
+    """:func:`_tip_depth`'s cost at grid point ``k``: the bend's, plus the length's."""
+    s = lo + step * _UNIT_GRID[k]
+    ln = math.sqrt(max((s - 2.0 * s_j) * s + jj, 0.0))
+    cosb = min(max((s * ra - ja) / max(ln, 1e-9), -1.0), 1.0)
+    c = math.acos(cosb) / par[_P_TIP_BEND]
+    c = c * c
+    if has_len:
+        e = (ln - l_nom) / (par[_P_TIP_SIGMA] * l_nom)
+        c += e * e
+    return c
+
+
 @kernel(
     "float64(float64, float64, float64, float64, float64, float64, float64, float64, float64,"
     " float64, boolean, float64[::1])"
@@ -2429,7 +2522,13 @@ def _tip_depth(
     par: np.ndarray,
 ) -> float:
     """The tip's depth along its ray (mm): the grid minimum of the length and bend costs,
-    refined by a parabola."""
+    refined by a parabola.
+
+    With a known length, the bend's arc cosine (the costly term) is taken only at the
+    grid points whose length term alone is at most the cost at the length term's
+    minimum (an upper bound of the least cost): elsewhere the cost, the length term plus
+    a square, exceeds that bound, so the first grid point of least cost, and its
+    neighbours' costs, are those of the whole grid (finite inputs; else the whole grid)."""
     s_j = rx * jx + ry * jy + rz * jz
     span = 3.0 * (l_nom if has_len else 16.0)
     lo = max(s_j - span, 1.0)
@@ -2439,21 +2538,36 @@ def _tip_depth(
     ja = jx * ax + jy * ay + jz * az
     n = len(_UNIT_GRID)
     cost = np.empty(n)
+    lengths = np.empty(n)
     best = 0
-    for k in range(n):
-        s = lo + step * _UNIT_GRID[k]
-        ln = math.sqrt(max((s - 2.0 * s_j) * s + jj, 0.0))
-        cosb = min(max((s * ra - ja) / max(ln, 1e-9), -1.0), 1.0)
-        c = math.acos(cosb) / par[_P_TIP_BEND]
-        c = c * c
-        if has_len:
+    pruned = has_len and math.isfinite(
+        rx + ry + rz + jx + jy + jz + ax + ay + az + l_nom + par[_P_TIP_BEND] + par[_P_TIP_SIGMA]
+    )
+    if pruned:  # the length terms first, and the cost where the length term is least
+        for k in range(n):
+            s = lo + step * _UNIT_GRID[k]
+            ln = math.sqrt(max((s - 2.0 * s_j) * s + jj, 0.0))
             e = (ln - l_nom) / (par[_P_TIP_SIGMA] * l_nom)
-            c += e * e
+            lengths[k] = e * e
+            if lengths[k] < lengths[best]:
+                best = k
+        bound = _tip_cost(lo, step, best, s_j, jj, ra, ja, l_nom, has_len, par)
+        if not math.isfinite(bound):
+            pruned = False
+        best = 0
+    for k in range(n):
+        if pruned and lengths[k] > bound:
+            cost[k] = math.inf  # more than the least cost: never read
+            continue
+        c = _tip_cost(lo, step, k, s_j, jj, ra, ja, l_nom, has_len, par)
         cost[k] = c
         if c < cost[best]:
             best = k
     sk = lo + step * _UNIT_GRID[best]
     if 0 < best < n - 1:  # parabolic refinement
+        for k in (best - 1, best + 1):
+            if cost[k] == math.inf:
+                cost[k] = _tip_cost(lo, step, k, s_j, jj, ra, ja, l_nom, has_len, par)
         c0, c1, c2 = cost[best - 1], cost[best], cost[best + 1]
         den = c0 - 2.0 * c1 + c2
         off = 0.5 * (c0 - c2) / den if den > 0 else 0.0
@@ -2977,6 +3091,48 @@ def _ones_both(a: np.ndarray, i: int, b: np.ndarray, j: int, n: int) -> tuple[in
     return tot, both
 
 
+_EVEN_BYTES = np.uint64(0x00FF00FF00FF00FF)
+_PAIRS16 = np.uint64(0x0000FFFF0000FFFF)
+_LOW32 = np.uint64(0x00000000FFFFFFFF)
+
+
+@helper
+def _spread4(x: np.uint64) -> np.uint64:
+    """The low four bytes of ``x`` moved to the even bytes (byte ``k`` to byte ``2 k``;
+    the high four dropped)."""
+    x &= _LOW32
+    x = (x | (x << np.uint64(16))) & _PAIRS16
+    return (x | (x << np.uint64(8))) & _EVEN_BYTES
+
+
+@helper
+def _ones_both_step2(
+    a: np.ndarray, i: np.uint64, b: np.ndarray, j: np.uint64, n: int
+) -> tuple[int, int]:
+    """:func:`_ones_both` of every other byte of ``a`` (0/1 bytes) against consecutive
+    bytes of ``b``: ``(sum a[i + 2 t], sum a[i + 2 t] & b[j + t])`` over ``t < n``. Eight
+    samples at a time: two words of ``a`` (their even bytes, 16-bit lanes), one of ``b``
+    spread to the even bytes; the lanes' sums are exact (a row holds far fewer than 2**16
+    samples). A word is loaded only where its eight bytes reach no further than the
+    last sample of ``a`` and of ``b``."""
+    acc = acc_and = np.uint64(0)
+    t = 0
+    while t + 9 <= n:  # a[i + 2 t + 15] <= a[i + 2 (n - 1)]; b[j + t + 7] < b[j + n]
+        wb = _load8(b, np.int64(j) + t)
+        wa0 = _load8(a, np.int64(i) + 2 * t) & _EVEN_BYTES
+        wa1 = _load8(a, np.int64(i) + 2 * t + 8) & _EVEN_BYTES
+        acc += wa0 + wa1
+        acc_and += (wa0 & _spread4(wb)) + (wa1 & _spread4(wb >> np.uint64(32)))
+        t += 8
+    tot = np.int64((acc * _LANES16) >> np.uint64(48))
+    both = np.int64((acc_and * _LANES16) >> np.uint64(48))
+    for q in range(np.uint64(t), np.uint64(n)):
+        v = a[i + np.uint64(2) * q]
+        tot += v
+        both += v & b[j + q]
+    return tot, both
+
+
 @kernel("float64(uint8[:, ::1], boolean[:, ::1], int64, int64, int64, int64, int64)")
 def iou_count(
     rend: np.ndarray, mask: np.ndarray, ox: int, oy: int, x0: int, y0: int, st: int
@@ -3001,9 +3157,7 @@ def iou_count(
         if st == 1:
             row_obs, row_inter = _ones_both(m8, np.int64(m0), rflat, np.int64(r0), jb - ja)
         else:
-            for j in range(np.uint64(jb - ja)):
-                row_obs += m8[m0 + 2 * j]
-                row_inter += m8[m0 + 2 * j] & rflat[r0 + j]
+            row_obs, row_inter = _ones_both_step2(m8, m0, rflat, r0, jb - ja)
         n_obs += row_obs
         inter += row_inter
     union = n_rend + n_obs - inter
