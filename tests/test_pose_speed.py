@@ -207,6 +207,7 @@ def _wrapped() -> dict[str, Any]:
     import numba
 
     from mistool.kernels import contours as kc
+    from mistool.kernels import polygon as kg
     from mistool.kernels import pose as kp
 
     return {
@@ -220,6 +221,8 @@ def _wrapped() -> dict[str, Any]:
             lambda ci, ox, oy, ju, jv, wd, p: kp._jaw_picks(ci, ox, oy, ju, jv, wd, p)
         ),
         "vmax_vmin": numba.njit(lambda v: (kp._vmax(v), kp._vmin(v))),
+        "sorted_points": numba.njit(lambda pts: kg._sorted_points(pts)),
+        "inserted": numba.njit(lambda pts: kg._inserted(pts)),
         "median_in": numba.njit(lambda v, n, stride: kp._median_in(v, n, stride, np.empty(2 * n))),
         "across_gap": numba.njit(
             lambda outline, shaft, sx, sy, o1, x1, y1, o2, x2, y2, n, hh, ww, rows: kp._across_gap(
@@ -513,3 +516,33 @@ def _window(
     if xa < xb and ya < yb:
         out[ya - y0 : yb - y0, xa - x0 : xb - x0] = mask[ya - my : yb - my, xa - mx : xb - mx]
     return out
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1, 2, 3, 5, 24, 48, 97]))
+def test_sorted_points_as_the_insertion_sort(seed: int, n: int) -> None:
+    """The hull's points sorted by a natural merge sort: the former insertion sort's
+    order (by x, then y, then index) on rims (two ellipses' points in angle order), on
+    points with ties in x, in both, on signed zeros, and with NaN among them."""
+    rng = np.random.default_rng(seed)
+    kind = rng.random()
+    if kind < 0.4:  # rims: runs of ascending and descending x
+        t = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False) + rng.uniform(0, 6.3)
+        pts = np.stack(
+            [
+                rng.uniform(50, 400) + rng.uniform(1, 80) * np.cos(t),
+                rng.uniform(50, 300) + rng.uniform(1, 80) * np.sin(t),
+            ],
+            axis=1,
+        )
+    elif kind < 0.7:  # ties
+        pts = rng.integers(-3, 4, (n, 2)).astype(np.float64)
+        pts[pts == 0] = rng.choice([-0.0, 0.0], int((pts == 0).sum()))
+    else:
+        pts = rng.normal(0.0, 100.0, (n, 2))
+    pts = pts.astype(np.float32)
+    if rng.random() < 0.1:
+        pts[rng.random((n, 2)) < 0.2] = np.nan
+    got = _wrapped()["sorted_points"](pts)
+    ref = _wrapped()["inserted"](pts)
+    assert np.array_equal(got, ref)

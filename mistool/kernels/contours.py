@@ -84,27 +84,29 @@ def _next_change(flat: np.ndarray, i: int, end: int, inside: bool) -> int:
 
 
 @helper
-def _grown(a: np.ndarray) -> np.ndarray:
-    """``a`` copied into an array twice as long."""
-    b = np.empty(2 * len(a), a.dtype)
-    for i in range(len(a)):
-        b[i] = a[i]
-    return b
-
-
-@helper
 def _components(flat: np.ndarray, h: int, w: int, first: np.ndarray) -> int:
     """The number of 8-connected components of a (h, w) 0/1 crop (``flat``: its bytes),
     counting stops at 2; ``first[0], first[1]``: the first foreground pixel in raster
-    order (x, y). Row runs joined by union-find with the previous row's runs."""
-    # runs of the previous and the current row: [x0, x1) and their root
-    prev0 = np.empty(w + 1, np.int64)
-    prev1 = np.empty(w + 1, np.int64)
-    prevr = np.empty(w + 1, np.int64)
-    cur0 = np.empty(w + 1, np.int64)
-    cur1 = np.empty(w + 1, np.int64)
-    curr = np.empty(w + 1, np.int64)
+    order (x, y). Row runs joined by union-find with the previous row's runs
+    (:func:`_count_components`, its union-find parents in an array of a fixed size,
+    again in one that holds any crop's where they do not fit: no array grown, and so no
+    reference counts, inside the scan)."""
+    rows = np.empty((6, w + 1), np.int64)  # the previous and the current row's runs
     parent = np.empty(2 * h + 16, np.int64)
+    count = _count_components(flat, h, w, first, rows, parent)
+    if count < 0:  # a row holds at most one run per two columns
+        parent = np.empty(h * ((w + 1) // 2) + 1, np.int64)
+        count = _count_components(flat, h, w, first, rows, parent)
+    return count
+
+
+@helper
+def _count_components(
+    flat: np.ndarray, h: int, w: int, first: np.ndarray, rows: np.ndarray, parent: np.ndarray
+) -> int:
+    """:func:`_components`' scan (``rows``: (6, w + 1) scratch, ``parent``: one entry per
+    run); -1 when the runs do not fit in ``parent``."""
+    cap = len(parent)
     n_prev = 0
     n_runs = 0
     roots = 0
@@ -121,14 +123,14 @@ def _components(flat: np.ndarray, h: int, w: int, first: np.ndarray) -> int:
             if first[0] < 0:
                 first[0], first[1] = x0, y
             r = n_runs
-            if r == len(parent):
-                parent = _grown(parent)
+            if r == cap:
+                return -1
             parent[r] = r
             n_runs += 1
             roots += 1
             for j in range(n_prev):  # 8-connected: the runs above within one pixel
-                if prev0[j] <= x and prev1[j] >= x0:
-                    a = prevr[j]
+                if rows[0, j] <= x and rows[1, j] >= x0:
+                    a = rows[2, j]
                     while parent[a] != a:
                         a = parent[a]
                     b = r
@@ -137,12 +139,12 @@ def _components(flat: np.ndarray, h: int, w: int, first: np.ndarray) -> int:
                     if a != b:
                         parent[max(a, b)] = min(a, b)
                         roots -= 1
-            cur0[n_cur], cur1[n_cur], curr[n_cur] = x0, x, r
+            rows[3, n_cur], rows[4, n_cur], rows[5, n_cur] = x0, x, r
             n_cur += 1
         # a component is complete when none of its runs reaches the next row; two roots
         # alive at once can still join, so only count at the end (rows are few)
         for j in range(n_cur):
-            prev0[j], prev1[j], prevr[j] = cur0[j], cur1[j], curr[j]
+            rows[0, j], rows[1, j], rows[2, j] = rows[3, j], rows[4, j], rows[5, j]
         n_prev = n_cur
     return min(roots, 2)
 
@@ -310,10 +312,38 @@ def _labelled_runs(flat: np.ndarray, h: int, w: int) -> tuple[np.ndarray, int]:
     column after the last, and the run's 8-connected component (numbered in the raster
     order of their first pixels); and the number of components. Runs joined by
     union-find with the previous row's; a root is its set's first run (the smaller index
-    wins)."""
-    runs = np.empty((2 * h + 16, 4), np.int64)
-    parent = np.empty(2 * h + 16, np.int64)
+    wins). (The runs found into arrays of a fixed size, :func:`_scan_runs`, again into
+    arrays that hold any crop's where they do not fit: no array grown, and so no
+    reference counts, inside the scan.)"""
+    cap = 2 * h + 16
+    runs = np.empty((cap, 4), np.int64)
+    parent = np.empty(cap, np.int64)
+    n_runs = _scan_runs(flat, h, w, runs, parent)
+    if n_runs < 0:  # a row holds at most one run per two columns
+        cap = h * ((w + 1) // 2) + 1
+        runs = np.empty((cap, 4), np.int64)
+        parent = np.empty(cap, np.int64)
+        n_runs = _scan_runs(flat, h, w, runs, parent)
+    n_comp = 0
+    for r in range(n_runs):
+        a = r
+        while parent[a] != a:
+            a = parent[a]
+        if a == r:
+            runs[r, 3] = n_comp
+            n_comp += 1
+        else:
+            runs[r, 3] = runs[a, 3]
+    return runs[:n_runs], n_comp
+
+
+@helper
+def _scan_runs(flat: np.ndarray, h: int, w: int, runs: np.ndarray, parent: np.ndarray) -> int:
+    """:func:`_labelled_runs`' scan: each run's row, first column and column after the
+    last into ``runs``, its union-find parent into ``parent``; the number of runs, or -1
+    when they do not fit."""
     n_runs = 0
+    cap = len(parent)
     prev_lo = prev_hi = 0  # the previous row's runs: [prev_lo, prev_hi)
     for y in range(h):
         base = y * w
@@ -325,50 +355,22 @@ def _labelled_runs(flat: np.ndarray, h: int, w: int) -> tuple[np.ndarray, int]:
                 break
             x = _next_change(flat, base + x0, base + w, True) - base
             r = n_runs
-            if r == len(parent):
-                parent = _grown(parent)
-                runs = _grown_rows(runs)
+            if r == cap:
+                return -1
             runs[r, 0], runs[r, 1], runs[r, 2], parent[r] = y, x0, x, r
             n_runs += 1
             for j in range(prev_lo, prev_hi):  # 8-connected: the runs above within one pixel
                 if runs[j, 1] <= x and runs[j, 2] >= x0:
-                    _join(parent, j, r)
+                    a = j  # joined: the smaller root stays the root
+                    while parent[a] != a:
+                        a = parent[a]
+                    b = r
+                    while parent[b] != b:
+                        b = parent[b]
+                    if a != b:
+                        parent[max(a, b)] = min(a, b)
         prev_lo, prev_hi = lo, n_runs
-    n_comp = 0
-    for r in range(n_runs):
-        a = _root(parent, r)
-        if a == r:
-            runs[r, 3] = n_comp
-            n_comp += 1
-        else:
-            runs[r, 3] = runs[a, 3]
-    return runs[:n_runs], n_comp
-
-
-@helper
-def _root(parent: np.ndarray, a: int) -> int:
-    """The root of ``a``'s set."""
-    while parent[a] != a:
-        a = parent[a]
-    return a
-
-
-@helper
-def _join(parent: np.ndarray, a: int, b: int) -> None:
-    """Joins ``a``'s set and ``b``'s: the smaller root stays the root."""
-    ra, rb = _root(parent, a), _root(parent, b)
-    if ra != rb:
-        parent[max(ra, rb)] = min(ra, rb)
-
-
-@helper
-def _grown_rows(a: np.ndarray) -> np.ndarray:
-    """A (N, 4) array copied into one twice as long."""
-    b = np.empty((2 * len(a), 4), a.dtype)
-    for i in range(len(a)):
-        for j in range(4):
-            b[i, j] = a[i, j]
-    return b
+    return n_runs
 
 
 @helper

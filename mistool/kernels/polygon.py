@@ -122,8 +122,76 @@ def _sklansky(
 
 
 @helper
+def _before(pts: np.ndarray, p: int, q: int) -> bool:
+    """Point ``p`` sorts before or with point ``q``: by x, then y."""
+    return pts[p, 0] < pts[q, 0] or (pts[p, 0] == pts[q, 0] and pts[p, 1] <= pts[q, 1])
+
+
+@helper
 def _sorted_points(pts: np.ndarray) -> np.ndarray:
-    """The points' indices sorted by x, then y, then index (insertion sort: 48 points)."""
+    """The points' indices sorted by x, then y, then index (a stable sort): the rims'
+    points come in a few runs of ascending or descending x (two ellipses), merged
+    pairwise (a natural merge sort); with a NaN among them, an insertion sort (the
+    order of its comparisons then decides)."""
+    total = len(pts)
+    order = np.empty(total, np.int64)
+    for i in range(total):
+        if math.isnan(pts[i, 0]) or math.isnan(pts[i, 1]):
+            return _inserted(pts)
+    tmp = np.empty(total, np.int64)
+    bounds = np.empty(total + 1, np.int64)
+    n_runs = 0
+    i = 0
+    while i < total:  # the runs: ascending as they are, strictly descending reversed
+        j = i + 1
+        if j < total and not _before(pts, j - 1, j):
+            while j < total and not _before(pts, j - 1, j):
+                j += 1
+            for k in range(j - i):
+                order[i + k] = j - 1 - k
+        else:
+            while j < total and _before(pts, j - 1, j):
+                j += 1
+            for k in range(i, j):
+                order[k] = k
+        bounds[n_runs] = i
+        n_runs += 1
+        i = j
+    bounds[n_runs] = total
+    while n_runs > 1:  # merge neighbouring runs pairwise (the left one first on ties)
+        m = 0
+        for r in range(0, n_runs, 2):
+            lo, mid = bounds[r], bounds[r + 1]
+            hi = bounds[r + 2] if r + 2 <= n_runs else mid
+            a, b, k = lo, mid, lo
+            while a < mid and b < hi:
+                if _before(pts, order[a], order[b]):
+                    tmp[k] = order[a]
+                    a += 1
+                else:
+                    tmp[k] = order[b]
+                    b += 1
+                k += 1
+            while a < mid:
+                tmp[k] = order[a]
+                a += 1
+                k += 1
+            while b < hi:
+                tmp[k] = order[b]
+                b += 1
+                k += 1
+            bounds[m] = lo
+            m += 1
+        bounds[m] = total
+        n_runs = m
+        order, tmp = tmp, order
+    return order
+
+
+@helper
+def _inserted(pts: np.ndarray) -> np.ndarray:
+    """The points' indices sorted by x, then y, then index (insertion sort: 48 points;
+    the former :func:`_sorted_points`)."""
     total = len(pts)
     order = np.empty(total, np.int64)
     for i in range(total):
@@ -322,17 +390,22 @@ def _line2(flat: np.ndarray, h: int, w: int, p: np.ndarray) -> None:
     x1 += _XY_ONE >> 1
     y1 += _XY_ONE >> 1
     _put(flat, h, w, (x2 + (_XY_ONE >> 1)) >> _XY_SHIFT, (y2 + (_XY_ONE >> 1)) >> _XY_SHIFT)
+    # the pixels set in the loops themselves (no call with the image per pixel)
     if ax > ay:
         x1 >>= _XY_SHIFT
         while ecount >= 0:
-            _put(flat, h, w, x1, y1 >> _XY_SHIFT)
+            y = y1 >> _XY_SHIFT
+            if 0 <= x1 < w and 0 <= y < h:
+                flat[y * w + x1] = 1
             x1 += 1
             y1 += y_step
             ecount -= 1
     else:
         y1 >>= _XY_SHIFT
         while ecount >= 0:
-            _put(flat, h, w, x1 >> _XY_SHIFT, y1)
+            x = x1 >> _XY_SHIFT
+            if 0 <= x < w and 0 <= y1 < h:
+                flat[y1 * w + x] = 1
             x1 += x_step
             y1 += 1
             ecount -= 1

@@ -2114,6 +2114,23 @@ def _across_gap(
     return len(other) >= 3, bg, other
 
 
+@helper
+def _piece_mask(runs: np.ndarray, label: int, h: int, w: int, kept: np.ndarray) -> np.ndarray:
+    """The (h, w) mask of the runs labelled ``label``, in ``kept`` (or in a new array
+    where ``kept`` is not of that shape)."""
+    if kept.shape[0] != h or kept.shape[1] != w:
+        kept = np.empty((h, w), np.bool_)
+    flat = kept.reshape(h * w)  # a view (C-contiguous)
+    for i in range(np.uint64(h * w)):
+        flat[i] = False
+    for r in range(len(runs)):
+        if runs[r, 3] == label:
+            row = runs[r, 0] * w
+            for x in range(runs[r, 1], runs[r, 2]):
+                flat[row + x] = True
+    return kept
+
+
 @kernel(
     "int64(boolean[:, ::1], boolean[:, ::1], int64, int64, boolean[:, ::1], int64, int64,"
     " float64[:, ::1], float64, float64[::1], float64[::1], int64[::1], float32[:, ::1],"
@@ -2154,7 +2171,7 @@ def shaft_from_masks(
         geo: as :func:`shaft_pose` (the shaft crop's ``x0, y0, h, w``, the image's
             ``H, W``, ``max_pixels``), then the number of other parts (at most 2).
         kept: the shaft crop's shape: receives the measured shaft (its larger piece) for
-            :data:`SHAFT_MERGED`.
+            :data:`SHAFT_MERGED` (of another shape: not asked for, a scratch then).
         gap_rows: the junction gap's disk (``measure._GAP_DISK``): its half-width at each
             row (``2 g + 1`` rows for a gap of ``g`` px).
 
@@ -2184,15 +2201,7 @@ def shaft_from_masks(
         big = _largest_piece(buf, starts, n_pieces, runs, par)
         if big >= 0:  # two shafts: the larger alone
             merged = True
-            flat = kept.reshape(h * w)  # a view (C-contiguous)
-            for i in range(np.uint64(h * w)):
-                flat[i] = False
-            for r in range(len(runs)):
-                if runs[r, 3] == big + 1:
-                    row = runs[r, 0] * w
-                    for x in range(runs[r, 1], runs[r, 2]):
-                        flat[row + x] = True
-            measured = kept
+            measured = _piece_mask(runs, big + 1, h, w, kept)
             outline = buf[starts[big] : starts[big + 1]]
             starts[0], starts[1], n_pieces = 0, len(outline), 1
     starts = starts[: n_pieces + 1]
@@ -3005,7 +3014,7 @@ def instance_from_masks(
     pts = np.empty((48, 2), np.float32)
     shifted = np.empty((48, 2), np.int32)
     canvas = np.zeros(6, np.int64)
-    kept = np.empty((h, w), np.bool_)
+    kept = np.empty((0, 0), np.bool_)  # the merged shaft is not read here
     got = shaft_from_masks(
         shaft, o1, x1, y1, o2, x2, y2, K, radius, par, res, geo, pts, shifted, canvas, kept,
         gap_rows,
