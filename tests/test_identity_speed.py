@@ -651,3 +651,89 @@ def test_heads_handed_over_on_painted_masks_are_the_former_pixel_lists():
         assert all(_same_instance(a, b) for a, b in zip(got, want, strict=True)), seed
         handed += any(a is not b for a, b in zip(got, insts, strict=True))
     assert handed >= 30, handed
+
+
+def _windowed_scene(rng: np.random.Generator) -> tuple[Any, ...]:
+    """A head part's crop much larger than a box near it or far from it (the windows of
+    the head kernels cut it), and a second (own) box."""
+    h, w = int(rng.integers(1, 120)), int(rng.integers(1, 120))
+    mask = (rng.random((h, w)) < rng.uniform(0.0, 1.0)).astype(np.uint8)
+    if rng.random() < 0.2:  # one pixel: its one-point order
+        mask[:] = 0
+        mask[int(rng.integers(0, h)), int(rng.integers(0, w))] = 1
+    x0, y0 = int(rng.integers(0, 600)), int(rng.integers(0, 450))
+
+    def box() -> tuple[float, ...]:
+        length = float(rng.uniform(0.0, 50.0))
+        width = length * float(rng.uniform(0.0, 1.0))
+        cx = x0 + float(rng.uniform(-40, w + 40))
+        cy = y0 + float(rng.uniform(-40, h + 40))
+        if rng.random() < 0.05:
+            cx = float(rng.choice([np.nan, np.inf, -np.inf]))
+        u = unit_vector(float(rng.uniform(0, 180)))
+        return cx, cy, float(u[0]), float(u[1]), 0.5 * length, 0.5 * width
+
+    return mask, x0, y0, box(), box()
+
+
+def _distances(xy: np.ndarray, b: tuple[float, ...]) -> np.ndarray:
+    from mistool.kernels.split import box_distances
+
+    out = np.empty(len(xy))
+    box_distances(np.ascontiguousarray(xy, np.float64), *b, out)
+    return out
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_the_head_kernels_looking_at_the_boxes_windows_count_every_pixel(seed, has_own):
+    """kernels.split.claimed and hand_over_pixels, which measure only the pixels within
+    a box's bounds grown by the reach + 1 px (and the second distance only within
+    reach), give what every pixel's box_distance gives (the definition they replace):
+    the count moved, and the two new masks with their counts and bounds, on crops much
+    larger than the boxes, boxes far off, non-finite centres and one-pixel parts."""
+    from mistool.kernels.split import claimed, hand_over_pixels
+    from mistool.tracking.heads import HEAD_CLAIM_PX as reach
+
+    rng = np.random.default_rng(seed)
+    dmask, dx0, dy0, want, own = _windowed_scene(rng)
+    mmask, mx0, my0, _, _ = _windowed_scene(rng)
+    if rng.random() < 0.3:
+        mmask = np.zeros((0, 0), np.uint8)
+    dys, dxs = np.nonzero(dmask)
+    dxy = np.stack([dxs + dx0, dys + dy0], 1).astype(np.float64)
+    to_me = _distances(dxy, want)
+    to_own = _distances(dxy, own) if has_own else np.full(len(dxy), np.inf)
+    move = (to_me <= reach) & (to_me < to_own)
+    o = own if has_own else want
+    assert claimed(dmask, dx0, dy0, *want, has_own, *o, reach) == int(move.sum())
+    mys, mxs = np.nonzero(mmask)
+    mxy = np.stack([mxs + mx0, mys + my0], 1).astype(np.float64)
+    back = (_distances(mxy, o) <= reach) if has_own else np.zeros(len(mxy), bool)
+    x0, y0 = min(dx0, mx0) if mmask.size else dx0, min(dy0, my0) if mmask.size else dy0
+    x1 = max(dx0 + dmask.shape[1], mx0 + mmask.shape[1]) if mmask.size else dx0 + dmask.shape[1]
+    y1 = max(dy0 + dmask.shape[0], my0 + mmask.shape[0]) if mmask.size else dy0 + dmask.shape[0]
+    got = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    left = np.zeros_like(got)
+    bounds = np.zeros(12, np.int64)
+    bounds[:2] = x0, y0
+    moved = hand_over_pixels(
+        mmask, mx0, my0, dmask, dx0, dy0, *want, has_own, *o, reach, got, left, bounds
+    )
+    assert moved == int(move.sum())
+    for canvas, xy, k in (
+        (got, np.concatenate([mxy[~back], dxy[move]]), 2),
+        (left, np.concatenate([dxy[~move], mxy[back]]), 7),
+    ):
+        want_canvas = np.zeros_like(canvas)
+        ij = xy.astype(np.int64)
+        want_canvas[ij[:, 1] - y0, ij[:, 0] - x0] = 255
+        assert np.array_equal(canvas, want_canvas)
+        assert bounds[k] == len(xy)
+        if len(xy):
+            assert bounds[k + 1 : k + 5].tolist() == [
+                ij[:, 0].min(),
+                ij[:, 1].min(),
+                ij[:, 0].max() + 1,
+                ij[:, 1].max() + 1,
+            ]

@@ -1022,6 +1022,36 @@ def box_distances(
         out[i] = _box_d(xy[i, 0], xy[i, 1], cx, cy, u0, u1, hl, hw, single)
 
 
+@helper
+def _window(
+    h: int,
+    w: int,
+    x0: int,
+    y0: int,
+    cx: float,
+    cy: float,
+    u0: float,
+    u1: float,
+    hl: float,
+    hw: float,
+    reach: float,
+) -> tuple[int, int, int, int]:
+    """``(ya, yb, xa, xb)``: the rows and columns of an (h, w) crop at (x0, y0) that may
+    hold a pixel within ``reach`` px of a box (centre, unit direction, half length and
+    width): the box's bounds grown by ``reach`` + 1 px (the others lie farther; a
+    non-finite bound: the whole crop that way)."""
+    ex = hl * abs(u0) + hw * abs(u1) + reach + 1.0
+    ey = hl * abs(u1) + hw * abs(u0) + reach + 1.0
+    ya, yb, xa, xb = 0, h, 0, w
+    if math.isfinite(cx - ex) and math.isfinite(cx + ex):
+        xa = min(max(int(math.floor(cx - ex)) - x0, 0), w)
+        xb = max(min(int(math.ceil(cx + ex)) - x0 + 1, w), 0)
+    if math.isfinite(cy - ey) and math.isfinite(cy + ey):
+        ya = min(max(int(math.floor(cy - ey)) - y0, 0), h)
+        yb = max(min(int(math.ceil(cy + ey)) - y0 + 1, h), 0)
+    return ya, yb, xa, xb
+
+
 @kernel(
     "boolean(uint8[:, ::1], int64, int64, float64, float64, float64, float64, float64, float64,"
     " float64, int64)"
@@ -1054,15 +1084,7 @@ def shown_near(
         if count == 2:
             break
     single = count == 1
-    ex = hl * abs(u0) + hw * abs(u1) + reach + 1.0
-    ey = hl * abs(u1) + hw * abs(u0) + reach + 1.0
-    ya, yb, xa, xb = 0, h, 0, w
-    if math.isfinite(cx - ex) and math.isfinite(cx + ex):
-        xa = min(max(int(math.floor(cx - ex)) - x0, 0), w)
-        xb = max(min(int(math.ceil(cx + ex)) - x0 + 1, w), 0)
-    if math.isfinite(cy - ey) and math.isfinite(cy + ey):
-        ya = min(max(int(math.floor(cy - ey)) - y0, 0), h)
-        yb = max(min(int(math.ceil(cy + ey)) - y0 + 1, h), 0)
+    ya, yb, xa, xb = _window(h, w, x0, y0, cx, cy, u0, u1, hl, hw, reach)
     near = 0
     for y in range(ya, yb):
         for x in range(xa, xb):
@@ -1100,7 +1122,9 @@ def claimed(
     of a box and nearer to it than to a second box (``has_own``; without it, every one
     within reach whose distance is below inf): ``heads.box_distance`` of every pixel to
     each (one pixel alone: ``dgemv``'s one-point order), counted as ``heads.
-    hand_over_heads`` counted ``(to_me <= reach) & (to_me < to_own)``."""
+    hand_over_heads`` counted ``(to_me <= reach) & (to_me < to_own)``; only the pixels
+    within the box's bounds grown by ``reach`` + 1 px are looked at (:func:`_window`:
+    the others lie farther), the second distance only within reach."""
     h, w = mask.shape
     count = 0
     for y in range(h):
@@ -1112,9 +1136,10 @@ def claimed(
         if count == 2:
             break
     single = count == 1
+    ya, yb, xa, xb = _window(h, w, x0, y0, cx, cy, u0, u1, hl, hw, reach)
     moved = 0
-    for y in range(h):
-        for x in range(w):
+    for y in range(ya, yb):
+        for x in range(xa, xb):
             if mask[y, x] == 0:
                 continue
             px = float(x + x0)
@@ -1201,35 +1226,48 @@ def hand_over_pixels(
     each one's pixel count (as the former pixel lists' lengths: kept + moved, left +
     back) and bounds (x0, y0, x1, y1; ends exclusive). Returns the count moved.
     Distances as ``heads.box_distance`` of each pixel list (one pixel alone: its
-    one-point order)."""
+    one-point order), only for the pixels within a box's bounds grown by ``reach`` + 1
+    px (:func:`_window`: the others lie farther), the donor's own box's only within
+    reach of the receiver's."""
     for k in range(2, 12):
         bounds[k] = 0
     moved = 0
     single = _count_upto(donor, 2) == 1
-    for y in range(donor.shape[0]):
-        for x in range(donor.shape[1]):
+    h, w = donor.shape
+    ya, yb, xa, xb = _window(h, w, dx0, dy0, cx, cy, u0, u1, hl, hw, reach)
+    for y in range(h):
+        for x in range(w):
             if donor[y, x] == 0:
                 continue
             px = x + dx0
             py = y + dy0
-            d = _box_d(float(px), float(py), cx, cy, u0, u1, hl, hw, single)
-            own = math.inf
-            if has_own:
-                own = _box_d(float(px), float(py), ocx, ocy, ou0, ou1, ohl, ohw, single)
-            if d <= reach and d < own:
+            mine_now = False
+            if ya <= y < yb and xa <= x < xb:
+                d = _box_d(float(px), float(py), cx, cy, u0, u1, hl, hw, single)
+                if d <= reach:
+                    own = math.inf
+                    if has_own:
+                        own = _box_d(float(px), float(py), ocx, ocy, ou0, ou1, ohl, ohw, single)
+                    mine_now = d < own
+            if mine_now:
                 moved += 1
                 _paint(got, px, py, bounds, 2)
             else:
                 _paint(left, px, py, bounds, 7)
     single = _count_upto(mine, 2) == 1
-    for y in range(mine.shape[0]):
-        for x in range(mine.shape[1]):
+    h, w = mine.shape
+    ya, yb, xa, xb = _window(h, w, mx0, my0, ocx, ocy, ou0, ou1, ohl, ohw, reach)
+    for y in range(h):
+        for x in range(w):
             if mine[y, x] == 0:
                 continue
             px = x + mx0
             py = y + my0
-            back = has_own and (
-                _box_d(float(px), float(py), ocx, ocy, ou0, ou1, ohl, ohw, single) <= reach
+            back = (
+                has_own
+                and ya <= y < yb
+                and xa <= x < xb
+                and _box_d(float(px), float(py), ocx, ocy, ou0, ou1, ohl, ohw, single) <= reach
             )
             if back:
                 _paint(left, px, py, bounds, 7)

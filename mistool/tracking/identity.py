@@ -46,7 +46,7 @@ import numpy as np
 
 from mistool.assignment import gated_assignment
 from mistool.config import Config
-from mistool.model import InstanceObservation, RotatedBox
+from mistool.model import InstanceObservation, PartObservation, RotatedBox
 from mistool.tracking.heads import HEAD_CLAIM_PX, HEAD_PARTS, hand_over_heads
 from mistool.tracking.instances import angle_diff_deg, unit_vector
 from mistool.tracking.motion import ConstantVelocity
@@ -296,9 +296,14 @@ def _head_jumped(t: Track, inst: InstanceObservation, frame: int) -> bool:
     return False
 
 
+def _area_of(part: PartObservation) -> int:
+    """A part's pixel count (the key that picks an instance's largest part)."""
+    return part.area_px
+
+
 def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
     """(direction deg or None, elongation) of the shaft, or the largest part."""
-    part = inst.parts.get("shaft") or max(inst.parts.values(), key=lambda p: p.area_px)
+    part = inst.parts.get("shaft") or max(inst.parts.values(), key=_area_of)
     box = part.box
     if box.length <= 0:
         return None, 0.0
@@ -604,24 +609,61 @@ def _inside(
     return bool(x - mx <= p[0] <= x + w + mx and y - my <= p[1] <= y + h + my)
 
 
-@dataclass
-class _Frame:
-    """One frame's work in progress (see :meth:`IdentityTracker._step`)."""
+#: :func:`_instance_terms`: (instance, cx, cy, area, sqrt(area), direction or None,
+#: elongation, has a shaft, image diagonal or None, (x, y, image diagonal) where its one
+#: shaft enters the view or None).
+_InstanceRow = tuple[
+    InstanceObservation, float, float, int, float, "float | None", float, bool,
+    "float | None", "tuple[float, float, float] | None",
+]  # fmt: skip
+#: :meth:`IdentityTracker._costs`' terms of a track: (track, state, lost, frames since
+#: its update, last in a blob or coasting, where its shaft last entered or None).
+_TrackRow = tuple[Track, TrackState, bool, int, bool, "list[float] | None"]
 
-    index: int
-    instances: list[InstanceObservation]
-    live: list[Track]
-    owner: dict[int, int] = field(default_factory=dict)
-    """instance -> live track matched to it."""
-    blob_of: dict[int, list[int]] = field(default_factory=dict)
-    """instance -> live tracks hidden in it (crossing)."""
-    pieces: dict[int, list[InstanceObservation]] = field(default_factory=dict)
-    """instance -> the pieces it was split into."""
-    split_tracks: dict[int, list[Track]] = field(default_factory=dict)
-    """instance split by the crossing handler -> the track of each piece (the blob's
-    other tracks coast)."""
-    piece_tracks: dict[int, list[Track]] = field(default_factory=dict)
-    """instance split on border entries -> the track of each piece."""
+
+def _instance_terms(inst: InstanceObservation, runs: list[tuple[np.ndarray, int]]) -> _InstanceRow:
+    """What the assignment's costs read of an instance (``runs``: its border runs), as
+    :class:`_InstanceTerms` (the same values) in a plain tuple (:data:`_InstanceRow`);
+    its entry only with the image's shape (the costs measure it only then)."""
+    cx, cy = inst.centroid_px
+    area = inst.area_px
+    parts = inst.parts
+    shaft = parts.get("shaft")
+    box = (shaft or max(parts.values(), key=_area_of)).box  # (:func:`_appearance`)
+    angle, elong = (None, 0.0) if box.length <= 0 else (
+        box.angle_deg, (box.length - box.width) / box.length
+    )  # fmt: skip
+    shape = inst.image_shape
+    diag = None if shape is None else math.hypot(*shape)
+    entry = None
+    if len(runs) == 1 and diag is not None:  # (:func:`_one_entry`)
+        ex, ey = runs[0][0][1].tolist()
+        entry = (ex, ey, diag)
+    return (inst, cx, cy, area, math.sqrt(area), angle, elong, shaft is not None, diag, entry)
+
+
+class _Frame:
+    """One frame's work in progress (see :meth:`IdentityTracker._step`; a plain slotted
+    class: a dataclass's five default factories cost ~2 us a frame)."""
+
+    __slots__ = ("blob_of", "index", "instances", "live", "owner", "piece_tracks", "pieces",
+                 "split_tracks")  # fmt: skip
+
+    def __init__(self, index: int, instances: list[InstanceObservation], live: list[Track]) -> None:
+        self.index = index
+        self.instances = instances
+        self.live = live
+        self.owner: dict[int, int] = {}
+        """instance -> live track matched to it."""
+        self.blob_of: dict[int, list[int]] = {}
+        """instance -> live tracks hidden in it (crossing)."""
+        self.pieces: dict[int, list[InstanceObservation]] = {}
+        """instance -> the pieces it was split into."""
+        self.split_tracks: dict[int, list[Track]] = {}
+        """instance split by the crossing handler -> the track of each piece (the blob's
+        other tracks coast)."""
+        self.piece_tracks: dict[int, list[Track]] = {}
+        """instance split on border entries -> the track of each piece."""
 
 
 class IdentityTracker:
@@ -722,22 +764,27 @@ class IdentityTracker:
             self._runs = {id(i): (i, r) for i, r in zip(instances, runs, strict=True)}
         fr = _Frame(frame_index, instances, self._predict_live(frame_index))
         self._match(fr)
-        self._find_hidden(fr)
+        if len(fr.owner) < len(fr.live):  # (every live track matched: none hidden)
+            self._find_hidden(fr)
         if split:
-            self._split_crossings(fr)
-            self._split_entries(fr)
+            if fr.blob_of:
+                self._split_crossings(fr)
+            # (the usual frame: no instance with two shafts entering, nothing to split)
+            if any(len(r) > 1 for r in runs) if runs is not None else True:
+                self._split_entries(fr)
         return self._update_all(fr)
 
     def _predict_live(self, frame: int) -> list[Track]:
         """The tracks still remembered at ``frame``, their states brought up to date."""
-        live = [
-            t
-            for t in self._tracks
-            if frame - t.last_frame <= self._max_gap and t.state is not _ABSORBED
-        ]
-        for t in live:
-            if t.state is _TRACKED and frame - t.last_frame > LOST_AFTER_FRAMES:
-                t.state = _LOST
+        live = []
+        max_gap = self._max_gap
+        for t in self._tracks:
+            gap = frame - t.last_frame
+            state = t.state
+            if gap <= max_gap and state is not _ABSORBED:
+                if state is _TRACKED and gap > LOST_AFTER_FRAMES:
+                    t.state = _LOST
+                live.append(t)
         return live
 
     def _cost(
@@ -751,60 +798,112 @@ class IdentityTracker:
 
     def _costs(self, fr: _Frame) -> list[list[float]]:
         """The assignment's costs, a row per live track (:func:`_pair_cost`; ``inf``: an
-        impossible pair, :func:`_far_head_terms` or :func:`_shrunk`). Every pair's
+        impossible pair, :func:`_far_head_of` or :func:`_shrunk`). Every pair's
         distances come from one ``np.hypot`` call over the frame's pairs (the same
         values as one call per pair: numpy's loop calls the C library's ``hypot`` on
-        each element)."""
-        frame, weights, fps = fr.index, self._weights, self._config.fps
-        insts = [_InstanceTerms(inst, _one_entry(self._runs_of(inst))) for inst in fr.instances]
-        tracks = [_TrackTerms(t, frame) for t in fr.live]
+        each element). Each track's and instance's terms are read once into a plain
+        tuple (:func:`_instance_terms`), and :func:`_cost_of` is written out in the loop
+        (:func:`_cost_rows`): the same operations in the same order, the same bits,
+        without an object and a call per pair and term (they cost about what the
+        arithmetic does)."""
+        frame = fr.index
+        insts = [_instance_terms(inst, self._runs_of(inst)) for inst in fr.instances]
         # which distances each pair needs: to the prediction; between the shafts'
         # entries (both known, and the image's shape); from the instance to the track's
         # entry only for the far-head test (a track last in a blob, a shaftless instance)
+        tracks: list[_TrackRow] = []
         xs: list[float] = []
         ys: list[float] = []
-        for tt in tracks:
-            px, py, entry = tt.px, tt.py, tt.entry
-            blobby = tt.track.in_blob or tt.state is _COASTING or tt.state is _HIDDEN
+        for t in fr.live:
+            state = t.state
+            lost = state is _LOST
+            gap = frame - t.last_frame
+            m = t.motion
+            steps = LOST_AFTER_FRAMES if lost else gap  # (Track.predict_xy)
+            px, py = m.x + m.vx * steps, m.y + m.vy * steps
+            blobby = t.in_blob or state is _COASTING or state is _HIDDEN
+            te = None if t.entry is None else t.entry.tolist()
+            tracks.append((t, state, lost, gap, blobby, te))
             for i in insts:
-                xs.append(i.cx - px)
-                ys.append(i.cy - py)
-                if entry is not None:
-                    if blobby and not i.has_shaft:
-                        xs.append(i.cx - entry[0])
-                        ys.append(i.cy - entry[1])
-                    if i.entry is not None and i.diag is not None:
-                        xs.append(i.entry[0] - entry[0])
-                        ys.append(i.entry[1] - entry[1])
+                xs.append(i[1] - px)
+                ys.append(i[2] - py)
+                if te is not None:
+                    if blobby and not i[7]:
+                        xs.append(i[1] - te[0])
+                        ys.append(i[2] - te[1])
+                    ie = i[9]
+                    if ie is not None:
+                        xs.append(ie[0] - te[0])
+                        ys.append(ie[1] - te[1])
+        if not xs:
+            return [[] for _ in tracks]
         hyp = np.hypot(np.array(xs, np.float64), np.array(ys, np.float64)).tolist()
+        return self._cost_rows(tracks, insts, hyp)
+
+    def _cost_rows(
+        self, tracks: list[_TrackRow], insts: list[_InstanceRow], hyp: list[float]
+    ) -> list[list[float]]:
+        """:meth:`_costs`' rows from the terms and every pair's distances (``hyp``, in
+        the order :meth:`_costs` lists them): :func:`_far_head_of`, :func:`_shrunk` and
+        :func:`_cost_of` written out."""
+        weights, fps = self._weights, self._config.fps
+        w_angle, w_area, w_gap = weights.angle, weights.area, weights.gap
+        w_entry, entry_frac = weights.entry, weights.entry_scale_frac
+        lost_frac, lost_growth = weights.lost_scale_frac, weights.lost_search_growth
         cost = []
         k = 0
-        for tt in tracks:
-            t = tt.track
-            entry = tt.entry
-            blobby = t.in_blob or tt.state is _COASTING or tt.state is _HIDDEN
+        for t, state, lost, gap, blobby, te in tracks:
+            size, t_angle, t_elong, t_area = t.size, t.angle, t.elongation, t.area
+            tracked = state is _TRACKED
             # (:func:`_shrunk`: a track seen apart in the frame before)
-            shrink = SHRUNK_AREA_FRAC * t.area if tt.state is _TRACKED and tt.gap == 1 else None
+            shrink = SHRUNK_AREA_FRAC * t_area if tracked and gap == 1 else None
             row = []
-            for i in insts:
+            for inst, _, _, area, root, angle, elong, has_shaft, i_diag, ie in insts:
                 dist = hyp[k]
                 k += 1
                 near = None
                 moved = 0.0
-                far_head = blobby and not i.has_shaft
-                if entry is not None:
+                diag = None  # (the image's diagonal when both shafts enter the view)
+                far_head = blobby and not has_shaft
+                if te is not None:
                     if far_head:
                         near = hyp[k]
                         k += 1
-                    if i.entry is not None and i.diag is not None:
+                    if ie is not None:
                         moved = hyp[k]
                         k += 1
-                if (far_head and _far_head_of(tt, i, self._entry_reach(i.inst), dist, near)) or (
-                    shrink is not None and i.area < shrink and not _touches_border(i.inst)
-                ):
+                        diag = ie[2]
+                if (  # (:func:`_far_head_of`)
+                    far_head
+                    and dist > FAR_HEAD_SIZES * size
+                    and not (
+                        near is not None
+                        and near <= self._entry_reach(inst)
+                        and _touches_border(inst)
+                    )
+                ) or (shrink is not None and area < shrink and not _touches_border(inst)):
                     row.append(math.inf)
-                else:
-                    row.append(_cost_of(tt, i, weights, fps, dist, moved))
+                    continue
+                # :func:`_cost_of`, written out
+                scale = max(size, root, 10.0)
+                if lost:
+                    if i_diag is not None:
+                        scale = min(scale, lost_frac * i_diag)
+                    scale *= 1.0 + lost_growth * (gap - LOST_AFTER_FRAMES) / fps
+                if diag is not None and lost and moved <= entry_frac * diag:
+                    dist = min(dist, moved)
+                c = dist / scale
+                if angle is not None and t_angle is not None and not (lost and not has_shaft):
+                    d = abs(angle - t_angle) % 180.0  # (angle_diff_deg)
+                    c += w_angle * min(elong, t_elong) * min(d, 180.0 - d) / 90.0
+                if tracked:
+                    c += w_area * abs(math.log(max(area, 1) / max(t_area, 1.0)))
+                c += w_gap * (gap - 1)
+                if state is _HIDDEN:
+                    c += weights.hidden_penalty
+                if diag is not None:
+                    c += w_entry * moved / (entry_frac * diag)
+                row.append(c)
             cost.append(row)
         return cost
 
@@ -845,15 +944,21 @@ class IdentityTracker:
         move = gap if steps is None else min(gap, steps)
         vx, vy = t.motion.vx, t.motion.vy
         dx, dy = vx * move, vy * move  # (plain floats: numpy's values, faster)
-        out = {
-            p: RotatedBox(b.cx + dx, b.cy + dy, b.length, b.width, b.angle_deg)
+        s = boxes["shaft"]
+        if gap == move and abs(vx) < 1e300 and abs(vy) < 1e300:
+            # moved all the way: the extension is 2 |v . u| * 0, +0.0 for a finite v
+            # (its dot product, ~2.5 us, not needed)
+            length = s.length + 0.0
+        else:  # (numpy's dot product, as before: its summation may differ from floats')
+            extra = 2.0 * abs(float(t.motion.velocity @ unit_vector(s.angle_deg))) * (gap - move)
+            length = s.length + extra
+        # (each box made once, the shaft's with its extension)
+        return {
+            p: RotatedBox(
+                b.cx + dx, b.cy + dy, length if p == "shaft" else b.length, b.width, b.angle_deg
+            )
             for p, b in boxes.items()
         }
-        s = out["shaft"]
-        # (numpy's dot product, as before: its summation may differ from two floats')
-        extra = 2.0 * abs(float(t.motion.velocity @ unit_vector(s.angle_deg))) * (gap - move)
-        out["shaft"] = RotatedBox(s.cx, s.cy, s.length + extra, s.width, s.angle_deg)
-        return out
 
     def _split_crossings(self, fr: _Frame) -> None:
         """Crossing handler: each blob holding hidden tracks split between its tracks.
@@ -1033,6 +1138,8 @@ class IdentityTracker:
         given one track's name (:func:`~mistool.tracking.heads.hand_over_heads`); the
         changed ones replaced in ``fr`` (``fr.instances`` copied first). Whether any
         changed."""
+        if len(fr.instances) < 2 and not fr.pieces:
+            return False  # (one instance, not split: no other to hand a head over to)
         slots: list[tuple[int, int]] = []  # (instance, piece index or -1)
         insts: list[InstanceObservation | None] = []
         tracks: list[Track] = []
@@ -1161,7 +1268,11 @@ class IdentityTracker:
                 t.shaftless = 0 if "shaft" in parts else t.shaftless + 1
             if apart and "shaft" in parts and len(runs) <= 1:
                 t.set_boxes_from(inst, runs, frame)
-            self._set_entry(t, inst, runs)
+            # (:meth:`_set_entry`, written out: an update per track and frame)
+            if not t.at_border:
+                t.at_border = _touches_border(inst)
+            if len(runs) == 1:  # one shaft entering: this instrument's (not a blob's)
+                t.entry = runs[0][0][1]
             for p in HEAD_PARTS:
                 if p in parts:
                     t.heads[p] = (parts[p].box, frame)
