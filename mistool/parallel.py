@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -256,96 +256,146 @@ def _unpack_work(
 
 def unpack_frames(packed: tuple[Any, ...]) -> list[FrameResult]:
     """The results :func:`pack_frames` packed (every value, dtype and shape; a mask is a
-    C-contiguous bool array, unpacked here, except the shafts of frames not deferred:
-    unpacked when first read, :class:`_SentPart`)."""
+    C-contiguous bool array, unpacked here for the frames and parts whose masks the
+    caller's identity step reads: every part of a deferred frame, the head parts of a
+    frame with two instruments or more (the heads' hand-over reads them), in one
+    ``unpackbits`` for the batch; the others when first read, :class:`_SentPart`)."""
     frames, inst_i, inst_f, part_i, part_f, corners, bits, labels, poses, *rest = packed
     unknown, run_counts, run_lengths, run_ends = rest
+    if not len(frames):
+        return []
+    at, lo, hi = _mask_bits(frames, inst_i, part_i)
+    masks = _eager_masks(bits, at, lo, hi, part_i)
     inst_rows, inst_xy = inst_i.tolist(), inst_f.tolist()
-    part_rows = part_i.tolist()
-    # each part's row cells (box, area, corners: rows.ROW_CELLS) for the caller's rows
+    part_rows, at_list = part_i.tolist(), at.tolist()
+    # each part's row cells (box, area, corners: rows.BOX_COLUMNS) for the caller's rows,
+    # which copy them from this array (a part's ``_row``: the array and its row in it)
     cells = np.concatenate(
         [part_f, part_i[:, 1:2].astype(np.float64), corners.reshape(-1, 8)], axis=1
-    ).tolist()
-    run_n, run_len = run_counts.tolist(), run_lengths.tolist()
+    )
+    boxes = part_f.tolist()
+    corner_rows = list(corners)  # (views, as corners[p])
+    run_n, run_len, ends = run_counts.tolist(), run_lengths.tolist(), list(run_ends)
+    new = object.__new__
     out = []
-    i = p = u = r = e = b = m = 0  # next instance, part, unknown, runs list, run, bit, pose
+    i = p = u = r = e = m = 0  # next instance, part, unknown value, runs list, run, pose
     for count, h, w, corrupt, deferred, n_unknown, has_runs, n_poses in frames.tolist():
-        parts_here = sum(row[8] for row in inst_rows[i : i + count])
-        sizes = [row[4] * row[5] for row in part_rows[p : p + parts_here]]
-        nbits = sum(sizes)
-        # a deferred frame's masks are all read (its pose is measured in the pool, its
-        # blob likely split): unpacked here at once, as are the head parts of every
-        # frame (the heads' hand-over reads them); the others' shafts when first read
-        flat = np.unpackbits(bits[b // 8 :], count=nbits).view(np.bool_) if deferred else None
         instances = []
-        at = b0 = b  # the frame's first bit (from a byte boundary)
-        b += -(-nbits // 8) * 8
         for area, x, y, bw, bh, given, sh, sw, n_parts in inst_rows[i : i + count]:
             own: dict[str, PartObservation] = {}
             for _ in range(n_parts):
                 code, parea, ox, oy, mh, mw = part_rows[p]
-                name, row = PARTS[code], cells[p]
-                box = _made(RotatedBox, cx=row[0], cy=row[1], length=row[2], width=row[3],
-                            angle_deg=row[4])  # fmt: skip
-                obj: PartObservation
-                if flat is None and code == _SHAFT:
-                    obj = _made(_SentPart, _packed=(bits, at, (mh, mw)))
-                else:
-                    if flat is not None:
-                        mask = flat[at - b0 : at - b0 + mh * mw].reshape(mh, mw)
-                    else:
-                        mask = _part_mask(bits, at, (mh, mw))
-                    obj = _made(PartObservation, mask=mask)
+                box = new(RotatedBox)
+                d = box.__dict__
+                d["cx"], d["cy"], d["length"], d["width"], d["angle_deg"] = boxes[p]
+                obj = new(_SentPart)
+                name = PARTS[code]
                 obj.__dict__.update(
-                    part=name, box=box, corners=corners[p], area_px=parea, offset=(ox, oy),
-                    _cells=row,
+                    {"part": name, "box": box, "corners": corner_rows[p], "area_px": parea,
+                     "offset": (ox, oy), "_row": (cells, p)}
                 )  # fmt: skip
+                mask = masks.get(p)
+                if mask is not None:
+                    obj.__dict__["mask"] = mask
+                else:
+                    obj.__dict__["_packed"] = (bits, at_list[p], (mh, mw))
                 own[name] = obj
-                at += mh * mw
                 p += 1
-            instances.append(
-                InstanceObservation(
-                    labels[i],
-                    own,
-                    (inst_xy[i][0], inst_xy[i][1]),
-                    area,
-                    (x, y, bw, bh),
-                    (sh, sw) if given else None,
-                )
-            )
+            inst = new(InstanceObservation)
+            inst.__dict__.update(
+                {"label": labels[i], "parts": own, "centroid_px": tuple(inst_xy[i]),
+                 "area_px": area, "bbox_xywh": (x, y, bw, bh),
+                 "image_shape": (sh, sw) if given else None}
+            )  # fmt: skip
+            instances.append(inst)
             i += 1
         border = None
         if has_runs:
             border = []
             for _ in range(count):
-                border.append([(run_ends[e + j], run_len[e + j]) for j in range(run_n[r])])
-                e += run_n[r]
+                k = run_n[r]
+                border.append(list(zip(ends[e : e + k], run_len[e : e + k], strict=True)))
+                e += k
                 r += 1
         metrics = None
         if n_poses >= 0:
             metrics = poses[m : m + n_poses]
             m += n_poses
-        out.append(
-            FrameResult(
-                instances,
-                metrics,
-                unknown[u : u + n_unknown],
-                (h, w),
-                bool(corrupt),
-                border,
-                bool(deferred),
-            )
-        )
+        result = new(FrameResult)
+        result.__dict__.update(
+            {"instances": instances, "metrics": metrics,
+             "unknown": unknown[u : u + n_unknown] if n_unknown else _NO_VALUES,
+             "shape": (h, w), "corrupt": bool(corrupt), "runs": border,
+             "deferred": bool(deferred)}
+        )  # fmt: skip
+        out.append(result)
         u += n_unknown
     return out
 
 
+def _mask_bits(
+    frames: np.ndarray, inst_i: np.ndarray, part_i: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per part of a packed batch: the first bit of its mask in the bits' buffer (each
+    frame's from a byte boundary, as :func:`pack_frames` packs them), and the bytes
+    unpacked at once to read it (:func:`unpack_frames`; empty when it is not): a
+    deferred frame's all (each of its parts' masks is read), a head part's own in a
+    frame with two instances or more."""
+    counts = frames[:, 0]
+    inst_end = np.cumsum(counts)
+    part_end = np.zeros(len(inst_i) + 1, np.int64)
+    np.cumsum(inst_i[:, 8], out=part_end[1:])
+    first = part_end[inst_end - counts]  # each frame's first part
+    parts = part_end[inst_end] - first  # and its number of parts
+    size_end = np.zeros(len(part_i) + 1, np.int64)
+    np.cumsum(part_i[:, 4] * part_i[:, 5], out=size_end[1:])
+    nbits = size_end[first + parts] - size_end[first]
+    nbytes = -(-nbits // 8)
+    frame_at = 8 * (np.cumsum(nbytes) - nbytes)
+    of = np.repeat(np.arange(len(frames)), parts)  # each part's frame
+    at = frame_at[of] + size_end[:-1] - size_end[first][of]
+    deferred = frames[of, 4] != 0
+    head = ~deferred & (counts[of] > 1) & (part_i[:, 0] != _SHAFT)
+    start = frame_at // 8  # each frame's first byte
+    lo = np.where(deferred, start[of], at // 8)
+    hi = np.where(deferred, (start + nbytes)[of], -(-(at + size_end[1:] - size_end[:-1]) // 8))
+    hi[~(deferred | head)] = lo[~(deferred | head)]
+    return at, lo, hi
+
+
+def _eager_masks(
+    bits: np.ndarray, at: np.ndarray, lo: np.ndarray, hi: np.ndarray, part_i: np.ndarray
+) -> dict[int, np.ndarray]:
+    """The masks of the parts with bytes ``lo .. hi - 1`` to unpack (:func:`_mask_bits`),
+    by part: those bytes (each run of parts with the same bytes once) unpacked in one
+    ``unpackbits``, each mask a (h, w) view of it."""
+    which = np.flatnonzero(hi > lo)
+    if not len(which):
+        return {}
+    lo, hi = lo[which], hi[which]
+    new = np.ones(len(which), np.bool_)  # parts reading the bytes of the part before
+    new[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
+    starts = np.flatnonzero(new)
+    span = hi[starts] - lo[starts]
+    base = np.cumsum(span) - span  # each range's first byte in those concatenated
+    pieces = [bits[a:b] for a, b in zip(lo[starts].tolist(), hi[starts].tolist(), strict=True)]
+    flat = np.unpackbits(np.concatenate(pieces)).view(np.bool_)
+    first = (8 * (base[np.cumsum(new) - 1] - lo) + at[which]).tolist()
+    h, w = part_i[which, 4].tolist(), part_i[which, 5].tolist()
+    return {
+        k: flat[f : f + mh * mw].reshape(mh, mw)
+        for k, f, mh, mw in zip(which.tolist(), first, h, w, strict=True)
+    }
+
+
 class _SentPart(PartObservation):
-    """A shaft as a worker sent it in a frame not deferred: its mask's bits are unpacked
-    at its first use (the caller's identity step reads the masks of a blob it splits,
-    mostly in deferred frames, and of the heads it may hand over; the shaft of an
-    instrument seen apart, most of a frame's bits, never). Otherwise a
-    :class:`~mistool.model.PartObservation` with the same values; pickled as one."""
+    """A part as a worker sent it: a :class:`~mistool.model.PartObservation` with the
+    same values, made without its ``__init__`` (the worker made and checked them), with
+    its row's cells (``_row``: the batch's cells and its row there, :mod:`mistool.rows`);
+    its mask, when not unpacked with the batch's (:func:`unpack_frames`), is unpacked at
+    its first use (the caller's identity step reads the masks of a blob it splits, mostly
+    in deferred frames, and of the heads it may hand over; the shaft of an instrument
+    seen apart, most of a frame's bits, never). Pickled as a plain ``PartObservation``."""
 
     @functools.cached_property
     def mask(self) -> np.ndarray:
@@ -359,7 +409,6 @@ class _SentPart(PartObservation):
 
 
 _SHAFT = PARTS.index("shaft")
-_T = TypeVar("_T")
 
 
 def _part_mask(bits: np.ndarray, at: int, shape: tuple[int, int]) -> np.ndarray:
@@ -367,15 +416,6 @@ def _part_mask(bits: np.ndarray, at: int, shape: tuple[int, int]) -> np.ndarray:
     n = shape[0] * shape[1]
     flat = np.unpackbits(bits[at // 8 : -(-(at + n) // 8)]).view(np.bool_)
     return flat[at % 8 : at % 8 + n].reshape(shape)
-
-
-def _made(cls: type[_T], **values: Any) -> _T:
-    """A ``cls`` (a frozen dataclass of :mod:`mistool.model`) holding ``values``, made
-    without its ``__init__`` and checks: the worker made these values as such objects,
-    checked; a field set later, as :func:`unpack_frames` does, is set in its dict."""
-    obj = object.__new__(cls)
-    obj.__dict__.update(values)
-    return obj
 
 
 def metric_pose(metric: bool, config: Config) -> bool:

@@ -42,6 +42,8 @@ BOX_COLUMNS: tuple[str, ...] = (
 #: Columns every table built here has, in order (the rest come from the metric pose).
 BASE_COLUMNS: tuple[str, ...] = ("frame", "time_s", "instrument", "part", *BOX_COLUMNS)
 
+#: No run of rows' cells yet (:meth:`RowBuilder._add_posed`).
+_NO_RUN: tuple[None, list[Any]] = (None, [])
 #: The row of :data:`~mistool.model.PARTS`' ``p``-th part in an instance's metric pose
 #: array (:func:`mistool.pose.measure.measure_rows`).
 _SLOT_OF_PART: tuple[int, ...] = tuple(SLOT_OF[part] for part in PARTS)
@@ -78,7 +80,10 @@ class RowBuilder:
         self._frames: list[int] = []
         self._insts: list[int] = []
         self._parts: list[int] = []
-        self._cells: list[list[float]] = []
+        # their box cells: runs of rows from one array (a worker's batch: the parts'
+        # ``_row``, mistool.parallel.unpack_frames), each the array and the rows' indices
+        # in it, or None and the rows' cells (a part without ``_row``: _row_cells)
+        self._cells: list[tuple[np.ndarray | None, list[Any]]] = []
         self._poses: list[np.ndarray] = []  # each frame's poses, (instances * 3, ROW_LEN)
         self._picks: list[int] = []  # per row with a pose, its row in those stacked
         self._posed: list[int] = []  # and its row in the table
@@ -174,6 +179,7 @@ class RowBuilder:
         insts, parts_of, cells = self._insts, self._parts, self._cells
         picks = self._picks
         base = self._stacked
+        src, at = cells[-1] if cells else _NO_RUN
         for k, (name, inst) in enumerate(zip(names, instances, strict=True)):
             code = self._code(str(name))
             parts = inst.parts
@@ -182,7 +188,17 @@ class RowBuilder:
                 if obs is not None:
                     insts.append(code)
                     parts_of.append(p)
-                    cells.append(getattr(obs, "_cells", None) or _row_cells(obs))
+                    row = getattr(obs, "_row", None)
+                    if row is not None:
+                        if row[0] is not src:
+                            src, at = row[0], []
+                            cells.append((src, at))
+                        at.append(row[1])
+                    else:
+                        if src is not None or not cells:
+                            src, at = None, []
+                            cells.append((src, at))
+                        at.append(_row_cells(obs))
                     picks.append(base + 3 * k + _SLOT_OF_PART[p])
         added = len(insts) - len(self._frames)
         if not added:
@@ -195,7 +211,7 @@ class RowBuilder:
             self._poses.append(poses.reshape(-1, ROW_LEN))
             self._stacked += len(poses) * len(SLOTS)
             self._posed.extend(range(n0, n0 + added))
-        if len(cells) >= FLUSH_ROWS:
+        if self._n - self._done >= FLUSH_ROWS:
             self._flush()
 
     def _flush(self) -> None:
@@ -208,7 +224,11 @@ class RowBuilder:
         self._frame[i0:i1] = self._frames
         self._inst[i0:i1] = self._insts
         self._part[i0:i1] = self._parts
-        self._box[i0:i1] = self._cells
+        blocks = [
+            np.array(at, np.float64).reshape(-1, len(BOX_COLUMNS)) if src is None else src[at]
+            for src, at in self._cells
+        ]
+        self._box[i0:i1] = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
         if self._posed:
             plan = self._plans.get(ROW_KEYS)
             if plan is None:  # before self._num is read: it may grow
@@ -237,7 +257,7 @@ class RowBuilder:
         self._frame[i0:i1] = index
         self._inst[i0:i1] = [r[0] for r in rows]
         self._part[i0:i1] = [r[1] for r in rows]
-        self._box[i0:i1] = [getattr(r[2], "_cells", None) or _row_cells(r[2]) for r in rows]
+        self._box[i0:i1] = [_cells_of(r[2]) for r in rows]
         self._n = self._done = i1
         return i0
 
@@ -310,10 +330,20 @@ class RowBuilder:
         return TrackTable(cols)
 
 
+def _cells_of(obs: Any) -> list[float]:
+    """A part's :data:`BOX_COLUMNS` cells: its ``_row`` (a worker's part: the batch's
+    cells and its row there, :func:`mistool.parallel.unpack_frames`), else
+    :func:`_row_cells`."""
+    row = getattr(obs, "_row", None)
+    if row is None:
+        return _row_cells(obs)
+    cells: list[float] = row[0][row[1]].tolist()
+    return cells
+
+
 def _row_cells(obs: Any) -> list[float]:
-    """A part's :data:`BOX_COLUMNS` cells: its box, area and (4, 2) corners row by row
-    (:func:`mistool.parallel.unpack_frames` gives a worker's parts theirs as
-    ``_cells``, made for the batch at once)."""
+    """A part's :data:`BOX_COLUMNS` cells read from its fields: its box, area and (4, 2)
+    corners row by row."""
     b = obs.box
     corners: list[float] = np.asarray(obs.corners, dtype=np.float64).ravel().tolist()
     return [b.cx, b.cy, b.length, b.width, b.angle_deg, obs.area_px, *corners]

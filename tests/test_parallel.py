@@ -835,16 +835,18 @@ def test_a_frame_result_replaced_is_dataclasses_replace(changes) -> None:
         r.replaced(metric=None)
 
 
-def test_a_shaft_not_deferred_has_its_mask_unpacked_at_its_first_use() -> None:
-    """The caller unpacks the mask bits of a shaft in a frame not deferred only when the
-    mask is read (the identity step seldom reads one), the others at once: read in any
-    order, each mask equals the one the worker had (bool, C-contiguous, its shape); a
-    shaft pickled or replaced unread is a plain PartObservation of the same values."""
+def test_a_mask_the_identity_step_seldom_reads_is_unpacked_at_its_first_use() -> None:
+    """The caller unpacks the mask bits of a part in a frame not deferred only when the
+    mask is read (the identity step seldom reads a shaft's, nor a head's in a frame with
+    one instrument), the others at once (a deferred frame's, a head's beside another
+    instrument: one ``unpackbits`` for the batch): read in any order, each mask equals
+    the one the worker had (bool, C-contiguous, its shape); a part pickled or replaced
+    unread is a plain PartObservation of the same values."""
     import pickle
 
     rng = np.random.default_rng(5)
     sent = []
-    for n, deferred in ((2, False), (0, False), (3, True), (1, False)):
+    for n, deferred in ((2, False), (0, False), (3, True), (1, False), (2, False)):
         parts = {}
         for name in ("clasper", "shaft", "wrist")[: 1 + n % 3]:
             h, w = (int(v) for v in rng.integers(1, 13, 2))
@@ -856,14 +858,16 @@ def test_a_shaft_not_deferred_has_its_mask_unpacked_at_its_first_use() -> None:
         sent.append(parallel.FrameResult([inst] * n, None, empty, (40, 50), deferred=deferred))
     got = parallel.unpack_frames(parallel.pack_frames(sent))
     pairs = [
-        (p, q, s.deferred)
+        (p, q, s.deferred, len(s.instances))
         for g, s in zip(got, sent, strict=True)
         for gi, si in zip(g.instances, s.instances, strict=True)
         for p, q in zip(gi.parts.values(), si.parts.values(), strict=True)
     ]
-    lazy = [p.part == "shaft" and not deferred for p, _, deferred in pairs]
+    lazy = [not deferred and (p.part == "shaft" or n < 2) for p, _, deferred, n in pairs]
     assert any(lazy) and not all(lazy)
-    assert [("mask" not in p.__dict__) for p, _, _ in pairs] == lazy  # not unpacked yet
+    assert any(k and p.part != "shaft" for k, (p, *_) in zip(lazy, pairs, strict=True))
+    assert [("mask" not in p.__dict__) for p, *_ in pairs] == lazy  # not unpacked yet
+    pairs = [(p, q, deferred) for p, q, deferred, _ in pairs]
     shafts = [(p, q) for (p, q, _), k in zip(pairs, lazy, strict=True) if k]
     plain = pickle.loads(pickle.dumps(shafts[0][0]))
     assert type(plain) is PartObservation and np.array_equal(plain.mask, shafts[0][1].mask)
@@ -877,10 +881,10 @@ def test_a_shaft_not_deferred_has_its_mask_unpacked_at_its_first_use() -> None:
 
 
 def test_unpacked_parts_carry_their_rows_cells_and_checked_values() -> None:
-    """Each part a batch unpacks to carries its row's box cells (``_cells``, made for
-    the whole batch at once, what ``mistool.rows`` writes) equal to those read from its
-    fields, and its box and part are the model's types with the values sent."""
-    from mistool.rows import _row_cells
+    """Each part a batch unpacks to carries its row's box cells (``_row``: the batch's
+    cells, made at once, and its row there, what ``mistool.rows`` writes) equal to those
+    read from its fields, and its box and part are the model's types with the values sent."""
+    from mistool.rows import BOX_COLUMNS, _row_cells
 
     rng = np.random.default_rng(7)
     sent = []
@@ -907,5 +911,42 @@ def test_unpacked_parts_carry_their_rows_cells_and_checked_values() -> None:
                 assert isinstance(p, PartObservation) and type(p.box) is RotatedBox
                 assert (p.part, p.box, p.area_px, p.offset) == (q.part, q.box, q.area_px, q.offset)
                 assert np.array_equal(p.corners, q.corners) and np.array_equal(p.mask, q.mask)
-                assert p._cells == _row_cells(q) == _row_cells(p)  # type: ignore[attr-defined]
-                assert all(type(v) is float for v in p._cells)  # type: ignore[attr-defined]
+                cells, row = p._row  # type: ignore[attr-defined]
+                assert cells.dtype == np.float64 and cells.shape[1] == len(BOX_COLUMNS)
+                assert cells[row].tolist() == _row_cells(q) == _row_cells(p)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_a_batchs_masks_unpack_to_the_workers_whatever_their_sizes_and_frames(seed) -> None:
+    """Random batches (frames of 0-3 instruments, deferred or not, parts of 1-200 bits,
+    so masks start at every bit of a byte, and several share one): every unpacked part's
+    mask, read in a random order, is the worker's (values, shape, bool, C-contiguous),
+    whether it was unpacked with the batch's or at its first use."""
+    rng = np.random.default_rng(seed)
+    sent = []
+    for _ in range(int(rng.integers(1, 9))):
+        insts = []
+        for _ in range(int(rng.integers(0, 4))):
+            names = [p for p in ("shaft", "wrist", "clasper") if rng.random() < 0.6] or ["shaft"]
+            parts = {}
+            for name in names:
+                h, w = (int(v) for v in rng.integers(1, 15, 2))
+                box = RotatedBox(5.0, 6.0, 9.0, 2.0, 30.0)
+                mask = rng.random((h, w)) < 0.5
+                parts[name] = PartObservation(name, box, box.corners(), 7, mask, (3, 4))
+            insts.append(InstanceObservation(None, parts, (1.0, 2.0), 7, (3, 4, 5, 6), (40, 50)))
+        empty = np.zeros(0, np.int64)
+        sent.append(
+            parallel.FrameResult(insts, None, empty, (40, 50), deferred=bool(rng.random() < 0.3))
+        )
+    got = parallel.unpack_frames(parallel.pack_frames(sent))
+    pairs = [
+        (p, q)
+        for g, s in zip(got, sent, strict=True)
+        for gi, si in zip(g.instances, s.instances, strict=True)
+        for p, q in zip(gi.parts.values(), si.parts.values(), strict=True)
+    ]
+    for k in rng.permutation(len(pairs)):
+        p, q = pairs[k]
+        assert p.mask.dtype == np.bool_ and p.mask.flags.c_contiguous
+        assert p.mask.shape == q.mask.shape and np.array_equal(p.mask, q.mask)

@@ -323,15 +323,35 @@ def test_a_metric_pose_array_of_another_shape_is_an_error() -> None:
 
 
 def test_a_parts_row_cells_given_with_it_are_its_row() -> None:
-    """A part that carries its row's cells (``_cells``: a worker's parts, made for the
-    whole batch by ``mistool.parallel.unpack_frames``) gives them as its box cells."""
-    inst = _inst(0, ("shaft",))
-    cells = [float(v) for v in range(100, 114)]
-    inst.parts["shaft"]._cells = cells  # type: ignore[attr-defined]
+    """A part that carries its row's cells (``_row``: an array of a batch's cells and its
+    row in it, a worker's parts as ``mistool.parallel.unpack_frames`` makes them) gives
+    them as its box cells, beside parts without (read from their fields), with or
+    without a pose, in runs of rows of several arrays written together."""
+    from mistool.pose.measure import ROW_LEN
+    from mistool.rows import _row_cells
+
+    batches = [np.arange(k * 100.0, k * 100.0 + 3 * 14).reshape(3, 14) for k in (1, 2)]
+    frames = [((0, 2), None), ((1, 0), (0, 1)), ((None, 0), (1, 1))]  # (batch, row)
     rows = RowBuilder(fps=1.0)
-    rows.add_frame(0, ["a"], [inst], None)
+    want = []
+    for index, picks in enumerate(frames):
+        insts = []
+        for k, pick in enumerate(picks):
+            inst = _inst(index * 2 + k, ("shaft",))
+            if pick is not None and pick[0] is not None:
+                inst.parts["shaft"]._row = (batches[pick[0]], pick[1])  # type: ignore[attr-defined]
+                want.append(batches[pick[0]][pick[1]].tolist())
+            else:
+                want.append(_row_cells(inst.parts["shaft"]))
+            insts.append(inst)
+        poses = None if index == 1 else np.zeros((len(insts), 3, ROW_LEN))
+        rows.add_frame(index, ["a", "b"], insts, poses)
+    dict_inst = _inst(9, ("shaft",))
+    dict_inst.parts["shaft"]._row = (batches[1], 2)  # type: ignore[attr-defined]
+    rows.add_frame(3, ["c"], [dict_inst], [{"shaft": {"quality": 0.5}}])
+    want.append(batches[1][2].tolist())
     t = rows.take()
-    assert [float(t[c][0]) for c in BOX_COLUMNS] == cells
+    assert [[float(t[c][i]) for c in BOX_COLUMNS] for i in range(t.num_rows)] == want
 
 
 @settings(max_examples=60, deadline=None)
