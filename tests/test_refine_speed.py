@@ -211,3 +211,20 @@ def test_head_swaps_found_both_ways_are_the_formers():
     finally:
         relink._pair_candidates, relink._frame_candidates = pair, frame
     assert swapped > 30 and kinds["pair"] > 100 and kinds["frame"] > 100
+
+
+def test_the_lmeds_start_passes_over_a_candidate_that_cannot_win(monkeypatch) -> None:
+    """A candidate point with fewer than half its distances below the best median so far
+    is passed over without its median (the same start: test_trocar_is_the_former):
+    lines through a trocar with a third of outliers take fewer medians than candidates."""
+    calls = []
+    monkeypatch.setattr(trocar, "median", lambda r: calls.append(1) or filtering.median(r))
+    rng = np.random.default_rng(3)
+    n = 300
+    p = rng.normal(size=(n, 3)) * 80.0
+    a = p - np.array([10.0, -20.0, 40.0]) + rng.normal(size=(n, 3))
+    a[: n // 3] = rng.normal(size=(n // 3, 3))  # outliers
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    got = trocar._lmeds_start(p, a)
+    assert got is not None and np.array_equal(got, before.lmeds_start(p, a))
+    assert 0 < len(calls) < 40  # of 60 candidates

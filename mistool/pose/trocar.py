@@ -79,9 +79,14 @@ _PARALLEL_COS = np.cos(np.radians(2.0))
 
 def _lmeds_start(p: np.ndarray, a: np.ndarray, pairs: int = 60) -> np.ndarray | None:
     """Least-median start: the closest point of random line pairs with the smallest
-    median distance to all lines (robust to a large share of wrong lines)."""
+    median distance to all lines (robust to a large share of wrong lines).
+
+    A candidate with fewer than half its distances below the best median so far is
+    passed over without its median: that median is not below the best (the middle
+    distance, or the lower of the two middle ones, is not), so it could not win."""
     rng = np.random.default_rng(0)
     n = len(p)
+    half = (n + 1) // 2  # distances below a median that wins: at least this many
     i = rng.integers(0, n, pairs)
     j = rng.integers(0, n, pairs)
     best, best_med = None, np.inf
@@ -96,7 +101,10 @@ def _lmeds_start(p: np.ndarray, a: np.ndarray, pairs: int = 60) -> np.ndarray | 
         s = (da1 - c * da2) / sin2
         t = (c * da1 - da2) / sin2
         x = 0.5 * (p[i[k]] + s * a1 + p[j[k]] + t * a2)
-        med = median(distances_to_lines(x, p, a))
+        r = distances_to_lines(x, p, a)
+        if best is not None and np.count_nonzero(r < best_med) < half:
+            continue
+        med = median(r)
         if med < best_med:
             best, best_med = x, med
     return best
