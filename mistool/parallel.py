@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import cv2
 import numpy as np
@@ -416,6 +416,17 @@ def _part_mask(bits: np.ndarray, at: int, shape: tuple[int, int]) -> np.ndarray:
     n = shape[0] * shape[1]
     flat = np.unpackbits(bits[at // 8 : -(-(at + n) // 8)]).view(np.bool_)
     return flat[at % 8 : at % 8 + n].reshape(shape)
+
+
+_T = TypeVar("_T")
+
+
+def _made(cls: type[_T], **values: Any) -> _T:
+    """A ``cls`` (a frozen dataclass) holding ``values``, made without its ``__init__``
+    and checks (values made and checked as such objects already)."""
+    obj = object.__new__(cls)
+    obj.__dict__.update(values)
+    return obj
 
 
 def metric_pose(metric: bool, config: Config) -> bool:
