@@ -73,10 +73,16 @@ _CHECK = textwrap.dedent(
 )
 
 
+def _warm(code: str) -> None:
+    """Run ``code`` in a new process: what it loads is in the cache afterwards (a
+    cache made before these loaders, or emptied by an edit, is filled first)."""
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
+
+
 @pytest.mark.skipif(not ELF, reason="numba's object files are ELF on Linux only")
 def test_every_worker_kernel_defines_the_same_names_as_its_bitcode() -> None:
-    # a new process: every worker kernel loaded from the cache (the suite's warm-up
-    # compiled them), none compiled here
+    # a new process: every worker kernel loaded from the cache, none compiled there
+    _warm("import mistool.kernels._worker")
     out = subprocess.run(
         [sys.executable, "-c", _CHECK], check=True, capture_output=True, text=True
     ).stdout
@@ -111,6 +117,7 @@ _LINK = textwrap.dedent(
 
 @pytest.mark.skipif(not ELF, reason="numba's object files are ELF on Linux only")
 def test_a_function_compiled_later_links_a_cached_kernel() -> None:
+    _warm("from mistool.kernels import _load, split; _load(split.pairwise_sum)")
     out = subprocess.run(
         [sys.executable, "-c", _LINK], check=True, capture_output=True, text=True
     ).stdout.split()
