@@ -632,7 +632,10 @@ def test_progress_bar_reaches_a_terminal(tmp_path: Path) -> None:
     seq.mkdir()
     (seq / "mistool.toml").write_bytes((short / "mistool.toml").read_bytes())
     frames = sorted(short.glob("*.png"))
-    for k in range(600):  # a run of a few seconds: the bar shows after 0.5 s
+    # a run of a second or more (the bar shows after 0.5 s; 600 frames took 0.4 s once
+    # numba's start and kernel loading got faster, and no bar was drawn)
+    count = 4000
+    for k in range(count):
         (seq / f"{k:05d}.png").symlink_to(frames[k % len(frames)])
     main_fd, term_fd = os.openpty()
     fcntl.ioctl(term_fd, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
@@ -653,7 +656,7 @@ def test_progress_bar_reaches_a_terminal(tmp_path: Path) -> None:
     assert child.wait() == 0
     text = seen.decode(errors="replace")
     assert "frame/s]" in text and "\r" in text, text[-500:]
-    assert text.rstrip().splitlines()[-1].lstrip("\r").startswith("mistool: 600 frame(s)")
+    assert text.rstrip().splitlines()[-1].lstrip("\r").startswith(f"mistool: {count} frame(s)")
 
 
 def test_corrupt_png_prints_only_mistool_s_line(
