@@ -768,3 +768,53 @@ def test_a_crowded_piece_whose_head_jumped_keeps_its_velocity():
     assert np.array_equal(velocity_after_piece(60), kept)  # jumped: kept
     moved = velocity_after_piece(0)  # its own jaws: measured (across the shaft)
     assert not np.array_equal(moved, kept)
+
+
+def test_a_head_box_spanning_two_tools_heads_is_no_part_of_a_tools_shape():
+    """A wide tool seen apart while another tool's jaws touched its own in a row: its
+    jaws box spans 300 px (more than HEAD_LENGTH_WIDTHS = 3.5 widths of its 80 px shaft:
+    two tools' heads). Its shape for the splits leaves that box out (its wrist bounds
+    its head's reach), so in a later crossing the other tool's jaws, 75 px past its
+    wrist on its axis, go to their own tool; with that box kept, its head reached 3.5
+    widths and took them (the test above's case, from a shape seen apart)."""
+    from mistool.tracking.split import split_pieces
+
+    seen = [((280, 0, 360, 200), 10), ((290, 200, 350, 240), 20), ((305, 240, 335, 540), 30)]
+    tracker = IdentityTracker(MERGED)
+    (inst,) = observe_frame(_paint(seen), MERGED)
+    tracker.resolve(0, [inst])
+    (t,) = tracker.tracks
+    a = tracker._expected_boxes(t, 1, 5)
+    assert a is not None and set(a) == {"shaft", "wrist"}
+    assert a["wrist"] == inst.parts["wrist"].box
+    # a tool whose jaws alone are that long keeps them (its head's only bound)
+    alone = [((280, 0, 360, 200), 10), ((305, 200, 335, 500), 30)]
+    (inst2,) = observe_frame(_paint(alone), MERGED)
+    tracker2 = IdentityTracker(MERGED)
+    tracker2.resolve(0, [inst2])
+    (t2,) = tracker2.tracks
+    assert t2.boxes == {p: o.box for p, o in inst2.parts.items()}
+
+    blob = _paint(
+        [
+            ((280, 0, 360, 200), 10),  # A from the top ...
+            ((290, 200, 350, 240), 20),  # ... its wrist
+            ((0, 310, 300, 340), 10),  # B from the left ...
+            ((300, 315, 340, 335), 30),  # ... its jaws on A's axis, 75 px past A's wrist
+        ]
+    )
+    parts = {
+        name: part_observation(name, np.where(blob == v, 255, 0).astype(np.uint8), 0, 0, 20)
+        for name, v in (("shaft", 10), ("wrist", 20), ("clasper", 30))
+    }
+    both = make_instance(None, {k: v for k, v in parts.items() if v is not None}, SHAPE)
+    b = {
+        "shaft": RotatedBox(150.0, 325.0, 300.0, 30.0, 0.0),
+        "clasper": RotatedBox(320.0, 325.0, 40.0, 20.0, 0.0),
+    }
+    pixels = BlobPixels(both)
+    fit = fit_split(pixels, [a, b], 20)
+    assert fit is not None
+    got_a, got_b = split_pieces(pixels, fit, 20)
+    assert "clasper" not in got_a.parts
+    assert got_b.parts["clasper"].area_px >= 0.99 * 40 * 20

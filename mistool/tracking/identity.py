@@ -51,6 +51,7 @@ from mistool.tracking.heads import HEAD_CLAIM_PX, HEAD_PARTS, hand_over_heads
 from mistool.tracking.instances import angle_diff_deg, unit_vector
 from mistool.tracking.motion import ConstantVelocity
 from mistool.tracking.split import (
+    HEAD_LENGTH_WIDTHS,
     BlobPixels,
     HeadAnchor,
     SplitFit,
@@ -233,7 +234,7 @@ class Track:
         read only when it is split from a blob)."""
         source = self._boxes_from
         if source is not None:
-            self._boxes, self._boxes_from = reference_boxes(*source), None
+            self._boxes, self._boxes_from = _one_tools_heads(reference_boxes(*source)), None
         return self._boxes
 
     @boxes.setter
@@ -278,6 +279,23 @@ class Track:
     def predict_xy(self, frame: int) -> tuple[float, float]:
         """:meth:`predict` as two floats (the same values)."""
         return self.motion.predict_xy(self.predict_steps(frame))
+
+
+def _one_tools_heads(boxes: dict[str, RotatedBox]) -> dict[str, RotatedBox]:
+    """A reference shape without its head parts longer than :data:`HEAD_LENGTH_WIDTHS`
+    of its shaft's widths (the farthest a split lets a head reach beyond its shaft),
+    when another head part is left: such a box spans two tools' heads (jaws touching
+    another tool's, grouped with this tool's instance by ``observe_frame`` while it was
+    seen apart), and would give the tool that whole reach in every split (the head
+    segments of :func:`~mistool.tracking.split.fit_split`), taking the other tools'
+    heads with it; the part left bounds the reach to its own extent. (With no head part
+    left, the split would reach as far and lose the shaft's distal side: kept.)"""
+    shaft = boxes.get("shaft")
+    if shaft is None:
+        return boxes
+    reach = HEAD_LENGTH_WIDTHS * shaft.width
+    out = {p: b for p, b in boxes.items() if p == "shaft" or max(b.length, b.width) <= reach}
+    return boxes if len(out) == len(boxes) or len(out) < 2 else out
 
 
 def _head_jumped(t: Track, inst: InstanceObservation, frame: int) -> bool:
