@@ -857,7 +857,13 @@ def test_split_pieces_measured_from_runs_are_the_former_pieces(seed, k, n_anchor
     specks, anchors with and without head boxes, a lone anchor taking the shaft pixels
     far from every axis."""
     from mistool.tracking.instances import make_instance, part_observation
-    from mistool.tracking.split import HeadAnchor, SplitFit, _Axes, split_with_heads
+    from mistool.tracking.split import (
+        HeadAnchor,
+        SplitFit,
+        _Axes,
+        _initial_axes,
+        split_with_heads,
+    )
 
     rng = np.random.default_rng(seed)
     shape = (576, 720)
@@ -915,6 +921,11 @@ def test_split_pieces_measured_from_runs_are_the_former_pieces(seed, k, n_anchor
         )
         for _ in range(n_anchors)
     ]
+    if ax.head_len is not None and rng.random() < 0.7:
+        # the expected boxes as fit_split's axes carry them: without anchors, the head
+        # parts' segments from them in one compiled call (kernels.split.head_part_runs)
+        ref = _initial_axes(expected, None)
+        ax.boxes, ax.others = ref.boxes, ref.others
     fit = SplitFit(0.5, ax, expected)
     min_area = int(rng.choice([1, 20, 300]))
     got = split_with_heads(BlobPixels(inst), fit, min_area, anchors)
@@ -926,6 +937,42 @@ def test_split_pieces_measured_from_runs_are_the_former_pieces(seed, k, n_anchor
     assert len(got[0]) == len(want[0]) and len(got[1]) == len(want[1])
     for a, b in zip(got[0] + got[1], want[0] + want[1], strict=True):
         assert _same_instance(a, b)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 4))
+def test_head_segments_kernel_is_head_segments(seed, k):
+    """kernels.split.head_segments (a head part's segments from _initial_axes' boxes,
+    inside head_part_runs) gives split._head_segments' segments and rows bit for bit:
+    axes moved by a refit, expected boxes with and without the part, widths below 2
+    px (radius 1), any angle."""
+    from mistool.kernels.split import head_segments
+    from mistool.tracking.split import _head_segments, _initial_axes
+
+    rng = np.random.default_rng(seed)
+
+    def box() -> RotatedBox:
+        length = float(rng.uniform(0.5, 200))
+        x, y = rng.uniform(-50, 800, 2)
+        width = length * float(rng.uniform(0.01, 1))
+        return RotatedBox(float(x), float(y), length, width, float(rng.uniform(0, 180)))
+
+    expected = []
+    for _ in range(k):
+        heads = [p for p in ("wrist", "clasper", "jaws") if rng.random() < 0.5][:2]
+        rng.shuffle(heads)
+        expected.append({"shaft": box(), **{p: box() for p in heads}})
+    ax = _initial_axes(expected, None, (576, 720) if rng.random() < 0.5 else None)
+    ax.ends = ax.ends + rng.normal(0, 30, (k, 2))  # (a refit moves the ends and turns)
+    t = rng.uniform(0, 2 * math.pi, k)
+    ax.dirs = np.stack([np.cos(t), np.sin(t)], 1)
+    assert ax.boxes is not None and ax.others is not None and ax.head_len is not None
+    for name in ("wrist", "clasper", "jaws"):
+        which = np.array([o.index(name) + 1 if name in o else 0 for o in ax.others], np.int64)
+        got = head_segments(ax.boxes, which, ax.ends, ax.dirs, ax.radius, ax.head_len, ax.limit_end)
+        (ends, dirs, back, radius), rows = _head_segments(name, ax, expected)
+        for a, b in zip(got, (ends, dirs, back, radius, rows), strict=True):
+            assert a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
 @settings(max_examples=150, deadline=None)

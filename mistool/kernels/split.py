@@ -38,7 +38,7 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from mistool.kernels import helper, kernel
-from mistool.kernels.boxes import ctz, load8
+from mistool.kernels.boxes import ctz, load8, mask_runs
 
 __all__ = [
     "DOT_SERIAL_MAX",
@@ -833,6 +833,122 @@ def cut_runs(
     out_b = np.empty((nlab, cap), np.int32)
     _cut_by_pixel(ry, rx0, rx1, n, lab, out_y, out_a, out_b, got)
     return out_y, out_a, out_b, got
+
+
+_CUT = "Tuple((int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1]))"
+
+
+@kernel(
+    f"{_CUT}(uint8[:, ::1], int64, int64, {_SEGMENTS}, int64[::1], float64[:, ::1], boolean[::1],"
+    " int64)"
+)
+def head_cut_runs(
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    ends: np.ndarray,
+    dirs: np.ndarray,
+    back: np.ndarray,
+    radius: np.ndarray,
+    row: np.ndarray,
+    centres: np.ndarray,
+    is_centre: np.ndarray,
+    nlab: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A head part's pieces in one call: the row runs of each of its ``nlab`` nearest
+    heads (:func:`cut_runs`) of its mask at (x0, y0) (``boxes.mask_runs``, the pixels
+    of :func:`run_pixels`, their nearest heads by :func:`head_labels`, whose arguments
+    the others are)."""
+    ry, rx0, rx1, n = mask_runs(mask)
+    px, py = run_pixels(ry, rx0, rx1, n, x0, y0)
+    lab = np.empty(px.shape[0], np.int64)
+    head_labels(px, py, ends, dirs, back, radius, row, centres, is_centre, lab)
+    return cut_runs(ry, rx0, rx1, n, lab, nlab)
+
+
+@kernel(
+    "Tuple((float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], int64[::1]))("
+    "float64[:, :, ::1], int64[::1], float64[:, ::1], float64[:, ::1], float64[::1],"
+    " float64[::1], float64[:, ::1])"
+)
+def head_segments(
+    boxes: np.ndarray,
+    which: np.ndarray,
+    ends: np.ndarray,
+    dirs: np.ndarray,
+    radius: np.ndarray,
+    head_len: np.ndarray,
+    limit_end: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``split._head_segments`` of K fitted axes (``ends``, ``dirs``, ``radius``,
+    ``head_len``, expected ends ``limit_end``) for one head part, whose expected box is
+    ``boxes[k, which[k]]`` (``split._initial_axes``' boxes; ``which[k] == 0``: none):
+    ``(ends, dirs, back, radius, row)``, each axis's head segment first, then the
+    expected boxes moved with their shaft's end, in Python's float operations."""
+    kk = ends.shape[0]
+    s = kk
+    for k in range(kk):
+        s += which[k] != 0
+    s_ends = np.empty((s, 2), np.float64)
+    s_dirs = np.empty((s, 2), np.float64)
+    s_back = np.empty(s, np.float64)
+    s_rad = np.empty(s, np.float64)
+    rows = np.empty(s, np.int64)
+    for k in range(kk):
+        n = head_len[k]
+        dx, dy = dirs[k, 0], dirs[k, 1]
+        s_ends[k, 0] = ends[k, 0] + n * dx
+        s_ends[k, 1] = ends[k, 1] + n * dy
+        s_dirs[k, 0], s_dirs[k, 1] = dx, dy
+        s_back[k] = n
+        s_rad[k] = radius[k]
+        rows[k] = k
+    i = kk
+    for k in range(kk):
+        if which[k] == 0:
+            continue
+        b = boxes[k, which[k]]
+        t = math.radians(b[4])
+        ux, uy = math.cos(t), math.sin(t)
+        h = 0.5 * b[2]
+        cx = b[0] + (ends[k, 0] - limit_end[k, 0])
+        cy = b[1] + (ends[k, 1] - limit_end[k, 1])
+        s_ends[i, 0] = cx + h * ux
+        s_ends[i, 1] = cy + h * uy
+        s_dirs[i, 0], s_dirs[i, 1] = ux, uy
+        s_back[i] = 2 * h
+        w2 = b[3] / 2.0
+        s_rad[i] = 1.0 if 1.0 > w2 else w2  # max(width / 2, 1.0)
+        rows[i] = k
+        i += 1
+    return s_ends, s_dirs, s_back, s_rad, rows
+
+
+@kernel(
+    f"{_CUT}(uint8[:, ::1], int64, int64, float64[:, :, ::1], int64[::1], float64[:, ::1],"
+    " float64[:, ::1], float64[::1], float64[::1], float64[:, ::1])"
+)
+def head_part_runs(
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    boxes: np.ndarray,
+    which: np.ndarray,
+    ends: np.ndarray,
+    dirs: np.ndarray,
+    radius: np.ndarray,
+    head_len: np.ndarray,
+    limit_end: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`head_cut_runs` of a head part between K fitted axes alone (no anchors):
+    the segments of :func:`head_segments`, no centres."""
+    kk = ends.shape[0]
+    s_ends, s_dirs, s_back, s_rad, rows = head_segments(
+        boxes, which, ends, dirs, radius, head_len, limit_end
+    )
+    centres = np.zeros((kk, 3), np.float64)
+    is_centre = np.zeros(kk, np.bool_)
+    return head_cut_runs(mask, x0, y0, s_ends, s_dirs, s_back, s_rad, rows, centres, is_centre, kk)
 
 
 @kernel("boolean[::1](uint8[:, ::1], int64, int64, int64, int64)")

@@ -444,6 +444,8 @@ class _Axes:
     head_len: np.ndarray | None = None  # (K,) head lengths, px (None: HEAD_LENGTH_WIDTHS)
     keep_d2: float | None = None  # points farther (squared half-widths) from every axis:
     # another tool's (left out of the fit); None: every point is some axis's
+    boxes: np.ndarray | None = None  # (K, 3, 5) the expected boxes (_initial_axes') ...
+    others: list[list[str]] | None = None  # ... their other parts' names, in boxes[k, 1:]
 
     def nearest(self, pts: np.ndarray) -> np.ndarray:
         """(N,) index of each point's nearest axis; K for a point farther than
@@ -477,16 +479,19 @@ def _initial_axes(
     k = len(expected)
     flat: list[float] = []  # (the (K, 3, 5) boxes made from one list: one conversion)
     counts = []
+    others: list[list[str]] = []
     for e in expected:
         b = e["shaft"]
         flat += (b.cx, b.cy, b.length, b.width, b.angle_deg)
-        n = 0
+        names = []
         for p, b in e.items():
             if p != "shaft":
                 flat += (b.cx, b.cy, b.length, b.width, b.angle_deg)
-                n += 1
+                names.append(p)
+        n = len(names)
         flat += (0.0,) * (5 * (2 - n))
         counts.append(n)
+        others.append(names)
     boxes = np.array(flat, np.float64).reshape(k, 3, 5)
     nother = np.array(counts, np.int64)
     ends0 = np.empty((k, 2))
@@ -511,6 +516,8 @@ def _initial_axes(
         start_dirs=dirs.copy(),
         margin=margin,
         head_len=head_len,
+        boxes=boxes,
+        others=others,
     )
 
 
@@ -920,9 +927,9 @@ def split_with_heads(
     for name, part in inst.parts.items():
         if name == "shaft":
             continue
-        (ry, rx0, rx1, nr), lab = _head_labels(part, fit.axes, fit.expected, anchors)
-        runs = kernels.cut_runs(ry, rx0, rx1, nr, lab, n)
-        got[name] = _measure_runs(name, runs, part.offset, min_area_px)
+        got[name] = _measure_runs(
+            name, _head_runs(part, fit.axes, fit.expected, anchors), part.offset, min_area_px
+        )
     pieces: list[dict[str, _Measured]] = [{} for _ in range(n)]
     for name in inst.parts:  # (the blob's order of parts)
         for j, m in enumerate(got[name]):
@@ -935,17 +942,37 @@ def split_with_heads(
     )
 
 
-def _head_labels(
+def _head_runs(
     part: PartObservation,
     ax: _Axes,
     expected: list[dict[str, RotatedBox]],
     anchors: list[HeadAnchor],
-) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]:
-    """A head part's row runs (:func:`mistool.kernels.boxes.mask_runs`) and the index of
-    the nearest head of each of its pixels, in the runs' order: the instruments'
-    (:func:`_head_segments`), then the anchors' (their boxes' segments, or their
-    centre), the first of equal distances (compiled:
-    :func:`mistool.kernels.split.head_labels`)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The row runs of a head part's pixels nearest to each head (the instruments', then
+    the anchors'; :func:`_head_labels`), ``(ry, rx0, rx1, count)`` per head, in one
+    compiled call: :func:`mistool.kernels.split.head_part_runs` (its segments from
+    :func:`_initial_axes`' boxes) without anchors, else
+    :func:`mistool.kernels.split.head_cut_runs` of :func:`_head_labels`' segments."""
+    ox, oy = int(part.offset[0]), int(part.offset[1])
+    if anchors or ax.boxes is None or ax.others is None or ax.head_len is None:
+        seg = _head_arguments(part, ax, expected, anchors)
+        return kernels.head_cut_runs(_mask_u8(part.mask), ox, oy, *seg, len(seg[-1]))
+    name = part.part
+    which = np.array([o.index(name) + 1 if name in o else 0 for o in ax.others], np.int64)
+    return kernels.head_part_runs(
+        _mask_u8(part.mask), ox, oy, ax.boxes, which, _points(ax.ends), _points(ax.dirs),
+        _values(ax.radius), _values(ax.head_len), _points(ax.limit_end),
+    )  # fmt: skip
+
+
+def _head_arguments(
+    part: PartObservation,
+    ax: _Axes,
+    expected: list[dict[str, RotatedBox]],
+    anchors: list[HeadAnchor],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`mistool.kernels.split.head_labels`' heads for a head part: ``(ends, dirs,
+    back, radius, row, centres, is_centre)`` (see :func:`_head_labels`)."""
     segs, rows = _head_segments(part.part, ax, expected)
     parts = [segs]
     row = [rows]
@@ -966,13 +993,24 @@ def _head_labels(
         ends, dirs, back, radius = (np.concatenate(c) for c in zip(*parts, strict=True))
     rows = np.concatenate(row).astype(np.int64) if len(row) > 1 else row[0]
     is_centre = np.array(centre, np.bool_)
+    return (_points(ends), _points(dirs), _values(back), _values(radius), rows, centres, is_centre)
+
+
+def _head_labels(
+    part: PartObservation,
+    ax: _Axes,
+    expected: list[dict[str, RotatedBox]],
+    anchors: list[HeadAnchor],
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]:
+    """A head part's row runs (:func:`mistool.kernels.boxes.mask_runs`) and the index of
+    the nearest head of each of its pixels, in the runs' order: the instruments'
+    (:func:`_head_segments`), then the anchors' (their boxes' segments, or their
+    centre), the first of equal distances (compiled:
+    :func:`mistool.kernels.split.head_labels`)."""
     runs = mask_runs(_mask_u8(part.mask))
     px, py = kernels.run_pixels(*runs, int(part.offset[0]), int(part.offset[1]))
     lab = np.empty(len(px), np.int64)
-    kernels.head_labels(
-        px, py, _points(ends), _points(dirs), _values(back), _values(radius), rows, centres,
-        is_centre, lab,
-    )  # fmt: skip
+    kernels.head_labels(px, py, *_head_arguments(part, ax, expected, anchors), lab)
     return runs, lab
 
 
