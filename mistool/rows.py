@@ -44,9 +44,13 @@ BASE_COLUMNS: tuple[str, ...] = ("frame", "time_s", "instrument", "part", *BOX_C
 
 #: No run of rows' cells yet (:meth:`RowBuilder._add_posed`).
 _NO_RUN: tuple[None, list[Any]] = (None, [])
-#: The row of :data:`~mistool.model.PARTS`' ``p``-th part in an instance's metric pose
-#: array (:func:`mistool.pose.measure.measure_rows`).
-_SLOT_OF_PART: tuple[int, ...] = tuple(SLOT_OF[part] for part in PARTS)
+#: Each of :data:`~mistool.model.PARTS`: its index, name, and its row in an instance's
+#: metric pose array (:func:`mistool.pose.measure.measure_rows`).
+_PART_ROWS: tuple[tuple[int, str, int], ...] = tuple(
+    (p, part, SLOT_OF[part]) for p, part in enumerate(PARTS)
+)
+#: Rows of an instance's metric pose array.
+_SLOTS_PER_INSTANCE = len(SLOTS)
 
 
 class RowBuilder:
@@ -84,7 +88,7 @@ class RowBuilder:
         # ``_row``, mistool.parallel.unpack_frames), each the array and the rows' indices
         # in it, or None and the rows' cells (a part without ``_row``: _row_cells)
         self._cells: list[tuple[np.ndarray | None, list[Any]]] = []
-        self._poses: list[np.ndarray] = []  # each frame's poses, (instances * 3, ROW_LEN)
+        self._poses: list[np.ndarray] = []  # each frame's poses, (instances, 3, ROW_LEN)
         self._picks: list[int] = []  # per row with a pose, its row in those stacked
         self._posed: list[int] = []  # and its row in the table
         self._stacked = 0  # rows of the poses so far
@@ -178,13 +182,17 @@ class RowBuilder:
         n0 = self._n
         insts, parts_of, cells = self._insts, self._parts, self._cells
         picks = self._picks
-        base = self._stacked
+        codes = self._codes
+        first = len(insts)
+        slot = self._stacked  # the instance's first row in the poses stacked
         src, at = cells[-1] if cells else _NO_RUN
-        for k, (name, inst) in enumerate(zip(names, instances, strict=True)):
-            code = self._code(str(name))
-            parts = inst.parts
-            for p, part in enumerate(PARTS):
-                obs = parts.get(part)
+        for name, inst in zip(names, instances, strict=True):
+            code = codes.get(name)  # (a name's code: :meth:`_code` of ``str(name)``)
+            if code is None or type(name) is not str:
+                code = self._code(str(name))
+            get = inst.parts.get
+            for p, part, k in _PART_ROWS:
+                obs = get(part)
                 if obs is not None:
                     insts.append(code)
                     parts_of.append(p)
@@ -199,8 +207,9 @@ class RowBuilder:
                             src, at = None, []
                             cells.append((src, at))
                         at.append(_row_cells(obs))
-                    picks.append(base + 3 * k + _SLOT_OF_PART[p])
-        added = len(insts) - len(self._frames)
+                    picks.append(slot + k)
+            slot += _SLOTS_PER_INSTANCE
+        added = len(insts) - first
         if not added:
             return
         self._frames.extend([index] * added)
@@ -208,8 +217,8 @@ class RowBuilder:
         if poses is None:
             del picks[len(picks) - added :]
         else:
-            self._poses.append(poses.reshape(-1, ROW_LEN))
-            self._stacked += len(poses) * len(SLOTS)
+            self._poses.append(poses)  # (stacked and reshaped together: _flush)
+            self._stacked += len(poses) * _SLOTS_PER_INSTANCE
             self._posed.extend(range(n0, n0 + added))
         if self._n - self._done >= FLUSH_ROWS:
             self._flush()
@@ -234,7 +243,7 @@ class RowBuilder:
             if plan is None:  # before self._num is read: it may grow
                 plan = self._plans[ROW_KEYS] = self._plan(ROW_KEYS)
             cols = np.arange(self._num.shape[1])[plan]
-            stacked = np.concatenate(self._poses)
+            stacked = np.concatenate(self._poses).reshape(-1, ROW_LEN)
             at = np.array(self._posed, np.int64)
             self._num[np.ix_(at, cols)] = stacked[self._picks]
         self._done = i1

@@ -10,6 +10,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -737,3 +738,72 @@ def test_the_head_kernels_looking_at_the_boxes_windows_count_every_pixel(seed, h
                 ij[:, 0].max() + 1,
                 ij[:, 1].max() + 1,
             ]
+
+
+@pytest.mark.parametrize(
+    "cost", [0.0, 1.5, 3.0, math.nextafter(3.0, 4.0), 3.5, -1.0, math.inf, -math.inf, math.nan]
+)
+def test_one_track_and_one_instance_are_paired_as_the_assignment_pairs_them(cost, monkeypatch):
+    """_match's shortcut for one track and one instance (the usual frame with one tool)
+    makes the pair exactly when :func:`gated_assignment` does: at the gate, beyond it,
+    non-finite."""
+    from mistool.assignment import gated_assignment
+
+    tracker = identity.IdentityTracker(_config())
+    rng = np.random.default_rng(0)
+    fr = identity._Frame(5, [_instance(rng)], [_track(rng)])
+    monkeypatch.setattr(tracker, "_costs", lambda fr: [[cost]])
+    tracker._match(fr)
+    want = {b: a for a, b in gated_assignment([[cost]], tracker._weights.max_cost)}
+    assert fr.owner == want
+    assert fr.owner == ({0: 0} if 0 <= cost <= 3.0 or cost < 0 and math.isfinite(cost) else {})
+
+
+def _tracks_state(tracker: identity.IdentityTracker) -> list[str]:
+    """Every field of every track, its motion's four floats included."""
+    return [
+        repr(t) + repr((t.motion.x, t.motion.y, t.motion.vx, t.motion.vy)) for t in tracker.tracks
+    ]
+
+
+def test_the_usual_frames_updates_are_the_general_loops(monkeypatch):
+    """_update_all's path for a frame with nothing split, hidden or handed over names the
+    instances and updates the tracks as the general loop does: two tools crossing (apart,
+    one blob split between them, apart again), one tool alone, one entering and one
+    leaving; both paths taken."""
+    from test_tracking import MERGED, crossing, frame
+
+    from mistool.tracking import observe_frame
+
+    frames = [[("A", (150.0 + 9 * k, 300.0), 60.0)] for k in range(8)]  # one tool
+    frames += crossing(40)  # two, crossing
+    frames += [[("B", (600.0 - 3 * k, 320.0), 120.0)] for k in range(6)]  # one left
+    observed = [observe_frame(frame(*[(t, a) for _, t, a in f]), MERGED) for f in frames]
+    general = identity.IdentityTracker._update_all_general
+    taken = {"usual": 0, "general": 0}
+
+    def counted(self, fr, handed):
+        taken["general"] += 1
+        return general(self, fr, handed)
+
+    def always_general(self, fr):
+        return general(self, fr, self._hand_over(fr))
+
+    results = []
+    in_usual = 0
+    for how in ("usual", "general"):
+        monkeypatch.setattr(identity.IdentityTracker, "_update_all_general", counted)
+        if how == "general":
+            monkeypatch.setattr(identity.IdentityTracker, "_update_all", always_general)
+        tracker = identity.IdentityTracker(MERGED)
+        out = []
+        for k, insts in enumerate(observed):
+            got, names = tracker.resolve(k, insts)
+            state = _tracks_state(tracker)
+            out.append((got is insts, [i.centroid_px for i in got], names, state))
+        results.append(out)
+        if how == "usual":
+            taken["usual"] = len(observed) - taken["general"]
+            in_usual = taken["general"]
+    assert results[0] == results[1]
+    assert taken["usual"] > 20 and in_usual > 5  # (the crossing's blob frames)

@@ -413,3 +413,23 @@ def test_rows_kept_in_lists_are_the_former_across_dict_frames_and_takes(frames, 
                 assert np.array_equal(g[c].view(np.int64), w[c].view(np.int64)), c
             else:
                 assert g[c].dtype == w[c].dtype and g[c].tolist() == w[c].tolist(), c
+
+
+def test_names_of_other_types_are_their_text() -> None:
+    """An instrument name given as another type (an int, numpy's str) is coded as its
+    ``str``: the same rows as the names given as text, with or without a pose, whichever
+    type comes first."""
+    from mistool.pose.measure import ROW_LEN
+
+    poses = np.arange(2 * 3 * ROW_LEN, dtype=np.float64).reshape(2, 3, ROW_LEN)
+    frames = [[1, "2"], [np.str_("1"), 2], ["1", np.int64(2)], [2, 1]]
+    got, want = RowBuilder(fps=5.0), RowBuilder(fps=5.0)
+    for k, names in enumerate(frames):
+        for rows, as_given in ((got, names), (want, [str(n) for n in names])):
+            rows.add_frame(k, as_given, [_inst(k), _inst(k + 1, ("clasper",))], poses)
+            rows.add_frame(k, as_given[:1], [_inst(k + 2)], None)
+    g, w = got.take(), want.take()
+    assert g.columns == w.columns
+    assert [type(n) for n in g["instrument"]] == [str] * g.num_rows
+    for c in g.columns:
+        assert np.array_equal(g[c], w[c], equal_nan=g[c].dtype == np.float64), c

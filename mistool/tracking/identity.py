@@ -567,6 +567,14 @@ def _fragment_of(t: Track, host: Track | None) -> bool:
     )
 
 
+def _some_longer(runs: Sequence[list[tuple[np.ndarray, int]]], n: int) -> bool:
+    """Whether some instance's list of border runs is longer than ``n``."""
+    for r in runs:
+        if len(r) > n:
+            return True
+    return False
+
+
 def _touches_border(inst: InstanceObservation) -> bool:
     """Whether the instance's bounds reach the image border."""
     if inst.image_shape is None:
@@ -788,7 +796,7 @@ class IdentityTracker:
             if fr.blob_of:
                 self._split_crossings(fr)
             # (the usual frame: no instance with two shafts entering, nothing to split)
-            if any(len(r) > 1 for r in runs) if runs is not None else True:
+            if runs is None or _some_longer(runs, 1):
                 self._split_entries(fr)
         return self._update_all(fr)
 
@@ -812,7 +820,14 @@ class IdentityTracker:
 
     def _match(self, fr: _Frame) -> None:
         """One gated assignment of live tracks to instances."""
-        fr.owner = {b: a for a, b in gated_assignment(self._costs(fr), self._weights.max_cost)}
+        cost = self._costs(fr)
+        if len(cost) == 1 and len(cost[0]) == 1:
+            # one track, one instance (the usual frame with one tool): the pair is made
+            # exactly when it passes the gate (:func:`gated_assignment`'s answer)
+            x = cost[0][0]
+            fr.owner = {0: 0} if math.isfinite(x) and x <= self._weights.max_cost else {}
+            return
+        fr.owner = {b: a for a, b in gated_assignment(cost, self._weights.max_cost)}
 
     def _costs(self, fr: _Frame) -> list[list[float]]:
         """The assignment's costs, a row per live track (:func:`_pair_cost`; ``inf``: an
@@ -1193,6 +1208,27 @@ class IdentityTracker:
     def _update_all(self, fr: _Frame) -> tuple[list[InstanceObservation], list[str]]:
         """Update the tracks, name new instances, coast the hidden tracks."""
         handed = self._hand_over(fr)
+        if handed or fr.pieces or fr.blob_of:
+            return self._update_all_general(fr, handed)
+        # (the usual frame: nothing split, hidden or handed over; what
+        # :meth:`_update_all_general` does then, in the same order)
+        owner, live, index = fr.owner, fr.live, fr.index
+        names: list[str] = []
+        for b, inst in enumerate(fr.instances):
+            a = owner.get(b)
+            if a is None:
+                names.append(self._new_track(inst, index).name)
+            else:
+                t = live[a]
+                self._update(t, inst, index, merged=False)
+                names.append(t.name)
+        return fr.instances, names
+
+    def _update_all_general(
+        self, fr: _Frame, handed: bool
+    ) -> tuple[list[InstanceObservation], list[str]]:
+        """:meth:`_update_all` after the hand-over (``handed``: whether it changed any
+        instance)."""
         out: list[InstanceObservation] = []
         names: list[str] = []
         for b, inst in enumerate(fr.instances):
