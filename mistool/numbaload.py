@@ -21,16 +21,19 @@ Any other object format (macOS, Windows), numba version or cache entry takes num
 own path.
 
 :func:`start_without_blas`, for mistool's own processes only (``mistool track`` and the
-workers' fork server), starts numba's CPU target without its check for a BLAS, which
-imports ``scipy.linalg`` (~0.14 s of the ~0.27 s numba's start takes on an idle core)
-only to learn whether ``np.dot`` could be compiled: no mistool kernel calls a BLAS
-(``kernels.split`` reproduces its rounding without it).
+workers' fork server), starts numba's CPU target with what loading cached kernels needs
+and no more: without its check for a BLAS, which imports ``scipy.linalg`` (~0.14 s of
+the ~0.27 s numba's start took on an idle core) only to learn whether ``np.dot`` could
+be compiled (no mistool kernel calls a BLAS; ``kernels.split`` reproduces its rounding
+without it), and without installing the implementations of all numba can compile
+(~0.1 s more), which loading machine code from the cache does not use.
 
 This module imports nothing at import time; its functions import numba.
 """
 
 from __future__ import annotations
 
+import importlib
 import struct
 import sys
 import threading
@@ -127,22 +130,58 @@ def install() -> None:
 
 
 def start_without_blas() -> None:
-    """Start numba's CPU target (as its first kernel load does) with ``scipy.linalg``
-    hidden, so that numba's check for a BLAS finds none instead of importing it;
-    ``scipy.linalg`` is importable again on return. In the process, numba then
-    compiles no ``np.dot``/``@`` (no mistool kernel uses them): call it only in
+    """Start numba's CPU target with only what loading its cached kernels needs, and
+    without its check for a BLAS; ``scipy.linalg`` stays importable. Call it only in
     mistool's own processes (a command, the workers' fork server), never from the
     library's API, so that a user's own numba code keeps its BLAS. Does nothing if
-    numba's target has started or ``scipy.linalg`` is imported (nothing to save)."""
+    numba's target has started or ``scipy.linalg`` is imported.
+
+    numba's first load of a cached kernel refreshes its target: it imports and installs
+    the implementations of everything numba can compile (~50 modules; its BLAS check
+    among them, which imports ``scipy.linalg``) and reads the installed packages' entry
+    points for numba extensions, ~0.25 s of a new process on an idle core, though a
+    kernel loaded from the cache is machine code that needs none of it. Here the target
+    starts with its runtime (numba's NRT, the symbols machine code links to) and the
+    modules whose import a cached kernel's environment or machine code needs
+    (``numba.np.arraymath``, with ``scipy.linalg`` hidden for its BLAS check, and the
+    hash secrets of ``numba.cpython.hashing``), and loading from the cache no longer
+    refreshes. Anything compiled later (a kernel missing from the cache, a user's
+    function) refreshes the target first, as numba's compiler always does, so it finds
+    every implementation as before; in the process, numba then compiles no
+    ``np.dot``/``@`` (no mistool kernel uses them). Where numba's cache has not the shape
+    this was written against, the target is refreshed at once instead (numba's own way,
+    still without the BLAS check)."""
     if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
         return
     install()
+    from numba.core import caching
     from numba.core.registry import cpu_target  # (numba imports scipy, not its linalg)
 
+    context = cpu_target.target_context  # (its start: the JIT, C helpers, math symbols)
+    cache = getattr(caching, "Cache", None)
+    lean = all(
+        hasattr(cache, name)
+        for name in ("load_overload", "_load_overload", "_guard_against_spurious_io_errors")
+    )
     hidden = "scipy.linalg"
     sys.modules[hidden] = None  # type: ignore[assignment]  # its import raises ImportError
     try:
-        cpu_target.target_context.refresh()  # imports numba.np.arraymath: its BLAS check
+        if lean:
+            from numba.core.runtime import rtsys
+
+            rtsys.initialize(context)
+            importlib.import_module("numba.np.arraymath")  # (its BLAS check, hidden)
+            importlib.import_module("numba.cpython.hashing")  # (its symbols)
+        else:
+            context.refresh()  # imports numba.np.arraymath: its BLAS check
     finally:
         if hidden in sys.modules and sys.modules[hidden] is None:
             del sys.modules[hidden]
+    if lean:
+
+        def load_overload(self: Any, sig: Any, target_context: Any) -> Any:
+            # numba's, without its refresh of the target
+            with self._guard_against_spurious_io_errors():
+                return self._load_overload(sig, target_context)
+
+        cache.load_overload = load_overload  # type: ignore[union-attr]

@@ -161,19 +161,91 @@ def test_numba_starts_without_scipy_linalg_which_stays_importable() -> None:
 def test_the_command_and_the_workers_never_import_scipy_linalg(tmp_path: Path) -> None:
     """``mistool track`` on a crossing sequence, and the workers' preload, in new
     processes: numba started without its BLAS check, nothing else needed SciPy's
-    linalg (the check is what imported it)."""
+    linalg (the check is what imported it); nor did they install the implementations
+    numba needs only to compile (its target was never refreshed), and the table is the
+    one this process (numba's own start, refreshed by the tests before) writes."""
+    from mistool.cli import main
+
     seq = tmp_path / "seq"
     synthesize(seq, frames=20, instruments=2, seed=4, force=True)
+    compile_only = "numba.np.polynomial.polynomial_core"  # imported by a refresh only
     command = (
         "import sys\n"
         "from mistool.cli import main\n"
         f"code = main(['track', {str(seq)!r}, '-o', {str(tmp_path / 'm.csv')!r}, '-q',"
         " '--workers', '1'])\n"
-        "print(code, 'scipy.linalg' in sys.modules)\n"
+        f"print(code, 'scipy.linalg' in sys.modules, {compile_only!r} in sys.modules)\n"
     )
-    preload = "import sys, mistool.kernels._worker; print('scipy.linalg' in sys.modules)"
+    preload = (
+        "import sys, mistool.kernels._worker\n"
+        f"print('scipy.linalg' in sys.modules, {compile_only!r} in sys.modules)"
+    )
     ran = subprocess.run([sys.executable, "-c", command], capture_output=True, text=True)
-    assert ran.stdout.split() == ["0", "False"], ran.stderr
-    assert (tmp_path / "m.csv").stat().st_size > 0
+    assert ran.stdout.split() == ["0", "False", "False"], ran.stderr
+    assert main(["track", str(seq), "-o", str(tmp_path / "here.csv"), "-q", "--workers", "1"]) == 0
+    assert (tmp_path / "m.csv").read_bytes() == (tmp_path / "here.csv").read_bytes()
+    assert (tmp_path / "m.csv").stat().st_size > 1000
     ran = subprocess.run([sys.executable, "-c", preload], capture_output=True, text=True)
-    assert ran.stdout.split() == ["False"], ran.stderr
+    assert ran.stdout.split() == ["False", "False"], ran.stderr
+
+
+_COMPILE_LATER = textwrap.dedent(
+    """
+    import sys
+    import numpy as np
+    from numba import njit
+    from mistool.numbaload import start_without_blas
+
+    start_without_blas()
+    from mistool.kernels import _load, split
+
+    _load(split.pairwise_sum)  # from the cache, the target not refreshed
+    before = "numba.np.polynomial.polynomial_core" in sys.modules
+
+    @njit
+    def counted(a):  # compiled here: numba's compiler refreshes the target first
+        seen = {a[0]: 0}
+        for v in a:
+            seen[v] = seen.get(v, 0) + 1
+        return len(seen), np.median(a), split.pairwise_sum(a, 4)
+
+    a = np.array([3.0, 1.0, 3.0, 2.0, 5.0])
+    n, med, total = counted(a)
+    after = "numba.np.polynomial.polynomial_core" in sys.modules
+    print(before, after, n, repr(float(med)), float(total) == float(np.add.reduce(a[:4])))
+    """
+)
+
+
+def test_a_function_compiled_after_the_lean_start_finds_every_implementation() -> None:
+    _warm("from mistool.kernels import _load, split; _load(split.pairwise_sum)")
+    out = subprocess.run(
+        [sys.executable, "-c", _COMPILE_LATER], check=True, capture_output=True, text=True
+    ).stdout.split()
+    assert out == ["False", "True", "4", "3.0", "True"]
+
+
+def test_every_kernel_loads_from_the_cache_after_the_lean_start() -> None:
+    """Every cached kernel's machine code finds the symbols it links to (a missing one
+    aborts the process) and the environment it needs, with the target never refreshed."""
+    code = textwrap.dedent(
+        """
+        import sys
+        from numba.core import base
+        from mistool.numbaload import start_without_blas
+
+        start_without_blas()
+        refreshed = []
+        base.BaseContext.refresh = lambda self: refreshed.append(self)
+        import mistool.kernels as kernels
+
+        names = kernels.warm()
+        print(len(names), len(refreshed))
+        """
+    )
+    _warm("import mistool.kernels as k; k.warm()")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    loaded, refreshed = map(int, out.stdout.split())
+    assert loaded >= 10
+    assert refreshed == 0
