@@ -15,7 +15,8 @@ once into ``--data`` and reused):
 - with ``--fresh``: the same metric runs, each in a new interpreter
   (``python -c "from mistool.cli import main; ..."``), as a user's one ``mistool track``
   command: start-up, imports and the worker processes' start included (the in-process
-  runs above start the fork server once, in their first run);
+  runs above start the fork server once, in their first run); mistool's bytecode is
+  compiled first where missing, as the set-up scripts do;
 - per stage, in one process (``--stages``): decode, instances (Algorithm 1 +
   grouping), identity (``IdentityTracker.resolve``, the crossing split included),
   metric pose (of the instances the identity step returns: a blob it splits is never
@@ -168,6 +169,19 @@ def stages(seq: Path, out: Path) -> dict[str, float]:
     write_csv(table, out)
     t["CSV"] = clock() - t0
     return {k: 1e3 * v / len(files) for k, v in t.items()}
+
+
+def compile_bytecode() -> None:
+    """Compile mistool's modules to bytecode where it is missing, as the set-up's warm
+    step does (``python -m mistool.kernels``) and as ``pip install`` does for an installed
+    package: a new interpreter then reads them compiled even where the environment says
+    not to write bytecode (``PYTHONDONTWRITEBYTECODE``, set on the machine these figures
+    come from)."""
+    import compileall
+
+    import mistool
+
+    compileall.compile_dir(str(Path(mistool.__file__).parent), quiet=2)
 
 
 def track_fresh(seq: Path, out: Path, workers: int) -> None:
@@ -452,6 +466,8 @@ def main(argv: list[str] | None = None) -> int:
             frames = args.frames
             if args.long:
                 seq, frames = ping_pong(seq, args.long), args.long
+            if args.fresh:
+                compile_bytecode()
             med = bench_case(name, seq, tmp, workers, args.runs, args.fresh)
             print_case(
                 f"{name} ({CASES[name]} instrument(s), merged labels)",
