@@ -152,7 +152,8 @@ _PART_INTS = 6  # part (index in PARTS), area, offset x, y, mask h, w
 def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
     """Several frames' results as a few flat values for pickling (a batch sent by a
     worker): every number in one integer and one float table per level (frame,
-    instance, part), the masks' bits in one buffer (each frame's from a byte boundary),
+    instance, part), the masks' bits in one buffer (each part's ``np.packbits`` of its
+    mask, from a byte boundary: a fitted part's as the kernel set them from its runs),
     the unknown values, border runs and metric poses concatenated; the labels as they
     are. :func:`unpack_frames` gives the same results back."""
     frames: list[tuple[int, ...]] = []
@@ -185,7 +186,6 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
         unknown.append(r.unknown)
         if metrics is not None:
             poses.append(metrics)
-        bits = 0
         for inst in instances:
             shape = inst.image_shape
             parts = inst.parts
@@ -198,10 +198,11 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
                 part_i += (code[name], p.area_px, *p.offset, *mask.shape)
                 part_f += (b.cx, b.cy, b.length, b.width, b.angle_deg)
                 corners.append(p.corners)
-                masks.append(mask.reshape(-1))
-                bits += mask.size
-        if bits % 8:  # the next frame's bits from a byte boundary
-            masks.append(_PAD[8 - bits % 8])
+                packed = p.__dict__.get("_bits")  # (the fit's, set from its runs)
+                if packed is not None and packed[0] is mask:
+                    masks.append(packed[1])
+                else:
+                    masks.append(np.packbits(mask.reshape(-1)))
         if border:
             for runs in border:
                 run_counts.append(len(runs))
@@ -215,7 +216,7 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
         np.array(part_i, np.int64).reshape(-1, _PART_INTS),
         np.array(part_f, np.float64).reshape(-1, 5),
         np.concatenate(corners).reshape(-1, 4, 2) if corners else np.zeros((0, 4, 2)),
-        np.packbits(np.concatenate(masks)) if masks else np.zeros(0, np.uint8),
+        np.concatenate(masks) if masks else np.zeros(0, np.uint8),
         labels,
         np.concatenate(poses) if poses else _NO_POSES,
         np.concatenate(unknown).astype(np.int64) if unknown else np.zeros(0, np.int64),
@@ -225,8 +226,6 @@ def pack_frames(results: list[FrameResult]) -> tuple[Any, ...]:
     )
 
 
-#: A frame's last mask bits padded to a byte boundary: ``_PAD[k]`` is k zero bits.
-_PAD = [np.zeros(k, np.bool_) for k in range(8)]
 _NO_ENDS = np.zeros((0, 3, 2))
 
 
@@ -337,7 +336,7 @@ def _mask_bits(
     frames: np.ndarray, inst_i: np.ndarray, part_i: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per part of a packed batch: the first bit of its mask in the bits' buffer (each
-    frame's from a byte boundary, as :func:`pack_frames` packs them), and the bytes
+    part's from a byte boundary, as :func:`pack_frames` packs them), and the bytes
     unpacked at once to read it (:func:`unpack_frames`; empty when it is not): a
     deferred frame's all (each of its parts' masks is read), a head part's own in a
     frame with two instances or more."""
@@ -347,18 +346,14 @@ def _mask_bits(
     np.cumsum(inst_i[:, 8], out=part_end[1:])
     first = part_end[inst_end - counts]  # each frame's first part
     parts = part_end[inst_end] - first  # and its number of parts
-    size_end = np.zeros(len(part_i) + 1, np.int64)
-    np.cumsum(part_i[:, 4] * part_i[:, 5], out=size_end[1:])
-    nbits = size_end[first + parts] - size_end[first]
-    nbytes = -(-nbits // 8)
-    frame_at = 8 * (np.cumsum(nbytes) - nbytes)
+    byte_end = np.zeros(len(part_i) + 1, np.int64)  # each part's bytes end (from 1)
+    np.cumsum(-(-(part_i[:, 4] * part_i[:, 5]) // 8), out=byte_end[1:])
     of = np.repeat(np.arange(len(frames)), parts)  # each part's frame
-    at = frame_at[of] + size_end[:-1] - size_end[first][of]
+    at = 8 * byte_end[:-1]
     deferred = frames[of, 4] != 0
     head = ~deferred & (counts[of] > 1) & (part_i[:, 0] != _SHAFT)
-    start = frame_at // 8  # each frame's first byte
-    lo = np.where(deferred, start[of], at // 8)
-    hi = np.where(deferred, (start + nbytes)[of], -(-(at + size_end[1:] - size_end[:-1]) // 8))
+    lo = np.where(deferred, byte_end[first][of], byte_end[:-1])
+    hi = np.where(deferred, byte_end[first + parts][of], byte_end[1:])
     hi[~(deferred | head)] = lo[~(deferred | head)]
     return at, lo, hi
 

@@ -228,8 +228,10 @@ def test_fit_of_selected_runs_is_fit_part_of_their_pixels(seed, min_area):
 @settings(max_examples=300, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([0, 1, 20, 300]), st.integers(1, 3))
 def test_fit_parts_is_each_parts_fit_and_make_instance(seed, min_area, n_parts):
-    """fit_parts (one call per instance): each part is fit_selected of its range, and the
-    instance's centroid, area and bounds are make_instance's of those parts, bit for bit."""
+    """fit_parts (one call per instance): each part is fit_selected of its range, its
+    packed bits are ``np.packbits`` of its crop (specks dropped within its bounds
+    included: min_area 20, 300), and the instance's centroid, area and bounds are
+    make_instance's of those parts, bit for bit."""
     rng = np.random.default_rng(seed)
     img = _label_image(rng, np.uint8, [10, 11, 20, 30])
     bounds = foreground(img)
@@ -242,9 +244,12 @@ def test_fit_parts_is_each_parts_fit_and_make_instance(seed, min_area, n_parts):
     ranges = np.array([sorted(rng.integers(0, 40, 2).tolist()) for _ in range(n_parts)], np.int64)
     if rng.random() < 0.5:
         ranges[0] = (10, 11)
-    info, boxes, corners, crops, centroid, got_bounds = fit_parts(
+    info, boxes, corners, crops, centroid, got_bounds, bits = fit_parts(
         ry, rx0, rx1, rv, label, n, ranges, members, min_area, x, y
     )
+    for k in range(3):
+        assert bits[k].dtype == np.uint8
+        assert np.array_equal(bits[k], np.packbits(crops[k].reshape(-1)))
     parts = {}
     for k, (lo, hi) in enumerate(ranges.tolist()):
         fit, kept, box, corner = fit_selected(
@@ -577,7 +582,7 @@ def _poses(rng: np.random.Generator, n: int) -> np.ndarray | None:
 @given(st.integers(0, 2**32 - 1), st.booleans(), st.integers(1, 4))
 def test_a_batch_of_frame_results_unpickles_to_the_same_values(seed, own, frames):
     """What a worker sends (a batch's numbers in flat tables, its masks as bits, each
-    frame's from a byte boundary) unpickles to the same results, frame by frame: every
+    part's from a byte boundary) unpickles to the same results, frame by frame: every
     instance, value, dtype, shape and mask (masks C-contiguous bool), the unknown
     values, border runs, flags; one result pickled alone too."""
     import pickle

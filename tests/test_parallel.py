@@ -880,6 +880,45 @@ def test_a_mask_the_identity_step_seldom_reads_is_unpacked_at_its_first_use() ->
         assert p.mask is p.mask  # unpacked once
 
 
+def test_a_fitted_parts_mask_is_sent_as_the_bits_the_kernel_set(crossing: Path) -> None:
+    """A worker sends a fitted part's mask as the bits ``fit_parts`` set from its runs
+    (the part's ``_bits``: no ``packbits`` of the mask again), each part's from a byte
+    boundary; a part whose mask is not the one those bits were set for (replaced) is
+    packed from its mask. Either way the caller unpacks the worker's masks."""
+    seq = open_sequence(crossing)
+    sent = []
+    for _, _, labels in seq:
+        r = parallel.observe_labels(labels, seq.config, False)
+        if r.instances:  # (frames with instruments in view)
+            sent.append(r)
+        if len(sent) == 8:
+            break
+    parts = [p for r in sent for i in r.instances for p in i.parts.values()]
+    assert len(parts) >= 8
+    for p in parts:
+        mask, bits = p.__dict__["_bits"]
+        assert mask is p.mask and np.array_equal(bits, np.packbits(p.mask.reshape(-1)))
+    # the bits sent are those arrays: marked ones come out of the batch's buffer
+    marked = parts[0]
+    mask, bits = marked.__dict__["_bits"]
+    mark = np.full_like(bits, 0xA5)
+    marked.__dict__["_bits"] = (mask, mark)
+    buffer = parallel.pack_frames(sent)[6]
+    size = [-(-p.mask.size // 8) for p in parts]
+    assert buffer.dtype == np.uint8 and len(buffer) == sum(size)
+    assert np.array_equal(buffer[: size[0]], mark)
+    # a replaced mask: packed from it (the stale bits are not sent)
+    other = parts[1]
+    flipped = ~other.mask
+    other.__dict__["mask"] = flipped
+    marked.__dict__["_bits"] = (mask, bits)
+    got = parallel.unpack_frames(parallel.pack_frames(sent))
+    back = [p for r in got for i in r.instances for p in i.parts.values()]
+    assert np.array_equal(back[1].mask, flipped)
+    for p, q in zip(back, parts, strict=True):
+        assert np.array_equal(p.mask, q.mask) and p.mask.shape == q.mask.shape
+
+
 def test_unpacked_parts_carry_their_rows_cells_and_checked_values() -> None:
     """Each part a batch unpacks to carries its row's box cells (``_row``: the batch's
     cells, made at once, and its row there, what ``mistool.rows`` writes) equal to those

@@ -514,7 +514,7 @@ def _select(
 
 _PARTS = (
     "Tuple((int64[:, ::1], float64[:, ::1], float64[:, :, ::1], UniTuple(boolean[:, ::1], 3), "
-    "UniTuple(float64, 2), UniTuple(int64, 6)))"
+    "UniTuple(float64, 2), UniTuple(int64, 6), UniTuple(uint8[::1], 3)))"
 )
 
 
@@ -539,20 +539,22 @@ def fit_parts(
     inclusive) and the instance they make, in one call.
 
     Returns:
-        ``(info, boxes, corners, crops, centroid, bounds)``: ``info`` (P, 5) int64: each
+        ``(info, boxes, corners, crops, centroid, bounds, bits)``: ``info`` (P, 5) int64: each
         part's area (0: no pixel kept), crop offset (x, y) in the image, crop height and
         width; ``boxes`` (P, 5) and ``corners`` (P, 4, 2): its box (``fit_selected``'s);
         ``crops``: its kept pixels' crop (three, (0, 0) past P or when empty);
         ``centroid``: (x, y) of the parts' pixels together, summed as
         ``tracking.instances.make_instance`` sums them (part by part, in float64);
         ``bounds``: (parts with pixels, their pixels, x, y, w, h of their crops'
-        union).
+        union); ``bits``: each crop's ``np.packbits(crop.reshape(-1))``, set from its
+        runs (:func:`_packed_crop`: what a worker sends of the mask, no bool pass).
     """
     p_count = ranges.shape[0]
     info = np.zeros((p_count, 5), np.int64)
     boxes = np.zeros((p_count, 5))
     corners = np.zeros((p_count, 4, 2))
     crop0 = crop1 = crop2 = np.zeros((0, 0), np.bool_)
+    bits0 = bits1 = bits2 = np.zeros(0, np.uint8)
     total = 0
     sx = sy = 0.0
     x0 = y0 = 1 << 62
@@ -577,12 +579,13 @@ def fit_parts(
         for a in range(4):
             corners[k, a, 0] = corner[a, 0]
             corners[k, a, 1] = corner[a, 1]
+        bits = _packed_crop(sel_y, sel_x0, sel_x1, m, crop, fit[1], fit[2])
         if k == 0:
-            crop0 = crop
+            crop0, bits0 = crop, bits
         elif k == 1:
-            crop1 = crop
+            crop1, bits1 = crop, bits
         else:
-            crop2 = crop
+            crop2, bits2 = crop, bits
         total += area
         sx += np.float64(fit[3]) + np.float64(px * area)
         sy += np.float64(fit[4]) + np.float64(py * area)
@@ -590,10 +593,41 @@ def fit_parts(
         x1, y1 = max(x1, px + w), max(y1, py + h)
         found += 1
     crops = (crop0, crop1, crop2)
+    packed = (bits0, bits1, bits2)
     if found == 0:
-        return info, boxes, corners, crops, (0.0, 0.0), (0, 0, 0, 0, 0, 0)
+        return info, boxes, corners, crops, (0.0, 0.0), (0, 0, 0, 0, 0, 0), packed
     bounds = (found, total, x0, y0, x1 - x0, y1 - y0)
-    return info, boxes, corners, crops, (sx / total, sy / total), bounds
+    return info, boxes, corners, crops, (sx / total, sy / total), bounds, packed
+
+
+@helper
+def _packed_crop(
+    ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, m: int, crop: np.ndarray, x0: int, y0: int
+) -> np.ndarray:
+    """``np.packbits(crop.reshape(-1))`` of a crop painted from runs ``0 .. m - 1`` (in
+    the runs' coordinates its top-left pixel is ``(x0, y0)``): each run whose first
+    pixel the crop holds (a kept run: runs never share a pixel, so a dropped speck's run
+    has none painted) sets its bits, whole bytes at once, without reading the crop's
+    other pixels."""
+    kh, kw = crop.shape
+    out = np.zeros((kh * kw + 7) // 8, np.uint8)
+    for i in range(m):
+        y = ry[i] - y0
+        a = rx0[i] - x0
+        if y < 0 or y >= kh or a < 0 or a >= kw or not crop[y, a]:
+            continue
+        s = np.int64(y) * kw + a
+        e = s + (rx1[i] - rx0[i])
+        while s < e and (s & 7) != 0:
+            out[s >> 3] |= np.uint8(0x80 >> (s & 7))
+            s += 1
+        while s + 8 <= e:
+            out[s >> 3] = np.uint8(0xFF)
+            s += 8
+        while s < e:
+            out[s >> 3] |= np.uint8(0x80 >> (s & 7))
+            s += 1
+    return out
 
 
 @kernel("int32[:, ::1](int32[::1], int32[::1], int32[::1], int32[::1], int64, int64, int64)")

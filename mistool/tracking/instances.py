@@ -319,14 +319,16 @@ def _fit_instance(
     instance they make (:func:`make_instance`'s centroid and bounds), in one compiled
     call (:func:`mistool.kernels.instances.fit_parts`); None when no pixel is left."""
     fx, fy = runs.bounds[0], runs.bounds[1]
-    info, boxes, corners, crops, centroid, (found, area, x, y, w, h) = _kernels().fit_parts(
+    info, boxes, corners, crops, centroid, (found, area, x, y, w, h), bits = _kernels().fit_parts(
         runs.ry, runs.rx0, runs.rx1, runs.rv, label, runs.n, ranges, members, min_area, fx, fy
     )
     if found == 0:
         return None
     # the frozen dataclasses made by filling their dicts: their __init__ sets each field
     # through object.__setattr__ (~5 us a frame of two instruments); the box's checks
-    # are kept (RotatedBox raises as before)
+    # are kept (RotatedBox raises as before). A part also keeps its mask's packed bits
+    # (``_bits``: the mask and ``np.packbits`` of it, set by the kernel from the runs),
+    # which a worker sends (``parallel.pack_frames``) instead of packing the mask again.
     fits = {}
     for k, ((size, px, py, _, _), box) in enumerate(
         zip(info.tolist(), boxes.tolist(), strict=True)
@@ -339,9 +341,10 @@ def _fit_instance(
             rbox = _new(RotatedBox)
             rbox.__dict__.update(cx=cx, cy=cy, length=length, width=width, angle_deg=angle)
             obs = _new(PartObservation)
+            mask = crops[k]
             obs.__dict__.update(
-                part=part, box=rbox, corners=corners[k], area_px=size, mask=crops[k],
-                offset=(px, py),
+                part=part, box=rbox, corners=corners[k], area_px=size, mask=mask,
+                offset=(px, py), _bits=(mask, bits[k]),
             )  # fmt: skip
             fits[part] = obs
     inst = _new(InstanceObservation)
