@@ -607,8 +607,9 @@ def _packed_crop(
     """``np.packbits(crop.reshape(-1))`` of a crop painted from runs ``0 .. m - 1`` (in
     the runs' coordinates its top-left pixel is ``(x0, y0)``): each run whose first
     pixel the crop holds (a kept run: runs never share a pixel, so a dropped speck's run
-    has none painted) sets its bits, whole bytes at once, without reading the crop's
-    other pixels."""
+    has none painted) sets its bits (pixel ``k`` is bit ``0x80 >> k % 8`` of byte
+    ``k // 8``): its first and last bytes' by a mask each, the whole bytes between at
+    once, without reading the crop's other pixels."""
     kh, kw = crop.shape
     out = np.zeros((kh * kw + 7) // 8, np.uint8)
     for i in range(m):
@@ -618,15 +619,17 @@ def _packed_crop(
             continue
         s = np.int64(y) * kw + a
         e = s + (rx1[i] - rx0[i])
-        while s < e and (s & 7) != 0:
-            out[s >> 3] |= np.uint8(0x80 >> (s & 7))
-            s += 1
-        while s + 8 <= e:
-            out[s >> 3] = np.uint8(0xFF)
-            s += 8
-        while s < e:
-            out[s >> 3] |= np.uint8(0x80 >> (s & 7))
-            s += 1
+        first, last = s >> 3, e >> 3
+        head = np.uint8(0xFF >> (s & 7))  # bits s % 8 .. 7 of the first byte
+        tail = np.uint8(0xFF ^ (0xFF >> (e & 7)))  # bits 0 .. e % 8 - 1 of the last
+        if first == last:
+            out[first] |= head & tail
+            continue
+        out[first] |= head
+        for j in range(np.uint64(first + 1), np.uint64(last)):  # (unsigned: a memset)
+            out[j] = 0xFF
+        if tail:
+            out[last] |= tail
     return out
 
 
