@@ -818,3 +818,31 @@ def test_a_head_box_spanning_two_tools_heads_is_no_part_of_a_tools_shape():
     got_a, got_b = split_pieces(pixels, fit, 20)
     assert "clasper" not in got_a.parts
     assert got_b.parts["clasper"].area_px >= 0.99 * 40 * 20
+
+
+def test_a_head_box_over_another_tracks_remembered_head_is_no_part_of_a_tools_shape():
+    """Tool A (80 px shaft from the top) and tool B (from the left, its jaws 20 px
+    below A's) seen apart; in the next frame B is not seen and one jaws strip runs down
+    A's axis over where B's jaws were: A's jaws box is 200 px long (2.5 widths: under
+    HEAD_LENGTH_WIDTHS, over HEAD_OVER_OTHER_WIDTHS) and holds B's remembered jaws. A's
+    shape for the splits leaves that box out (its wrist bounds its head's reach); the
+    same box with no other track's head in it is kept (the only bound of a long head)."""
+    a = [((280, 0, 360, 200), 10), ((290, 200, 350, 240), 20)]  # A's shaft, wrist
+    b = [((0, 400, 250, 430), 10), ((250, 395, 290, 435), 20), ((290, 400, 330, 430), 30)]
+    short, long = ((305, 240, 335, 380), 30), ((305, 240, 335, 440), 30)
+
+    def a_after(first: list[tuple[tuple[int, int, int, int], int]]) -> dict[str, RotatedBox]:
+        tracker = IdentityTracker(MERGED)
+        tracker.resolve(0, observe_frame(_paint(first), MERGED))
+        (inst,) = observe_frame(_paint([*a, long]), MERGED)
+        assert inst.parts["clasper"].box.length == pytest.approx(200.0)
+        tracker.resolve(1, [inst])
+        (t,) = [t for t in tracker.tracks if t.last_frame == 1]
+        assert t.boxes_frame == 1
+        e = tracker._expected_boxes(t, 1, 5)
+        assert e is not None and e["wrist"] == inst.parts["wrist"].box
+        return e
+
+    assert len(observe_frame(_paint([*a, short, *b]), MERGED)) == 2  # seen apart
+    assert set(a_after([*a, short, *b])) == {"shaft", "wrist"}
+    assert set(a_after([*a, short])) == {"shaft", "wrist", "clasper"}

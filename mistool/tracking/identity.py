@@ -114,6 +114,14 @@ HEAD_JUMP_WIDTHS = 1.0
 #: track's velocity (for at most :data:`SPLIT_STOP_FRAMES`), when heads are handed back
 #: to their own tool (:func:`~mistool.tracking.heads.hand_over_heads`).
 HEAD_MEMORY_FRAMES = 10
+#: A reference head part longer than this many of its shaft's widths is no part of its
+#: tool's shape (:func:`_one_tools_heads`) when another track's head, remembered
+#: within :data:`HEAD_MEMORY_FRAMES` frames of the reference, lies in its box: the box
+#: spans that tool's head too (held-out seed 19 frame 50: a 215 x 40 px jaws box, 2.9
+#: widths, over both tools' jaws). Without another head in it, such a box is kept: a
+#: wrist alone reaches too short there (seed 2 and two-tool seed 2 fell with a cap of 2
+#: widths on every long box).
+HEAD_OVER_OTHER_WIDTHS = 2.0
 #: A track seen for at most this many frames, never with a shaft, found hidden in the
 #: blob of an older track that could not be split, was a piece of it (absorbed); at the
 #: image border only if both were first seen in the same frame (see :func:`_fragment_of`).
@@ -231,7 +239,8 @@ class Track:
         """Last part boxes seen apart from others (with a shaft), at :attr:`boxes_frame`:
         the instance's :func:`~mistool.tracking.split.reference_boxes`, made at their
         first read (:meth:`set_boxes_from`: a track is updated every frame, its boxes
-        read only when it is split from a blob)."""
+        read only when it is split from a blob; the tracker makes them with
+        :meth:`make_boxes`, which knows the other tracks' heads)."""
         source = self._boxes_from
         if source is not None:
             self._boxes, self._boxes_from = _one_tools_heads(reference_boxes(*source)), None
@@ -245,6 +254,19 @@ class Track:
     def has_boxes(self) -> bool:
         """Whether :attr:`boxes` is not None (without making them)."""
         return self._boxes_from is not None or self._boxes is not None
+
+    @property
+    def boxes_pending(self) -> bool:
+        """Whether :attr:`boxes` are still to be made (:meth:`make_boxes`)."""
+        return self._boxes_from is not None
+
+    def make_boxes(self, other_heads: Sequence[tuple[float, float]]) -> None:
+        """Make :attr:`boxes` now, with the centres of the other tracks' heads remembered
+        near :attr:`boxes_frame` (:func:`_one_tools_heads`)."""
+        source = self._boxes_from
+        if source is not None:
+            boxes = _one_tools_heads(reference_boxes(*source), other_heads)
+            self._boxes, self._boxes_from = boxes, None
 
     def set_boxes_from(
         self, inst: InstanceObservation, runs: list[tuple[np.ndarray, int]], frame: int
@@ -281,7 +303,9 @@ class Track:
         return self.motion.predict_xy(self.predict_steps(frame))
 
 
-def _one_tools_heads(boxes: dict[str, RotatedBox]) -> dict[str, RotatedBox]:
+def _one_tools_heads(
+    boxes: dict[str, RotatedBox], other_heads: Sequence[tuple[float, float]] = ()
+) -> dict[str, RotatedBox]:
     """A reference shape without its head parts longer than :data:`HEAD_LENGTH_WIDTHS`
     of its shaft's widths (the farthest a split lets a head reach beyond its shaft),
     when another head part is left: such a box spans two tools' heads (jaws touching
@@ -289,13 +313,36 @@ def _one_tools_heads(boxes: dict[str, RotatedBox]) -> dict[str, RotatedBox]:
     seen apart), and would give the tool that whole reach in every split (the head
     segments of :func:`~mistool.tracking.split.fit_split`), taking the other tools'
     heads with it; the part left bounds the reach to its own extent. (With no head part
-    left, the split would reach as far and lose the shaft's distal side: kept.)"""
+    left, the split would reach as far and lose the shaft's distal side: kept.) Then,
+    on what is left and on the same terms, without its head parts longer than
+    :data:`HEAD_OVER_OTHER_WIDTHS` with one of ``other_heads`` (the centres of other
+    tracks' heads remembered near the reference's frame) in their box."""
     shaft = boxes.get("shaft")
     if shaft is None:
         return boxes
     reach = HEAD_LENGTH_WIDTHS * shaft.width
     out = {p: b for p, b in boxes.items() if p == "shaft" or max(b.length, b.width) <= reach}
+    if len(out) != len(boxes) and len(out) >= 2:
+        boxes = out
+    if not other_heads:
+        return boxes
+    near = HEAD_OVER_OTHER_WIDTHS * shaft.width
+    out = {
+        p: b
+        for p, b in boxes.items()
+        if p == "shaft"
+        or max(b.length, b.width) <= near
+        or not any(_holds(b, x, y) for x, y in other_heads)
+    }
     return boxes if len(out) == len(boxes) or len(out) < 2 else out
+
+
+def _holds(box: RotatedBox, x: float, y: float) -> bool:
+    """Whether the point (x, y) lies in the rotated box (its edges included)."""
+    t = math.radians(box.angle_deg)
+    c, s = math.cos(t), math.sin(t)
+    dx, dy = x - box.cx, y - box.cy
+    return abs(dx * c + dy * s) <= 0.5 * box.length and abs(dy * c - dx * s) <= 0.5 * box.width
 
 
 def _head_jumped(t: Track, inst: InstanceObservation, frame: int) -> bool:
@@ -970,6 +1017,8 @@ class IdentityTracker:
         there are none, or the track was last seen apart without a shaft for more than
         :data:`LOST_AFTER_FRAMES` frames in a row (its shaft left the view: they are
         stale)."""
+        if t.boxes_pending:
+            t.make_boxes(self._other_heads(t, t.boxes_frame))
         boxes = t.boxes
         if boxes is None or t.shaftless > LOST_AFTER_FRAMES:
             return None
@@ -992,6 +1041,17 @@ class IdentityTracker:
             )
             for p, b in boxes.items()
         }
+
+    def _other_heads(self, t: Track, frame: int) -> list[tuple[float, float]]:
+        """Centres of the head boxes the other tracks remember (:attr:`Track.heads`)
+        from within :data:`HEAD_MEMORY_FRAMES` frames of ``frame``."""
+        return [
+            (b.cx, b.cy)
+            for o in self._tracks
+            if o is not t
+            for b, seen in o.heads.values()
+            if abs(seen - frame) <= HEAD_MEMORY_FRAMES
+        ]
 
     def _split_crossings(self, fr: _Frame) -> None:
         """Crossing handler: each blob holding hidden tracks split between its tracks.
