@@ -1159,6 +1159,11 @@ class IdentityTracker:
                 if not fr.blob_of[b2]:
                     del fr.blob_of[b2]
             by_piece = {c: fr.live[cands[r]] for r, c in pairs}
+            if len(by_piece) == len(got):  # no new tool: the crossing split may do better
+                order = [by_piece[c] for c in range(len(got))]
+                redone = self._heads_given_away(fr.index, inst, got, order)
+                if redone is not None:
+                    got, by_piece = redone[0], dict(enumerate(redone[1]))
             tracks = []
             for c, piece in enumerate(got):
                 t = by_piece.get(c)
@@ -1172,6 +1177,43 @@ class IdentityTracker:
                     self._hide(fr.live[a], fr.index)
             fr.pieces[b] = got
             fr.piece_tracks[b] = tracks
+
+    def _heads_given_away(
+        self,
+        frame: int,
+        inst: InstanceObservation,
+        pieces: list[InstanceObservation],
+        tracks: list[Track],
+    ) -> tuple[list[InstanceObservation], list[Track]] | None:
+        """An entry split whose pieces all went to known tracks (``tracks[k]`` takes
+        ``pieces[k]``), redone by the crossing split when it left a tool without a head
+        (no wrist, no jaws) while its reference shape has one, and the crossing split
+        (:meth:`_split_blob`, on the tracks' reference shapes) gives each such tool head
+        pixels: ``(pieces, tracks)``, else None (the entry split stands).
+
+        The entry split cuts along half-lines from the border and gives each head pixel
+        to the nearest; two tools' heads meeting in the blob mostly went to one of them
+        (twox s1 frames 119-128: the other's shaft ran on through both heads to the far
+        border), and that tool's head was still in view in nearly every such frame
+        (``mask_areas.csv``). The crossing split places each head by its tool's
+        reference shape (:func:`~mistool.tracking.split.split_with_heads`); its pieces
+        are then updated as the entry split's would have been."""
+        bare = [
+            t
+            for t, p in zip(tracks, pieces, strict=True)
+            if not any(h in p.parts for h in HEAD_PARTS)
+            and (boxes := t.boxes) is not None
+            and any(h in boxes for h in HEAD_PARTS)
+        ]
+        if not bare:
+            return None
+        got = self._split_blob(frame, tracks, BlobPixels(inst), set())
+        if got is None:
+            return None
+        for t, piece in zip(got[1], got[0], strict=True):
+            if any(t is u for u in bare) and not any(h in piece.parts for h in HEAD_PARTS):
+                return None
+        return got
 
     def _entry_split(
         self,
