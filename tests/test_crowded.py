@@ -846,3 +846,61 @@ def test_a_head_box_over_another_tracks_remembered_head_is_no_part_of_a_tools_sh
     assert len(observe_frame(_paint([*a, short, *b]), MERGED)) == 2  # seen apart
     assert set(a_after([*a, short, *b])) == {"shaft", "wrist"}
     assert set(a_after([*a, short])) == {"shaft", "wrist", "clasper"}
+
+
+def _facing(bx: int, a: bool = True, b: bool = True, heads: tuple[bool, bool] = (True, True)):
+    """A (wide) from the left along row 200: shaft to x 400, wrist, jaws to 470; B from
+    the right along the same row: jaws from ``bx``, wrist, shaft from ``bx + 70``."""
+    img = np.zeros(SHAPE, np.uint8)
+    if a:
+        img[160:240, 0:400] = 10
+    if heads[0]:
+        img[178:222, 400:440] = 20
+        img[190:210, 440:470] = 30
+    if b:
+        img[180:220, bx + 70 :] = 10
+    if heads[1]:
+        img[182:218, bx + 30 : bx + 70] = 20
+        img[192:208, bx : bx + 30] = 30
+    return img
+
+
+def _after_entry_split(b_head_in_view: bool) -> dict[str, dict[str, int]]:
+    """Two tools on one line seen apart, their jaws meeting in frame 7 (one blob, B too
+    small a part of it to be looked for inside: the entry handler splits it), the split on
+    entries giving A both heads and B its shaft alone (its half-line ran on through the
+    heads, as in twox s1 frames 119-128; stood in for here). Each name's part areas."""
+    tracker = IdentityTracker(MERGED)
+    for f, bx in enumerate(range(540, 470, -10)):
+        tracker.resolve(f, observe_frame(_facing(bx), MERGED))
+    (blob,) = observe_frame(_facing(470, heads=(True, b_head_in_view)), MERGED)
+    (a,) = observe_frame(_facing(470, b=False, heads=(True, b_head_in_view)), MERGED)
+    (b,) = observe_frame(_facing(470, a=False, heads=(False, False)), MERGED)
+
+    def entry_split(inst, runs, entries):  # type: ignore[no-untyped-def]
+        assert inst is blob and len(entries) == 2
+        return [a if e[0][0] < SHAPE[1] / 2 else b for e in entries]
+
+    tracker._entry_split = entry_split  # type: ignore[method-assign]
+    insts, names = tracker.resolve(7, [blob])
+    pairs = zip(names, insts, strict=True)
+    return {n: {p: o.area_px for p, o in i.parts.items()} for n, i in pairs}
+
+
+def test_an_entry_split_leaving_a_tools_head_with_another_is_redone_by_the_crossing_split():
+    """The split on entries left B (known, its reference shape with a wrist and jaws)
+    headless and gave A both heads: the crossing split on the tools' reference shapes
+    is taken instead, and B gets head pixels where its head lies (most of its 40 x 36
+    wrist); A keeps its shaft."""
+    got = _after_entry_split(b_head_in_view=True)
+    assert got["1"]["shaft"] == 80 * 400 and got["2"]["shaft"] == 40 * 180
+    assert got["2"].get("wrist", 0) > 0.8 * 40 * 36
+    assert got["1"]["wrist"] < 44 * 40 + 0.2 * 40 * 36
+
+
+def test_an_entry_split_is_kept_when_the_headless_tools_head_is_not_in_the_blob():
+    """The same blob with B's head out of view: the crossing split finds no head for B,
+    the split on entries stands."""
+    got = _after_entry_split(b_head_in_view=False)
+    assert got["2"] == {"shaft": 40 * 180}
+    assert got["1"] == {"shaft": 80 * 400, "wrist": 44 * 40, "clasper": 20 * 30}
