@@ -904,3 +904,38 @@ def test_an_entry_split_is_kept_when_the_headless_tools_head_is_not_in_the_blob(
     got = _after_entry_split(b_head_in_view=False)
     assert got["2"] == {"shaft": 40 * 180}
     assert got["1"] == {"shaft": 80 * 400, "wrist": 44 * 40, "clasper": 20 * 30}
+
+
+def test_a_redone_entry_pieces_shape_follows_its_tool_still_entering():
+    """B's shape from the redone entry split above (its shaft entering, its head found
+    by the crossing split) is renewed from a later two-tool crossing piece that shows
+    its shaft grown (B still entering: 4-e17-occ-s4-150 frames 39-60, where the frozen
+    256 px shape put B's wrist 150 px short and it took A's); a piece no longer than
+    the shape, or a headless one, leaves the shape as it was."""
+    tracker = IdentityTracker(MERGED)
+    for f, bx in enumerate(range(540, 470, -10)):
+        tracker.resolve(f, observe_frame(_facing(bx), MERGED))
+    (blob,) = observe_frame(_facing(470), MERGED)
+    (a,) = observe_frame(_facing(470, b=False), MERGED)
+    (b,) = observe_frame(_facing(470, a=False, heads=(False, False)), MERGED)
+
+    def entry_split(inst, runs, entries):  # type: ignore[no-untyped-def]
+        return [a if e[0][0] < SHAPE[1] / 2 else b for e in entries]
+
+    tracker._entry_split = entry_split  # type: ignore[method-assign]
+    tracker.resolve(7, [blob])
+    tb = next(t for t in tracker.tracks if t.name == "2")
+    assert tb.boxes_frame == 7 and tb.boxes_entering
+    before = tb.boxes
+    assert before is not None
+    # a piece of a crossing, B's shaft 40 px deeper with its head: its shape renewed
+    (deeper,) = observe_frame(_facing(430, a=False), MERGED)
+    tracker._update(tb, deeper, 8, merged=False, apart=False)
+    assert tb.boxes_frame == 8 and tb.boxes_entering
+    assert tb.boxes is not None and tb.boxes["shaft"].length > before["shaft"].length + 30
+    # no deeper (and headless): kept
+    kept = tb.boxes
+    for f, img in enumerate((_facing(430, a=False), _facing(400, a=False, heads=(False, False)))):
+        (piece,) = observe_frame(img, MERGED)
+        tracker._update(tb, piece, 9 + f, merged=False, apart=False)
+        assert tb.boxes_frame == 8 and tb.boxes == kept

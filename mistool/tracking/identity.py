@@ -126,6 +126,13 @@ HEAD_OVER_OTHER_WIDTHS = 2.0
 #: blob of an older track that could not be split, was a piece of it (absorbed); at the
 #: image border only if both were first seen in the same frame (see :func:`_fragment_of`).
 FRAGMENT_MAX_SEEN = 3
+#: A tool whose shape is a redone entry split's piece (:attr:`Track.boxes_entering`) may
+#: still be entering the view while it crosses another: its shape is renewed from a
+#: piece of a two-tool crossing split with one shaft entering and a head part whose
+#: shaft box is longer than its shape's by this factor (4-e17-occ-s4-150 frames 39-60:
+#: tool 2's 256 px shape from frame 39 stayed frozen while its shaft went ~150 px deeper,
+#: and its expected wrist took tool 1's in frames 48-60).
+ENTERING_GROWTH = 1.2
 
 
 class TrackState(enum.Enum):
@@ -229,6 +236,11 @@ class Track:
     or coasting)."""
     first_frame: int = 0
     """The frame it was first seen in."""
+    boxes_entering: bool = False
+    """Whether :attr:`boxes` are a redone entry split's piece with one shaft entering the
+    view (:meth:`IdentityTracker._heads_given_away`): the tool may still be coming in,
+    and its shape is renewed from a crossing piece showing its shaft grown (see
+    :data:`ENTERING_GROWTH`)."""
     _boxes: dict[str, RotatedBox] | None = field(default=None, repr=False)
     _boxes_from: tuple[InstanceObservation, list[tuple[np.ndarray, int]]] | None = field(
         default=None, repr=False
@@ -275,6 +287,7 @@ class Track:
         seen at ``frame``."""
         self._boxes, self._boxes_from = None, (inst, runs)
         self.boxes_frame = frame
+        self.boxes_entering = False
 
     def expected_heads(self, frame: int) -> dict[str, RotatedBox]:
         """Where its head parts seen at most :data:`HEAD_MEMORY_FRAMES` ago are expected
@@ -1159,6 +1172,7 @@ class IdentityTracker:
                 if not fr.blob_of[b2]:
                     del fr.blob_of[b2]
             by_piece = {c: fr.live[cands[r]] for r, c in pairs}
+            redone = None
             if len(by_piece) == len(got):  # no new tool: the crossing split may do better
                 order = [by_piece[c] for c in range(len(got))]
                 redone = self._heads_given_away(fr.index, inst, got, order)
@@ -1171,6 +1185,8 @@ class IdentityTracker:
                     t = self._new_track(piece, fr.index)
                 else:
                     self._update(t, piece, fr.index, merged=False)
+                    if redone is not None and t.boxes_frame == fr.index:
+                        t.boxes_entering = len(self._runs_of(piece)) == 1
                 tracks.append(t)
             for a in group:  # known instruments the split did not find: coast
                 if a not in taken:
@@ -1424,6 +1440,17 @@ class IdentityTracker:
                 t.shaftless = 0 if "shaft" in parts else t.shaftless + 1
             if apart and "shaft" in parts and len(runs) <= 1:
                 t.set_boxes_from(inst, runs, frame)
+            elif (
+                t.boxes_entering
+                and not crowded
+                and len(runs) == 1
+                and "shaft" in parts
+                and any(h in parts for h in HEAD_PARTS)
+                and (ref := t.boxes) is not None
+                and parts["shaft"].box.length > ENTERING_GROWTH * ref["shaft"].length
+            ):
+                t.set_boxes_from(inst, runs, frame)
+                t.boxes_entering = True
             # (:meth:`_set_entry`, written out: an update per track and frame)
             if not t.at_border:
                 t.at_border = _touches_border(inst)
