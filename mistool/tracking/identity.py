@@ -1055,6 +1055,13 @@ class IdentityTracker:
             for p, b in boxes.items()
         }
 
+    def _reference_of(self, t: Track) -> dict[str, RotatedBox] | None:
+        """The track's :attr:`Track.boxes`, made as :meth:`_expected_boxes` makes them
+        (with the other tracks' heads) when still to be made."""
+        if t.boxes_pending:
+            t.make_boxes(self._other_heads(t, t.boxes_frame))
+        return t.boxes
+
     def _other_heads(self, t: Track, frame: int) -> list[tuple[float, float]]:
         """Centres of the head boxes the other tracks remember (:attr:`Track.heads`)
         from within :data:`HEAD_MEMORY_FRAMES` frames of ``frame``."""
@@ -1218,7 +1225,7 @@ class IdentityTracker:
             t
             for t, p in zip(tracks, pieces, strict=True)
             if not any(h in p.parts for h in HEAD_PARTS)
-            and (boxes := t.boxes) is not None
+            and (boxes := self._reference_of(t)) is not None
             and any(h in boxes for h in HEAD_PARTS)
         ]
         if not bare:
@@ -1446,7 +1453,7 @@ class IdentityTracker:
                 and len(runs) == 1
                 and "shaft" in parts
                 and any(h in parts for h in HEAD_PARTS)
-                and (ref := t.boxes) is not None
+                and (ref := self._reference_of(t)) is not None
                 and parts["shaft"].box.length > ENTERING_GROWTH * ref["shaft"].length
             ):
                 t.set_boxes_from(inst, runs, frame)
