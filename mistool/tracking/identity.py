@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -333,19 +333,25 @@ def _one_tools_heads(
     shaft = boxes.get("shaft")
     if shaft is None:
         return boxes
-    reach = HEAD_LENGTH_WIDTHS * shaft.width
-    out = {p: b for p, b in boxes.items() if p == "shaft" or max(b.length, b.width) <= reach}
-    if len(out) != len(boxes) and len(out) >= 2:
-        boxes = out
+    boxes = _without_long_heads(boxes, HEAD_LENGTH_WIDTHS * shaft.width, lambda b: True)
     if not other_heads:
         return boxes
-    near = HEAD_OVER_OTHER_WIDTHS * shaft.width
+    return _without_long_heads(
+        boxes,
+        HEAD_OVER_OTHER_WIDTHS * shaft.width,
+        lambda b: any(_holds(b, x, y) for x, y in other_heads),
+    )
+
+
+def _without_long_heads(
+    boxes: dict[str, RotatedBox], reach: float, dropped: Callable[[RotatedBox], bool]
+) -> dict[str, RotatedBox]:
+    """``boxes`` without the head parts longer than ``reach`` for which ``dropped`` holds,
+    when that leaves another head part (two boxes or more), else ``boxes`` as they are."""
     out = {
         p: b
         for p, b in boxes.items()
-        if p == "shaft"
-        or max(b.length, b.width) <= near
-        or not any(_holds(b, x, y) for x, y in other_heads)
+        if p == "shaft" or max(b.length, b.width) <= reach or not dropped(b)
     }
     return boxes if len(out) == len(boxes) or len(out) < 2 else out
 
@@ -1030,9 +1036,7 @@ class IdentityTracker:
         there are none, or the track was last seen apart without a shaft for more than
         :data:`LOST_AFTER_FRAMES` frames in a row (its shaft left the view: they are
         stale)."""
-        if t.boxes_pending:
-            t.make_boxes(self._other_heads(t, t.boxes_frame))
-        boxes = t.boxes
+        boxes = self._reference_of(t)
         if boxes is None or t.shaftless > LOST_AFTER_FRAMES:
             return None
         gap = frame - t.boxes_frame
@@ -1056,8 +1060,8 @@ class IdentityTracker:
         }
 
     def _reference_of(self, t: Track) -> dict[str, RotatedBox] | None:
-        """The track's :attr:`Track.boxes`, made as :meth:`_expected_boxes` makes them
-        (with the other tracks' heads) when still to be made."""
+        """The track's :attr:`Track.boxes`, made with the other tracks' heads
+        (:meth:`Track.make_boxes`) when still to be made."""
         if t.boxes_pending:
             t.make_boxes(self._other_heads(t, t.boxes_frame))
         return t.boxes
