@@ -167,6 +167,31 @@ def test_a_tool_entering_head_first_keeps_its_name_in_anothers_blob():
     assert jaws.box.cx == pytest.approx(320.0, abs=6.0) and jaws.box.cy < 45.0
 
 
+def test_two_tools_heads_meeting_while_their_shafts_are_hidden_keep_one_name():
+    """Two tools seen apart with short shafts; then both shafts are hidden and their jaws
+    touch: the blob has no shaft pixel at all. The tracker names it (no split: no tool
+    has shaft support there; the first such frame keeps a known name) instead of
+    failing (a KeyError on the blob's missing shaft, found by sweeping the identity
+    step's constants on the crowded sets)."""
+    tracker = IdentityTracker(MERGED)
+    for k, gap in enumerate((30, 20, 10, 0, 0)):
+        jaws_a = (240 - gap, 250, 300 - gap, 290)
+        jaws_b = (300 + gap, 250, 360 + gap, 290)
+        rects = [(jaws_a, 30), (jaws_b, 30)]
+        if gap:
+            rects += [((jaws_a[0] - 40, 262, jaws_a[0], 278), 10)]
+            rects += [((jaws_b[2], 262, jaws_b[2] + 40, 278), 10)]
+        insts = observe_frame(_paint(rects), MERGED)
+        assert len(insts) == (2 if gap else 1)
+        out, names = tracker.resolve(k, insts)
+        assert len(out) == len(names) == len(insts)
+        if k == 0:
+            first = set(names)
+        if k == 3:  # the first frame of the shaftless blob
+            assert len(first) == 2 and names[0] in first
+            assert "shaft" not in out[0].parts and out[0].parts["clasper"].area_px == 120 * 40
+
+
 def test_a_tools_shape_is_forgotten_once_its_shaft_has_left_the_view():
     """A tool seen with its shaft, then for more than LOST_AFTER_FRAMES frames as jaws
     alone (its shaft out of view): its old shaft is no expected shape for a split (it

@@ -1098,7 +1098,10 @@ def _instance(parts: dict[str, _Measured], shape: tuple[int, int] | None) -> Ins
 
 def shaft_support(pixels: BlobPixels, box: RotatedBox) -> int:
     """How many of the blob's shaft pixels lie in ``box`` widened to twice its width and
-    lengthened by its width (where an expected shaft would be seen)."""
+    lengthened by its width (where an expected shaft would be seen); 0 for a blob with
+    no shaft (tools' heads meeting while their shafts are hidden)."""
+    if "shaft" not in pixels.inst.parts:
+        return 0
     pts = pixels.shaft_points()
     u = unit_vector(box.angle_deg)
     rel = pts - (box.cx, box.cy)
