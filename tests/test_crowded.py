@@ -707,12 +707,12 @@ def test_a_new_tracks_first_crowded_piece_gives_it_no_velocity():
 
 
 def _four_tools(
-    a_end: int, d: bool = True
+    a_end: int, d: bool = True, c: bool = True
 ) -> tuple[InstanceObservation, list[dict[str, RotatedBox]]]:
     """One blob of four tools: A from the left (jaws at ``a_end``), B from the top (its
     jaws touching A's shaft, its expected shaft reaching across A's), C from the top-left
-    corner touching A, D from the bottom ending at A's lower edge (``d``; else three
-    tools); their expected boxes."""
+    corner touching A (``c``), D from the bottom ending at A's lower edge (``d``); their
+    expected boxes (A's and B's first)."""
     img = _paint(
         [
             ((0, 280, a_end, 320), 10),  # A: shaft from the left
@@ -723,7 +723,8 @@ def _four_tools(
         ]
         + [((200, 320, 240, 576), 10)] * d  # D: shaft from the bottom, touching A's
     )
-    cv2.line(img, (0, 60), (150, 270), 10, 40)  # C: shaft from the top-left, touching A
+    if c:
+        cv2.line(img, (0, 60), (150, 270), 10, 40)  # C: shaft from the top-left, touching A
     (inst,) = observe_frame(img, MERGED)
     ea = {
         "shaft": RotatedBox(a_end / 2, 300.0, float(a_end), 40.0, 0.0),
@@ -735,14 +736,15 @@ def _four_tools(
     }
     ec = {"shaft": RotatedBox(75.0, 165.0, 258.0, 40.0, 54.5)}
     ed = {"shaft": RotatedBox(220.0, 448.0, 256.0, 40.0, 90.0)}
-    return inst, [ea, eb, ec, ed][: 3 + d]
+    return inst, [ea, eb] + [ec] * c + [ed] * d
 
 
-def test_a_shafts_reach_stops_where_another_shaft_passes_through_in_a_four_tool_split():
+def test_a_shafts_reach_stops_where_another_shaft_passes_through_in_a_crowded_split():
     """B's expected shaft reaches across A's, which passes right through B's line: B's
     axis ends where its own points end (y 200), not at the far edge of A's band (y 319:
-    a wedge of A's shaft was B's). Only in splits of four tools (SPLIT_THROUGH_AXES): in
-    two- and three-tool splits every form of the cut lowered other sequences."""
+    a wedge of A's shaft was B's). Only in splits of three tools or more
+    (SPLIT_THROUGH_AXES): in two-tool splits every form of the cut lowered other
+    sequences."""
     inst, expected = _four_tools(620)
     fit = fit_split(BlobPixels(inst), expected, 20)
     assert fit is not None
@@ -754,7 +756,10 @@ def test_a_shafts_reach_stops_where_another_shaft_passes_through_in_a_four_tool_
     assert a.parts["shaft"].area_px >= 620 * 40 - 1000  # A keeps its crossing
     inst3, expected3 = _four_tools(620, d=False)
     three = fit_split(BlobPixels(inst3), expected3, 20)
-    assert three is not None and three.axes.ends[1][1] > 300.0  # three tools: not cut
+    assert three is not None and three.axes.ends[1][1] == pytest.approx(200.0, abs=3.0)
+    inst2, expected2 = _four_tools(620, d=False, c=False)
+    two = fit_split(BlobPixels(inst2), expected2, 20)
+    assert two is not None and two.axes.ends[1][1] > 300.0  # two tools: not cut
 
 
 def test_a_shafts_reach_is_not_cut_where_another_shaft_ends():

@@ -60,10 +60,12 @@ SPLIT_END_MARGIN = 0.1
 SPLIT_CONTIGUOUS_GAP = 4.0
 #: In a fit of at least this many axes, an axis's reach is cut back where another shaft
 #: passes through its line (:data:`SPLIT_THROUGH_RADII`): a tool's expected shaft,
-#: reaching across another's, took a wedge of it. Not in fits of two or three: every
-#: form tried there renamed or lowered two-tool crossings or held-out four-tool
-#: sequences (docs/tracking.md, tenth to thirteenth passes).
-SPLIT_THROUGH_AXES = 4
+#: reaching across another's, took a wedge of it. Not in fits of two: every form tried
+#: there renamed or lowered two-tool crossings (docs/tracking.md, tenth to thirteenth
+#: passes). Fits of three got it in the fifteenth session (4 -> 3: the 108 crowded
+#: sequences 95.55 -> 95.71%, 71 -> 74 at >= 95%; docs/tracking.md, "a sweep of the
+#: identity step's constants").
+SPLIT_THROUGH_AXES = 3
 #: ... another shaft passes through an axis's line when its points lie on both sides of
 #: it, farther than this many of the axis's half-widths (a shaft ending at the line, a V,
 #: does not pass through) ...
