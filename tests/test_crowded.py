@@ -878,6 +878,33 @@ def test_a_head_box_over_another_tracks_remembered_head_is_no_part_of_a_tools_sh
     assert set(a_after([*a, short])) == {"shaft", "wrist", "clasper"}
 
 
+def test_a_head_part_of_two_large_pieces_is_no_part_of_a_tools_shape():
+    """Tool A (80 px shaft from the top) seen apart with another tool's wrist touching
+    its jaws (grouped into A's instance): A's wrist part is two label components, its
+    own 60 x 40 px and the other's 40 x 30 px, each of at least HEAD_PIECE_PX. A's shape
+    for the splits leaves that wrist box out (its jaws bound its head's reach); with the
+    second piece under HEAD_PIECE_PX (a wrist cut in two) the box is kept."""
+    from mistool.tracking.identity import HEAD_PIECE_PX
+
+    a = [((280, 0, 360, 200), 10), ((290, 200, 350, 240), 20), ((305, 240, 335, 300), 30)]
+
+    def shape_with(piece: tuple[int, int, int, int]) -> tuple[set[str], int]:
+        tracker = IdentityTracker(MERGED)
+        (inst,) = observe_frame(_paint([*a, (piece, 20)]), MERGED)
+        tracker.resolve(0, [inst])
+        (t,) = tracker.tracks
+        e = tracker._expected_boxes(t, 1, 5)
+        assert e is not None and e["clasper"] == inst.parts["clasper"].box
+        return set(e), inst.parts["wrist"].area_px
+
+    got, area = shape_with((335, 270, 375, 300))  # the other tool's wrist: 40 x 30 px
+    assert area == 60 * 40 + 40 * 30 and 40 * 30 >= HEAD_PIECE_PX
+    assert got == {"shaft", "clasper"}
+    got, area = shape_with((335, 280, 355, 300))  # 20 x 20 px
+    assert area == 60 * 40 + 20 * 20 and 20 * 20 < HEAD_PIECE_PX
+    assert got == {"shaft", "wrist", "clasper"}
+
+
 def _facing(bx: int, a: bool = True, b: bool = True, heads: tuple[bool, bool] = (True, True)):
     """A (wide) from the left along row 200: shaft to x 400, wrist, jaws to 470; B from
     the right along the same row: jaws from ``bx``, wrist, shaft from ``bx + 70``."""

@@ -42,6 +42,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from mistool.assignment import gated_assignment
@@ -122,6 +123,14 @@ HEAD_MEMORY_FRAMES = 10
 #: wrist alone reaches too short there (seed 2 and two-tool seed 2 fell with a cap of 2
 #: widths on every long box).
 HEAD_OVER_OTHER_WIDTHS = 2.0
+#: A reference head part with two 8-connected label components of at least this many px
+#: each is no part of its tool's shape (:func:`_one_tools_heads`): another tool's wrist
+#: or jaws touching this tool's instance while it was seen apart (twox seed 1 frames
+#: 122-127 and 520-545, fresh seed 55 frame 102: each component one tool's, by a
+#: distinct-label render). Smaller pieces are kept: a wrist or jaws cut by an occluder
+#: or another tool's shaft, or a jaws' two open blades (500-1,500 px each in the same
+#: renders at 300-400 px, where the rule cost two-tool seed 2 and twox seed 1).
+HEAD_PIECE_PX = 500
 #: A track seen for at most this many frames, never with a shaft, found hidden in the
 #: blob of an older track that could not be split, was a piece of it (absorbed); at the
 #: image border only if both were first seen in the same frame (see :func:`_fragment_of`).
@@ -255,7 +264,7 @@ class Track:
         :meth:`make_boxes`, which knows the other tracks' heads)."""
         source = self._boxes_from
         if source is not None:
-            self._boxes, self._boxes_from = _one_tools_heads(reference_boxes(*source)), None
+            self._boxes, self._boxes_from = _one_tools_heads(_shape_of(*source)), None
         return self._boxes
 
     @boxes.setter
@@ -277,7 +286,7 @@ class Track:
         near :attr:`boxes_frame` (:func:`_one_tools_heads`)."""
         source = self._boxes_from
         if source is not None:
-            boxes = _one_tools_heads(reference_boxes(*source), other_heads)
+            boxes = _one_tools_heads(_shape_of(*source), other_heads)
             self._boxes, self._boxes_from = boxes, None
 
     def set_boxes_from(
@@ -314,6 +323,28 @@ class Track:
     def predict_xy(self, frame: int) -> tuple[float, float]:
         """:meth:`predict` as two floats (the same values)."""
         return self.motion.predict_xy(self.predict_steps(frame))
+
+
+def _shape_of(
+    inst: InstanceObservation, runs: list[tuple[np.ndarray, int]]
+) -> dict[str, RotatedBox]:
+    """The instance's :func:`~mistool.tracking.split.reference_boxes` without its head
+    parts of two label components of at least :data:`HEAD_PIECE_PX` each (two tools'
+    wrists or jaws), when another head part is left (as :func:`_without_long_heads`)."""
+    boxes = reference_boxes(inst, runs)
+    if "shaft" not in boxes:
+        return boxes
+    out = {p: b for p, b in boxes.items() if p == "shaft" or not _two_pieces(inst.parts[p])}
+    return boxes if len(out) == len(boxes) or len(out) < 2 else out
+
+
+def _two_pieces(part: PartObservation) -> bool:
+    """Whether the part's pixels hold two 8-connected components of at least
+    :data:`HEAD_PIECE_PX` each."""
+    if part.area_px < 2 * HEAD_PIECE_PX:
+        return False
+    n, _, stats, _ = cv2.connectedComponentsWithStats(part.mask.view(np.uint8), connectivity=8)
+    return int(np.count_nonzero(stats[1:n, cv2.CC_STAT_AREA] >= HEAD_PIECE_PX)) >= 2
 
 
 def _one_tools_heads(
