@@ -332,8 +332,8 @@ def _shape_of(
     parts of two label components of at least :data:`HEAD_PIECE_PX` each (two tools'
     wrists or jaws), when another head part is left (as :func:`_without_long_heads`)."""
     boxes = reference_boxes(inst, runs)
-    if "shaft" not in boxes:
-        return boxes
+    if "shaft" not in boxes or len(boxes) < 3:
+        return boxes  # (no head part, or one: nothing to leave out)
     out = {p: b for p, b in boxes.items() if p == "shaft" or not _two_pieces(inst.parts[p])}
     return boxes if len(out) == len(boxes) or len(out) < 2 else out
 
@@ -343,8 +343,11 @@ def _two_pieces(part: PartObservation) -> bool:
     :data:`HEAD_PIECE_PX` each."""
     if part.area_px < 2 * HEAD_PIECE_PX:
         return False
-    n, _, stats, _ = cv2.connectedComponentsWithStats(part.mask.view(np.uint8), connectivity=8)
-    return int(np.count_nonzero(stats[1:n, cv2.CC_STAT_AREA] >= HEAD_PIECE_PX)) >= 2
+    n, labels = cv2.connectedComponents(part.mask.view(np.uint8), connectivity=8)
+    if n < 3:
+        return False  # (one component: the usual part; its count not needed)
+    sizes = np.bincount(labels.ravel(), minlength=n)[1:]
+    return int(np.count_nonzero(sizes >= HEAD_PIECE_PX)) >= 2
 
 
 def _one_tools_heads(
