@@ -142,6 +142,14 @@ FRAGMENT_MAX_SEEN = 3
 #: tool 2's 256 px shape from frame 39 stayed frozen while its shaft went ~150 px deeper,
 #: and its expected wrist took tool 1's in frames 48-60).
 ENTERING_GROWTH = 1.2
+#: A redone entry split's piece (:meth:`IdentityTracker._heads_given_away`) with fewer
+#: head pixels than this is no reference shape: its tool keeps the shape it had. The
+#: redo is taken for a few pixels of a head (they are the tool's), but a shape with a
+#: sliver of head, or none, then stands through the crossing that follows (dev seed 65
+#: frame 72: tool 4's piece held 57 px of its wrist, a 20 x 6 px box, and 22 frames of
+#: crossing later the split gave tool 4's wrist to tool 2; dev seed 79 frame 113: the
+#: other tool's piece, its head taken back by the redo, held none).
+REDONE_SHAPE_HEAD_PX = 180
 
 
 class TrackState(enum.Enum):
@@ -417,6 +425,11 @@ def _head_jumped(t: Track, inst: InstanceObservation, frame: int) -> bool:
 def _area_of(part: PartObservation) -> int:
     """A part's pixel count (the key that picks an instance's largest part)."""
     return part.area_px
+
+
+def _head_area(inst: InstanceObservation) -> int:
+    """An instance's head pixels (all its head parts)."""
+    return sum(inst.parts[p].area_px for p in HEAD_PARTS if p in inst.parts)
 
 
 def _appearance(inst: InstanceObservation) -> tuple[float | None, float]:
@@ -1229,7 +1242,8 @@ class IdentityTracker:
                 if t is None:
                     t = self._new_track(piece, fr.index)
                 else:
-                    self._update(t, piece, fr.index, merged=False)
+                    shape = redone is None or _head_area(piece) >= REDONE_SHAPE_HEAD_PX
+                    self._update(t, piece, fr.index, merged=False, shape=shape)
                     if redone is not None and t.boxes_frame == fr.index:
                         t.boxes_entering = len(self._runs_of(piece)) == 1
                 tracks.append(t)
@@ -1448,12 +1462,14 @@ class IdentityTracker:
         merged: bool,
         apart: bool = True,
         crowded: bool = False,
+        shape: bool = True,
     ) -> None:
         """Update a track with the instance given its name (``merged``: a blob holding
         others too, whose centroid is not this instrument's: it coasts; ``apart``: seen
         apart from others, not a split's piece; ``crowded``: a piece of a blob split
         between at least :data:`CROWDED_SPLIT_TRACKS` tools, its motion along its shaft
-        unsure; a track's first velocity is not measured on one)."""
+        unsure; a track's first velocity is not measured on one; ``shape``: whether the
+        instance may become its reference shape, see :data:`REDONE_SHAPE_HEAD_PX`)."""
         gap = frame - t.last_frame
         t.in_blob = merged or not apart
         if merged:
@@ -1483,7 +1499,9 @@ class IdentityTracker:
             # a split piece is no reference shape, nor a blob of two shafts entering
             if apart:
                 t.shaftless = 0 if "shaft" in parts else t.shaftless + 1
-            if apart and "shaft" in parts and len(runs) <= 1:
+            if not shape:
+                pass  # (a redone entry piece with too little head: the shape stands)
+            elif apart and "shaft" in parts and len(runs) <= 1:
                 t.set_boxes_from(inst, runs, frame)
             elif (
                 t.boxes_entering
