@@ -16,7 +16,7 @@ from mistool.config import config_from_dict
 from mistool.model import InstanceObservation, RotatedBox
 from mistool.tracking import IdentityTracker, observe_frame
 from mistool.tracking.heads import hand_over_heads
-from mistool.tracking.identity import distinct_lanes
+from mistool.tracking.identity import REDONE_SHAPE_HEAD_PX, distinct_lanes
 from mistool.tracking.instances import make_instance, part_observation
 from mistool.tracking.split import (
     BlobPixels,
@@ -996,3 +996,47 @@ def test_a_redone_entry_pieces_shape_follows_its_tool_still_entering():
         (piece,) = observe_frame(img, MERGED)
         tracker._update(tb, piece, 9 + f, merged=False, apart=False)
         assert tb.boxes_frame == 8 and tb.boxes == kept
+
+
+def _redone_with_a_strip(rows: int) -> tuple[dict[str, int], int, set[str]]:
+    """The blob of :func:`_after_entry_split` with B's head hidden but for a strip of
+    wrist ``rows`` px high along row 200 (from A's jaws to B's shaft), the split on
+    entries leaving B headless: B's part areas after the redo, its shape's frame and
+    parts."""
+    tracker = IdentityTracker(MERGED)
+    for f, bx in enumerate(range(540, 470, -10)):
+        tracker.resolve(f, observe_frame(_facing(bx), MERGED))
+
+    def frame7(a: bool = True, b: bool = True) -> np.ndarray:
+        img = _facing(470, a=a, b=b, heads=(a, False))
+        if b:
+            img[201 - rows : 201, 470:540] = 20
+        return img
+
+    (blob,) = observe_frame(frame7(), MERGED)
+    (a,) = observe_frame(frame7(b=False), MERGED)
+    (b,) = observe_frame(_facing(470, a=False, heads=(False, False)), MERGED)
+
+    def entry_split(inst, runs, entries):  # type: ignore[no-untyped-def]
+        return [a if e[0][0] < SHAPE[1] / 2 else b for e in entries]
+
+    tracker._entry_split = entry_split  # type: ignore[method-assign]
+    insts, names = tracker.resolve(7, [blob])
+    got = {p: o.area_px for p, o in insts[names.index("2")].parts.items()}
+    tb = next(t for t in tracker.tracks if t.name == "2")
+    assert tb.boxes is not None
+    return got, tb.boxes_frame, set(tb.boxes)
+
+
+def test_a_redone_entry_piece_with_a_sliver_of_head_is_no_reference_shape():
+    """The redo gives B the strip of wrist it shows (2 rows: 115 px), but a shape with
+    that sliver of head would stand through the crossing that follows (dev seed 65
+    frames 72-94: tool 4's 57 px wrist, then the split gave its wrist to tool 2): B
+    keeps its shape from frame 6, wrist and jaws. A strip of 4 rows (236 px) is B's
+    shape."""
+    got, frame, parts = _redone_with_a_strip(2)
+    assert got["shaft"] == 40 * 180 and 0 < got.get("wrist", 0) < REDONE_SHAPE_HEAD_PX
+    assert frame == 6 and parts == {"shaft", "wrist", "clasper"}
+    got, frame, parts = _redone_with_a_strip(4)
+    assert got["wrist"] >= REDONE_SHAPE_HEAD_PX
+    assert frame == 7 and parts == {"shaft", "wrist"}
