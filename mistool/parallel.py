@@ -337,9 +337,11 @@ def _mask_bits(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per part of a packed batch: the first bit of its mask in the bits' buffer (each
     part's from a byte boundary, as :func:`pack_frames` packs them), and the bytes
-    unpacked at once to read it (:func:`unpack_frames`; empty when it is not): a
-    deferred frame's all (each of its parts' masks is read), a head part's own in a
-    frame with two instances or more."""
+    unpacked at once to read it (:func:`unpack_frames`; empty when it is not): its own
+    bytes for a head part of a deferred frame or of a frame with two instances or more
+    (the split's and the heads' hand-over read them). A shaft is left packed: the caller
+    reads a blob's shaft as runs from its bits (:meth:`mistool.tracking.split.BlobPixels.
+    shaft_runs`), an instrument's seen apart never."""
     counts = frames[:, 0]
     inst_end = np.cumsum(counts)
     part_end = np.zeros(len(inst_i) + 1, np.int64)
@@ -350,11 +352,9 @@ def _mask_bits(
     np.cumsum(-(-(part_i[:, 4] * part_i[:, 5]) // 8), out=byte_end[1:])
     of = np.repeat(np.arange(len(frames)), parts)  # each part's frame
     at = 8 * byte_end[:-1]
-    deferred = frames[of, 4] != 0
-    head = ~deferred & (counts[of] > 1) & (part_i[:, 0] != _SHAFT)
-    lo = np.where(deferred, byte_end[first][of], byte_end[:-1])
-    hi = np.where(deferred, byte_end[first + parts][of], byte_end[1:])
-    hi[~(deferred | head)] = lo[~(deferred | head)]
+    eager = ((frames[of, 4] != 0) | (counts[of] > 1)) & (part_i[:, 0] != _SHAFT)
+    lo = byte_end[:-1]
+    hi = np.where(eager, byte_end[1:], lo)
     return at, lo, hi
 
 
@@ -362,20 +362,22 @@ def _eager_masks(
     bits: np.ndarray, at: np.ndarray, lo: np.ndarray, hi: np.ndarray, part_i: np.ndarray
 ) -> dict[int, np.ndarray]:
     """The masks of the parts with bytes ``lo .. hi - 1`` to unpack (:func:`_mask_bits`),
-    by part: those bytes (each run of parts with the same bytes once) unpacked in one
-    ``unpackbits``, each mask a (h, w) view of it."""
+    by part: those bytes (each run of parts whose bytes follow each other as one
+    range) unpacked in one ``unpackbits``, each mask a (h, w) view of it."""
     which = np.flatnonzero(hi > lo)
     if not len(which):
         return {}
     lo, hi = lo[which], hi[which]
-    new = np.ones(len(which), np.bool_)  # parts reading the bytes of the part before
-    new[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
+    new = np.ones(len(which), np.bool_)  # parts whose bytes start a range
+    new[1:] = lo[1:] != hi[:-1]
     starts = np.flatnonzero(new)
-    span = hi[starts] - lo[starts]
+    ends = np.append(starts[1:], len(which)) - 1  # each range's last part
+    span = hi[ends] - lo[starts]
     base = np.cumsum(span) - span  # each range's first byte in those concatenated
-    pieces = [bits[a:b] for a, b in zip(lo[starts].tolist(), hi[starts].tolist(), strict=True)]
+    pieces = [bits[a:b] for a, b in zip(lo[starts].tolist(), hi[ends].tolist(), strict=True)]
     flat = np.unpackbits(np.concatenate(pieces)).view(np.bool_)
-    first = (8 * (base[np.cumsum(new) - 1] - lo) + at[which]).tolist()
+    run = np.cumsum(new) - 1  # each part's range
+    first = (8 * (base[run] - lo[starts][run]) + at[which]).tolist()
     h, w = part_i[which, 4].tolist(), part_i[which, 5].tolist()
     return {
         k: flat[f : f + mh * mw].reshape(mh, mw)

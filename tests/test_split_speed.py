@@ -1532,3 +1532,73 @@ def test_a_piece_of_several_components_is_measured_as_from_its_contours(seed, mi
     want_box = grown_box_of(points, hull, want_corners)
     assert np.array_equal(np.array(box).view(np.int64), np.array(want_box).view(np.int64))
     assert np.array_equal(corners.view(np.int64), want_corners.view(np.int64))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.integers(1, 40),
+    st.integers(1, 300),
+    st.integers(0, 63),
+    st.integers(0, 9),
+    st.sampled_from(["random", "runs", "inverted runs"]),
+)
+def test_runs_from_the_packed_bits_are_mask_runs(seed, h, w, lead, tail, kind):
+    """kernels.boxes.bits_runs: an (h, w) mask's row runs read from its ``np.packbits``
+    bits (from any bit of a byte: 0-63 other bits before it, 0-9 bytes after it, so the
+    array's last bytes are read one at a time) are exactly mask_runs' of the mask (rows
+    of random pixels, of long runs, or of long gaps)."""
+    from mistool.kernels.boxes import bits_runs, mask_runs
+
+    rng = np.random.default_rng(seed)
+    if kind == "random":
+        mask = rng.random((h, w)) < rng.random()
+    else:
+        mask = np.zeros((h, w), bool)
+        for _ in range(int(rng.integers(0, 3 * h + 1))):
+            y, a = int(rng.integers(0, h)), int(rng.integers(0, w))
+            mask[y, a : int(rng.integers(a, w + 1))] = True
+        if kind == "inverted runs":
+            mask = ~mask
+    noise = rng.random(lead + 8 * tail) < 0.5
+    bits = np.packbits(np.concatenate([noise[:lead], mask.ravel(), noise[lead:]]))
+    want = mask_runs(mask.view(np.uint8))
+    got = bits_runs(bits, lead, h, w)
+    n = want[3]
+    assert got[3] == n
+    for a, b in zip(got[:3], want[:3], strict=True):
+        assert a.dtype == b.dtype and np.array_equal(a[:n], b[:n])
+
+
+def test_a_blobs_shaft_runs_come_from_its_bits_while_still_packed():
+    """A worker's deferred frame unpacked by the caller (mistool.parallel): the blob's
+    shaft is left packed, and BlobPixels reads its runs (and so its points) from the
+    bits, the mask never unpacked; the same runs and points as from the mask."""
+    from mistool import parallel
+    from mistool.kernels.boxes import mask_runs
+
+    rng = np.random.default_rng(11)
+    mask = np.zeros((70, 230), np.uint8)
+    for _ in range(3):
+        a, b = rng.integers(0, 230, 2), rng.integers(0, 70, 2)
+        cv2.line(mask, (int(a[0]), int(b[0])), (int(a[1]), int(b[1])), 1, 9)
+    mask = mask.astype(bool)
+    box = RotatedBox(0.0, 0.0, 1.0, 1.0, 0.0)
+    head = PartObservation("wrist", box, np.zeros((4, 2)), 3, rng.random((3, 5)) < 0.5, (1, 2))
+    shaft = PartObservation("shaft", box, np.zeros((4, 2)), int(mask.sum()), mask, (40, 9))
+    inst = InstanceObservation(
+        None, {"wrist": head, "shaft": shaft}, (0.0, 0.0), 9, (0, 0, 1, 1), (300, 400)
+    )
+    sent = parallel.FrameResult([inst], None, np.zeros(0, np.int64), (300, 400), deferred=True)
+    (got,) = parallel.unpack_frames(parallel.pack_frames([sent]))
+    blob = got.instances[0]
+    assert "mask" in blob.parts["wrist"].__dict__  # (a head: unpacked with the batch)
+    pixels = BlobPixels(blob)
+    ry, rx0, rx1, n = pixels.shaft_runs()
+    assert "mask" not in blob.parts["shaft"].__dict__  # read from the bits
+    wy, wx0, wx1, wn = mask_runs(mask.view(np.uint8))
+    assert n == wn and np.array_equal(ry[:n], wy[:n]) and np.array_equal(rx0[:n], wx0[:n])
+    assert np.array_equal(rx1[:n], wx1[:n])
+    ys, xs = np.nonzero(mask)
+    assert np.array_equal(pixels.shaft_points(), np.stack([xs + 40, ys + 9], 1).astype(float))
+    assert np.array_equal(blob.parts["shaft"].mask, mask)  # (read: unpacked then)

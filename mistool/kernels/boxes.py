@@ -672,6 +672,117 @@ def mask_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int
         cap = 4 * cap
 
 
+def _bswap_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
+    """A uint64's bytes in reverse order (``llvm.bswap``)."""
+    sig = types.uint64(types.uint64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        t = ir.IntType(64)
+        fn = builder.module.declare_intrinsic("llvm.bswap", [t], ir.FunctionType(t, [t]))
+        return builder.call(fn, [args[0]])
+
+    return sig, codegen
+
+
+bswap: Any = intrinsic(_bswap_typed)
+
+
+def _clz_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
+    """Leading zero bits of a non-zero uint64."""
+    sig = types.uint64(types.uint64)
+
+    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+        t = ir.IntType(64)
+        fnty = ir.FunctionType(t, [t, ir.IntType(1)])
+        fn = builder.module.declare_intrinsic("llvm.ctlz", [t], fnty)
+        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 1)])
+
+    return sig, codegen
+
+
+clz: Any = intrinsic(_clz_typed)
+
+
+@helper
+def _bits_word(bits: np.ndarray, g: int) -> np.uint64:
+    """The 64 bits of ``bits`` (``np.packbits`` order: a byte's most significant bit
+    first) from bit ``g`` on, bit ``g`` the word's most significant; bits past the
+    array's end are 0."""
+    b = g >> 3
+    s = np.uint64(g & 7)
+    size = bits.shape[0]
+    if b + 9 <= size:
+        word = bswap(load8(bits, b))  # byte b's bits on top
+        if s:
+            word = (word << s) | (np.uint64(bits[b + 8]) >> (np.uint64(8) - s))
+        return word
+    word = np.uint64(0)  # (the array's last bytes: one at a time)
+    for k in range(8):
+        word <<= np.uint64(8)
+        if b + k < size:
+            word |= np.uint64(bits[b + k])
+    if s:
+        word <<= s
+        if b + 8 < size:
+            word |= np.uint64(bits[b + 8]) >> (np.uint64(8) - s)
+    return word
+
+
+@kernel("int64(uint8[::1], int64, int64, int64, int32[::1], int32[::1], int32[::1])")
+def _bits_runs_into(
+    bits: np.ndarray, at: int, h: int, w: int, ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray
+) -> int:
+    """:func:`bits_runs` into arrays of a given size; -1 when they are too short."""
+    cap = ry.shape[0]
+    n = 0
+    for y in range(h):
+        row = at + y * w
+        inside = False
+        x = 0
+        while x < w:
+            diff = _bits_word(bits, row + x) ^ (_ONES if inside else np.uint64(0))
+            left = w - x
+            if left < 64:  # (the bits past the row's end: not looked at)
+                diff &= _ONES << np.uint64(64 - left)
+            if diff == 0:  # no change in the next 64 pixels (or the row's last ones)
+                x += min(left, 64)
+                continue
+            x += np.int64(clz(diff))  # the first pixel that changes: a run starts or ends
+            if inside:
+                rx1[n] = x
+                n += 1
+            else:
+                if n == cap:
+                    return -1
+                ry[n] = y
+                rx0[n] = x
+            inside = not inside
+            x += 1
+        if inside:
+            rx1[n] = w
+            n += 1
+    return n
+
+
+@kernel(_RUNS + "(uint8[::1], int64, int64, int64)")
+def bits_runs(
+    bits: np.ndarray, at: int, h: int, w: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """:func:`mask_runs` of an (h, w) mask read from its packed bits: the ``h * w`` bits
+    of ``bits`` from bit ``at`` on (``np.packbits`` of the raveled mask: a byte's most
+    significant bit first), 64 pixels at a time, the same runs (a batch's masks as a
+    worker sent them, :mod:`mistool.parallel`, read without unpacking them)."""
+    cap = 2 * h + 16
+    while True:
+        ry = np.empty(cap, np.int32)
+        rx0 = np.empty(cap, np.int32)
+        rx1 = np.empty(cap, np.int32)
+        n = _bits_runs_into(bits, at, h, w, ry, rx0, rx1)
+        if n >= 0:
+            return ry, rx0, rx1, n
+        cap = 4 * cap
+
+
 @kernel("int64(int32[::1], int32[::1], int32[::1], int32[::1], int64, int64)")
 def join_runs(
     ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray, parent: np.ndarray, n: int, reach: int

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from mistool.kernels import split as kernels
-from mistool.kernels.boxes import fit_runs_box, mask_runs
+from mistool.kernels.boxes import bits_runs, fit_runs_box, mask_runs
 from mistool.kernels.split import DOT_SERIAL_MAX
 from mistool.model import InstanceObservation, PartObservation, RotatedBox
 from mistool.tracking.instances import unit_vector
@@ -761,9 +761,18 @@ class BlobPixels:
     def shaft_runs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         """The shaft crop's row runs, ``(ry, rx0, rx1, n)`` in raster order
         (:func:`mistool.kernels.boxes.mask_runs`: one pass over the mask, 8 px at a time
-        where it does not change); the samples and the split's pieces come from them."""
+        where it does not change); the samples and the split's pieces come from them.
+        A worker's part whose mask is still packed (``_packed``: the batch's bits, the
+        mask's first bit there and its shape, :class:`mistool.parallel._SentPart`) gives
+        them from its bits (:func:`mistool.kernels.boxes.bits_runs`), left packed."""
         if self._runs is None:
-            self._runs = mask_runs(_mask_u8(self.inst.parts["shaft"].mask))
+            part = self.inst.parts["shaft"]
+            packed = part.__dict__.get("_packed")
+            if packed is not None and packed[0].flags.writeable:
+                bits, at, (h, w) = packed
+                self._runs = bits_runs(bits, at, h, w)
+            else:
+                self._runs = mask_runs(_mask_u8(part.mask))
             ry, rx0, rx1, n = self._runs
             self._count = int((rx1[:n] - rx0[:n]).sum())
         return self._runs
