@@ -1595,6 +1595,7 @@ def test_a_blobs_shaft_runs_come_from_its_bits_while_still_packed():
     assert "mask" in blob.parts["wrist"].__dict__  # (a head: unpacked with the batch)
     pixels = BlobPixels(blob)
     ry, rx0, rx1, n = pixels.shaft_runs()
+    assert pixels.shaft_shape() == mask.shape
     assert "mask" not in blob.parts["shaft"].__dict__  # read from the bits
     wy, wx0, wx1, wn = mask_runs(mask.view(np.uint8))
     assert n == wn and np.array_equal(ry[:n], wy[:n]) and np.array_equal(rx0[:n], wx0[:n])

@@ -756,6 +756,7 @@ class BlobPixels:
         self._cache: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._runs: tuple[np.ndarray, np.ndarray, np.ndarray, int] | None = None
         self._count = 0
+        self._shape = (0, 0)
         self._samples: dict[int, np.ndarray] = {}  # shaft points by step (1: all)
 
     def shaft_runs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -771,11 +772,18 @@ class BlobPixels:
             if packed is not None and packed[0].flags.writeable:
                 bits, at, (h, w) = packed
                 self._runs = bits_runs(bits, at, h, w)
+                self._shape = (h, w)
             else:
                 self._runs = mask_runs(_mask_u8(part.mask))
+                self._shape = part.mask.shape
             ry, rx0, rx1, n = self._runs
             self._count = int((rx1[:n] - rx0[:n]).sum())
         return self._runs
+
+    def shaft_shape(self) -> tuple[int, int]:
+        """The shaft crop's (h, w) (a still-packed mask's without unpacking it)."""
+        self.shaft_runs()
+        return self._shape
 
     def _shaft_count(self) -> int:
         """How many shaft pixels the blob has."""
@@ -1039,7 +1047,7 @@ def _shaft_pieces(
     (:func:`mistool.kernels.split.shaft_label_runs`)."""
     part = pixels.inst.parts["shaft"]
     ry, rx0, rx1, n = pixels.shaft_runs()
-    h, w = part.mask.shape
+    h, w = pixels.shaft_shape()
     return kernels.shaft_label_runs(
         ry, rx0, rx1, n, h, w, int(part.offset[0]), int(part.offset[1]), _points(ax.ends),
         _points(ax.dirs), _values(ax.back), _values(ax.radius),
