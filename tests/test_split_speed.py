@@ -1545,9 +1545,10 @@ def test_a_piece_of_several_components_is_measured_as_from_its_contours(seed, mi
 )
 def test_runs_from_the_packed_bits_are_mask_runs(seed, h, w, lead, tail, kind):
     """kernels.boxes.bits_runs: an (h, w) mask's row runs read from its ``np.packbits``
-    bits (from any bit of a byte: 0-63 other bits before it, 0-9 bytes after it, so the
-    array's last bytes are read one at a time) are exactly mask_runs' of the mask (rows
-    of random pixels, of long runs, or of long gaps)."""
+    bits (from any bit of a byte: 0-63 other bits before it, 0-9 bytes after it, none:
+    the mask's last bits at the array's end) are exactly mask_runs' of the mask (rows of
+    random pixels, of long runs, or of long gaps; widths 1-300: a row's last < 64 pixels
+    read apart)."""
     from mistool.kernels.boxes import bits_runs, mask_runs
 
     rng = np.random.default_rng(seed)

@@ -703,36 +703,12 @@ def _clz_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
 clz: Any = intrinsic(_clz_typed)
 
 
-@helper
-def _bits_word(bits: np.ndarray, g: int) -> np.uint64:
-    """The 64 bits of ``bits`` (``np.packbits`` order: a byte's most significant bit
-    first) from bit ``g`` on, bit ``g`` the word's most significant; bits past the
-    array's end are 0."""
-    b = g >> 3
-    s = np.uint64(g & 7)
-    size = bits.shape[0]
-    if b + 9 <= size:
-        word = bswap(load8(bits, b))  # byte b's bits on top
-        if s:
-            word = (word << s) | (np.uint64(bits[b + 8]) >> (np.uint64(8) - s))
-        return word
-    word = np.uint64(0)  # (the array's last bytes: one at a time)
-    for k in range(8):
-        word <<= np.uint64(8)
-        if b + k < size:
-            word |= np.uint64(bits[b + k])
-    if s:
-        word <<= s
-        if b + 8 < size:
-            word |= np.uint64(bits[b + 8]) >> (np.uint64(8) - s)
-    return word
-
-
 @kernel("int64(uint8[::1], int64, int64, int64, int32[::1], int32[::1], int32[::1])")
 def _bits_runs_into(
     bits: np.ndarray, at: int, h: int, w: int, ry: np.ndarray, rx0: np.ndarray, rx1: np.ndarray
 ) -> int:
-    """:func:`bits_runs` into arrays of a given size; -1 when they are too short."""
+    """:func:`bits_runs` into arrays of a given size; -1 when they are too short. Reads
+    only the bytes of the mask's bits."""
     cap = ry.shape[0]
     n = 0
     for y in range(h):
@@ -740,14 +716,37 @@ def _bits_runs_into(
         inside = False
         x = 0
         while x < w:
-            diff = _bits_word(bits, row + x) ^ (_ONES if inside else np.uint64(0))
-            left = w - x
-            if left < 64:  # (the bits past the row's end: not looked at)
-                diff &= _ONES << np.uint64(64 - left)
-            if diff == 0:  # no change in the next 64 pixels (or the row's last ones)
-                x += min(left, 64)
-                continue
-            x += np.int64(clz(diff))  # the first pixel that changes: a run starts or ends
+            g = row + x
+            if x + 64 <= w:  # 64 pixels passed over at once where none changes
+                b = g >> 3
+                s = np.uint64(g & 7)
+                word = bswap(load8(bits, b))  # pixel g at the top bit
+                if s:
+                    word = (word << s) | (np.uint64(bits[b + 8]) >> (np.uint64(8) - s))
+                diff = word ^ (_ONES if inside else np.uint64(0))
+                if diff == 0:
+                    x += 64
+                    continue
+                x += np.int64(clz(diff))  # the first pixel that changes
+            else:  # the row's last < 64 pixels: their bytes only, the bits after them 0
+                left = w - x
+                b = g >> 3
+                s = np.uint64(g & 7)
+                last = (g + left - 1) >> 3
+                word = np.uint64(0)
+                for k in range(min(last - b + 1, 8)):
+                    word |= np.uint64(bits[b + k]) << np.uint64(56 - 8 * k)
+                if s:
+                    word <<= s
+                    if last == b + 8:
+                        word |= np.uint64(bits[b + 8]) >> (np.uint64(8) - s)
+                diff = (word ^ (_ONES if inside else np.uint64(0))) & (
+                    _ONES << np.uint64(64 - left)
+                )
+                if diff == 0:
+                    x = w
+                    continue
+                x += np.int64(clz(diff))
             if inside:
                 rx1[n] = x
                 n += 1
