@@ -130,6 +130,10 @@ HEAD_OVER_OTHER_WIDTHS = 2.0
 #: distinct-label render). Smaller pieces are kept: a wrist or jaws cut by an occluder
 #: or another tool's shaft, or a jaws' two open blades (500-1,500 px each in the same
 #: renders at 300-400 px, where the rule cost two-tool seed 2 and twox seed 1).
+#: A piece of a blob split between at least :data:`CROWDED_SPLIT_TRACKS` tools with
+#: such a head part does not renew its tool's remembered head (:attr:`Track.heads`):
+#: the last box before it stands (+0.02 on the 108 crowd sets; in two-tool crossings
+#: the same rule cost cross2500 and twox seed 3 ~0.5 each).
 HEAD_PIECE_PX = 500
 #: A track seen for at most this many frames, never with a shaft, found hidden in the
 #: blob of an older track that could not be split, was a piece of it (absorbed); at the
@@ -1520,7 +1524,9 @@ class IdentityTracker:
             if len(runs) == 1:  # one shaft entering: this instrument's (not a blob's)
                 t.entry = runs[0][0][1]
             for p in HEAD_PARTS:
-                if p in parts:
+                # a crowded piece's head part of two large label components spans two
+                # tools' heads: the hand-over remembers the part's last box before it
+                if p in parts and not (crowded and _two_pieces(parts[p])):
                     t.heads[p] = (parts[p].box, frame)
             t.state = _TRACKED
         t.last_frame = frame
