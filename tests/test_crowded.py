@@ -905,6 +905,35 @@ def test_a_head_part_of_two_large_pieces_is_no_part_of_a_tools_shape():
     assert got == {"shaft", "wrist", "clasper"}
 
 
+def test_a_crowded_pieces_head_part_of_two_large_pieces_is_not_remembered():
+    """Tool A seen apart (frame 0), then a piece of a blob split between three tools
+    (frame 1) whose wrist is two label components of at least HEAD_PIECE_PX (A's own
+    60 x 40 px and another tool's 40 x 30 px): A's remembered wrist stays frame 0's box
+    (the hand-over's memory of A's head, not of two tools'). A piece of a two-tool
+    crossing split, and a crowded piece with a wrist cut in two small pieces, renew it."""
+    from mistool.tracking.identity import HEAD_PIECE_PX
+
+    a = [((280, 0, 360, 200), 10), ((290, 200, 350, 240), 20), ((305, 240, 335, 300), 30)]
+
+    def remembered(piece: tuple[int, int, int, int], crowded: bool) -> int:
+        tracker = IdentityTracker(MERGED)
+        (first,) = observe_frame(_paint(a), MERGED)
+        tracker.resolve(0, [first])
+        (t,) = tracker.tracks
+        assert t.heads["wrist"] == (first.parts["wrist"].box, 0)
+        (inst,) = observe_frame(_paint([*a, (piece, 20)]), MERGED)
+        tracker._update(t, inst, 1, merged=False, apart=False, crowded=crowded)
+        assert t.heads["clasper"][1] == 1  # (one component: renewed)
+        box, seen = t.heads["wrist"]
+        assert box == (first if seen == 0 else inst).parts["wrist"].box
+        return seen
+
+    assert 40 * 30 >= HEAD_PIECE_PX > 20 * 20
+    assert remembered((335, 270, 375, 300), crowded=True) == 0  # the other's wrist
+    assert remembered((335, 270, 375, 300), crowded=False) == 1  # two tools crossing
+    assert remembered((335, 280, 355, 300), crowded=True) == 1  # 20 x 20 px: one tool's
+
+
 def _facing(bx: int, a: bool = True, b: bool = True, heads: tuple[bool, bool] = (True, True)):
     """A (wide) from the left along row 200: shaft to x 400, wrist, jaws to 470; B from
     the right along the same row: jaws from ``bx``, wrist, shaft from ``bx + 70``."""
