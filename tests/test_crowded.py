@@ -516,6 +516,25 @@ def test_a_head_expected_under_anothers_takes_none_of_it():
     assert got[1] is not None and "wrist" in got[1].parts
 
 
+def test_a_head_expected_three_fifths_under_anothers_takes_its_pixels_beside():
+    """B's wrist expected three fifths under where A's is expected (15 of the 25 grid
+    points of ``_covered``), the rest beside it: A's wrist pixels lying in B's box
+    outside A's are handed to B (at 0.5 B took none: a head this far out from under
+    the other's is not hidden by it); four fifths under, B still takes none."""
+    a_img = _paint([((410, 150, 720, 210), 10), ((350, 150, 410, 205), 20)])
+    (a,) = observe_frame(a_img, MERGED)
+    b_img = _paint([((0, 300, 300, 340), 10)])
+    (b,) = observe_frame(b_img, MERGED)
+    want_a = {"wrist": RotatedBox(380.0, 179.0, 60.0, 50.0, 0.0)}
+    partly = {"wrist": RotatedBox(383.0, 158.0, 40.0, 30.0, 0.0)}
+    got = hand_over_heads([a, b], [want_a, partly], 20)
+    assert got[1] is not None and got[1].parts["wrist"].area_px == 176
+    assert got[0] is not None and got[0].parts["wrist"].area_px == 3300 - 176
+    mostly = {"wrist": RotatedBox(383.0, 162.0, 40.0, 30.0, 0.0)}
+    got = hand_over_heads([a, b], [want_a, mostly], 20)
+    assert got[0] is a and got[1] is b
+
+
 def _shaft_from_left(x1: int, y: int, jaws: bool = True) -> np.ndarray:
     """One tool from the left border along row ``y``: shaft to ``x1``, jaws beyond."""
     img = np.zeros(SHAPE, np.uint8)
