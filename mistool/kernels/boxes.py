@@ -569,19 +569,29 @@ def _load8_bytes_typed(
 load8_bytes: Any = intrinsic(_load8_bytes_typed)
 
 
-def _ctz_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
-    """Trailing zero bits of a non-zero uint64."""
-    sig = types.uint64(types.uint64)
+def _count_zeros_typed(name: str, llvm_name: str, doc: str) -> Any:
+    """The typing function of a uint64 intrinsic calling ``llvm_name`` (``llvm.cttz`` or
+    ``llvm.ctlz``) with its "zero is poison" flag set: defined for non-zero ``x`` only."""
 
-    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
-        t = ir.IntType(64)
-        fnty = ir.FunctionType(t, [t, ir.IntType(1)])
-        fn = builder.module.declare_intrinsic("llvm.cttz", [t], fnty)
-        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 1)])
+    def typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
+        sig = types.uint64(types.uint64)
 
-    return sig, codegen
+        def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
+            t = ir.IntType(64)
+            fnty = ir.FunctionType(t, [t, ir.IntType(1)])
+            fn = builder.module.declare_intrinsic(llvm_name, [t], fnty)
+            return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 1)])
+
+        return sig, codegen
+
+    typed.__name__ = typed.__qualname__ = name
+    typed.__doc__ = doc
+    return typed
 
 
+_ctz_typed = _count_zeros_typed(
+    "_ctz_typed", "llvm.cttz", "Trailing zero bits of a non-zero uint64."
+)
 ctz: Any = intrinsic(_ctz_typed)
 
 
@@ -687,19 +697,9 @@ def _bswap_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
 bswap: Any = intrinsic(_bswap_typed)
 
 
-def _clz_typed(typingctx: object, x: types.Integer) -> tuple[object, object]:
-    """Leading zero bits of a non-zero uint64."""
-    sig = types.uint64(types.uint64)
-
-    def codegen(context: Any, builder: ir.IRBuilder, signature: Any, args: list) -> object:
-        t = ir.IntType(64)
-        fnty = ir.FunctionType(t, [t, ir.IntType(1)])
-        fn = builder.module.declare_intrinsic("llvm.ctlz", [t], fnty)
-        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 1)])
-
-    return sig, codegen
-
-
+_clz_typed = _count_zeros_typed(
+    "_clz_typed", "llvm.ctlz", "Leading zero bits of a non-zero uint64."
+)
 clz: Any = intrinsic(_clz_typed)
 
 
