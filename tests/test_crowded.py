@@ -497,16 +497,20 @@ def test_a_lane_split_leaving_an_entering_stub_headless_is_refused():
     assert insts[0].parts["shaft"].area_px == 390 * 90 + 80 * 40
 
 
+def _wrist_over_shaft() -> tuple[InstanceObservation, InstanceObservation, dict[str, RotatedBox]]:
+    """A: a shaft from the right with a 60 x 55 px wrist (3,300 px) at x 350-410; B: a
+    bare shaft far below; and where A's wrist is expected."""
+    (a,) = observe_frame(_paint([((410, 150, 720, 210), 10), ((350, 150, 410, 205), 20)]), MERGED)
+    (b,) = observe_frame(_paint([((0, 300, 300, 340), 10)]), MERGED)
+    return a, b, {"wrist": RotatedBox(380.0, 179.0, 60.0, 50.0, 0.0)}
+
+
 def test_a_head_expected_under_anothers_takes_none_of_it():
     """Two tools crossing, B's wrist gone under A's (A on top): B's expected wrist lies
     inside where A's is expected. The pixels of A's wrist nearer to B's expected box
     than to A's stay A's: a head hidden under another is not handed the other's (a
     2,500-frame two-tool crossing lost 15 points of identity coverage to this)."""
-    a_img = _paint([((410, 150, 720, 210), 10), ((350, 150, 410, 205), 20)])
-    (a,) = observe_frame(a_img, MERGED)
-    b_img = _paint([((0, 300, 300, 340), 10)])
-    (b,) = observe_frame(b_img, MERGED)
-    want_a = {"wrist": RotatedBox(380.0, 179.0, 60.0, 50.0, 0.0)}
+    a, b, want_a = _wrist_over_shaft()
     want_b = {"wrist": RotatedBox(383.0, 166.0, 40.0, 30.0, 0.0)}
     got = hand_over_heads([a, b], [want_a, want_b], 20)
     assert got[0] is a and got[1] is b
@@ -521,11 +525,7 @@ def test_a_head_expected_three_fifths_under_anothers_takes_its_pixels_beside():
     points of ``_covered``), the rest beside it: A's wrist pixels lying in B's box
     outside A's are handed to B (at 0.5 B took none: a head this far out from under
     the other's is not hidden by it); four fifths under, B still takes none."""
-    a_img = _paint([((410, 150, 720, 210), 10), ((350, 150, 410, 205), 20)])
-    (a,) = observe_frame(a_img, MERGED)
-    b_img = _paint([((0, 300, 300, 340), 10)])
-    (b,) = observe_frame(b_img, MERGED)
-    want_a = {"wrist": RotatedBox(380.0, 179.0, 60.0, 50.0, 0.0)}
+    a, b, want_a = _wrist_over_shaft()
     partly = {"wrist": RotatedBox(383.0, 158.0, 40.0, 30.0, 0.0)}
     got = hand_over_heads([a, b], [want_a, partly], 20)
     assert got[1] is not None and got[1].parts["wrist"].area_px == 176
